@@ -1,0 +1,795 @@
+"""Monte Carlo localization (Fox, Burgard, Kruppa, Thrun) on an occupancy grid.
+
+:class:`ParticleFilter` keeps one robot's belief over ``(x, y, heading)`` as a
+weighted particle set and offers
+
+* an odometry motion model (:meth:`ParticleFilter.predict_odometry`,
+  :meth:`ParticleFilter.predict_delta`) with noise proportional to rotation and
+  translation (rot1 / trans / rot2 decomposition);
+* a likelihood-field laser model (:meth:`ParticleFilter.update_likelihood_field`,
+  distance transform of the map) and a beam model with short-reading and
+  max-range terms and optional wide cones (:meth:`ParticleFilter.update_beam`,
+  for sonar-like sensors);
+* low-variance resampling with augmented-MCL random-particle injection
+  (slow / fast averages of the measurement likelihood) and optional
+  KLD-sampling of the particle count (:meth:`ParticleFilter.resample`);
+* uniform initialization over free space for global localization;
+* :meth:`ParticleFilter.apply_weight_factors` for external evidence such as
+  the detection transfer of :mod:`estimators.detection_transfer`;
+* a fixed-size belief embedding for learning
+  (:meth:`ParticleFilter.belief_features`, layout in
+  :func:`belief_feature_names`).
+
+Only numpy/scipy are used. All randomness comes from the
+``numpy.random.Generator`` given to the constructor, so two filters built with
+equal seeds and fed equal data produce identical particles.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.special import ndtr, ndtri
+
+from estimators.geometry import wrap_angle
+from estimators.occupancy import OccupancyGrid
+
+__all__ = [
+    "MCLConfig",
+    "MotionNoise",
+    "ParticleBelief",
+    "ParticleFilter",
+    "belief_feature_names",
+    "kld_sample_bound",
+    "low_variance_indices",
+]
+
+_LOG_SQRT_2PI = 0.5 * np.log(2.0 * np.pi)
+
+
+@dataclass(frozen=True)
+class MotionNoise:
+    """Odometry noise, as standard deviations proportional to the motion.
+
+    For a motion decomposed into ``rot1`` (turn towards the new position),
+    ``trans`` and ``rot2`` (final turn)::
+
+        std(rot1)  = rot_rot * |rot1| + rot_trans * |trans| + min_heading
+        std(trans) = trans_trans * |trans| + trans_rot * (|rot1| + |rot2|) + min_xy
+        std(rot2)  = rot_rot * |rot2| + rot_trans * |trans| + min_heading
+
+    ``min_xy`` (m) and ``min_heading`` (rad) are small per-step floors that keep
+    particle diversity while the robot stands still.
+    """
+
+    rot_rot: float = 0.05
+    rot_trans: float = 0.02
+    trans_trans: float = 0.05
+    trans_rot: float = 0.01
+    min_xy: float = 0.005
+    min_heading: float = 0.003
+
+    def __post_init__(self) -> None:
+        for name in ("rot_rot", "rot_trans", "trans_trans", "trans_rot", "min_xy", "min_heading"):
+            val = getattr(self, name)
+            if not np.isfinite(val) or val < 0:
+                raise ValueError(f"MotionNoise.{name} must be finite and >= 0, got {val}")
+
+
+@dataclass(frozen=True)
+class MCLConfig:
+    """Parameters of :class:`ParticleFilter` (defaults suit a 2D laser robot).
+
+    Likelihood field: each beam endpoint scores
+    ``lf_z_hit * N(d; 0, lf_sigma) + lf_z_rand / max_range`` where ``d`` is the
+    distance from the endpoint to the nearest obstacle (clipped at
+    ``lf_max_dist``); max-range readings are skipped.
+
+    Beam model: ``beam_z_hit`` Gaussian around the ray-cast range (std
+    ``beam_sigma``, truncated to ``[0, max_range]``), ``beam_z_short``
+    exponential short readings (rate ``beam_lambda_short``), ``beam_z_max``
+    point mass at max range, ``beam_z_rand`` uniform. A beam with a cone
+    (``cone_half_width`` > 0) expects the nearest of ``beam_rays_per_cone``
+    rays spread over the cone.
+
+    ``likelihood_exponent`` multiplies every scan log-likelihood (< 1 tempers
+    the overconfidence of treating beams as independent). Particles whose
+    position is occupied or outside the map get ``occupied_loglik`` added.
+
+    Resampling happens in :meth:`ParticleFilter.resample_if_needed` when the
+    effective sample size drops below ``resample_ess_fraction * N`` or the
+    augmented-MCL injection probability is positive. Augmented MCL tracks the
+    per-beam geometric-mean likelihood with rates ``alpha_slow`` < ``alpha_fast``
+    and injects uniform particles with probability
+    ``max(random_fraction, min(max_inject_fraction, 1 - w_fast / w_slow))``.
+
+    KLD sampling (``adaptive=True``) chooses the particle count between
+    ``n_min`` and ``n_max`` so that, with probability ``1 - kld_delta``, the
+    K-L divergence between the sample-based and the true posterior stays below
+    ``kld_epsilon``, using histogram bins of size ``kld_bin`` (m, m, rad).
+    """
+
+    n_particles: int = 1000
+    motion: MotionNoise = field(default_factory=MotionNoise)
+    lf_sigma: float = 0.2
+    lf_z_hit: float = 0.9
+    lf_z_rand: float = 0.1
+    lf_max_dist: float = 2.0
+    beam_sigma: float = 0.3
+    beam_z_hit: float = 0.7
+    beam_z_short: float = 0.1
+    beam_z_max: float = 0.1
+    beam_z_rand: float = 0.1
+    beam_lambda_short: float = 0.5
+    beam_rays_per_cone: int = 3
+    likelihood_exponent: float = 1.0
+    occupied_loglik: float = -10.0
+    resample_ess_fraction: float = 0.5
+    augmented: bool = True
+    alpha_slow: float = 0.01
+    alpha_fast: float = 0.2
+    max_inject_fraction: float = 0.3
+    random_fraction: float = 0.0
+    adaptive: bool = False
+    n_min: int = 100
+    n_max: int = 5000
+    kld_epsilon: float = 0.05
+    kld_delta: float = 0.01
+    kld_bin: tuple[float, float, float] = (0.5, 0.5, float(np.deg2rad(10.0)))
+
+    def __post_init__(self) -> None:
+        positive = (
+            "lf_sigma", "lf_max_dist", "beam_sigma", "beam_lambda_short",
+            "likelihood_exponent", "kld_epsilon",
+        )
+        for name in positive:
+            val = getattr(self, name)
+            if not np.isfinite(val) or val <= 0:
+                raise ValueError(f"MCLConfig.{name} must be finite and > 0, got {val}")
+        nonneg = (
+            "lf_z_hit", "lf_z_rand", "beam_z_hit", "beam_z_short", "beam_z_max",
+            "beam_z_rand", "alpha_slow", "alpha_fast",
+        )
+        for name in nonneg:
+            val = getattr(self, name)
+            if not np.isfinite(val) or val < 0:
+                raise ValueError(f"MCLConfig.{name} must be finite and >= 0, got {val}")
+        if self.lf_z_rand <= 0:
+            raise ValueError(f"MCLConfig.lf_z_rand must be > 0 (keeps weights finite), "
+                             f"got {self.lf_z_rand}")
+        if self.beam_z_rand <= 0:
+            raise ValueError(f"MCLConfig.beam_z_rand must be > 0 (keeps weights finite), "
+                             f"got {self.beam_z_rand}")
+        for name in ("max_inject_fraction", "random_fraction", "resample_ess_fraction"):
+            val = getattr(self, name)
+            if not 0.0 <= val <= 1.0:
+                raise ValueError(f"MCLConfig.{name} must be in [0, 1], got {val}")
+        if not 0.0 < self.kld_delta < 1.0:
+            raise ValueError(f"MCLConfig.kld_delta must be in (0, 1), got {self.kld_delta}")
+        if not np.isfinite(self.occupied_loglik) or self.occupied_loglik > 0:
+            raise ValueError(f"MCLConfig.occupied_loglik must be finite and <= 0, "
+                             f"got {self.occupied_loglik}")
+        if self.n_particles < 1:
+            raise ValueError(f"MCLConfig.n_particles must be >= 1, got {self.n_particles}")
+        if not 1 <= self.n_min <= self.n_max:
+            raise ValueError(f"MCLConfig needs 1 <= n_min <= n_max, got n_min={self.n_min}, "
+                             f"n_max={self.n_max}")
+        if self.beam_rays_per_cone < 1:
+            raise ValueError(f"MCLConfig.beam_rays_per_cone must be >= 1, "
+                             f"got {self.beam_rays_per_cone}")
+        if len(self.kld_bin) != 3 or not all(np.isfinite(b) and b > 0 for b in self.kld_bin):
+            raise ValueError(f"MCLConfig.kld_bin must be three positive sizes, got {self.kld_bin}")
+
+
+@dataclass(frozen=True)
+class ParticleBelief:
+    """Summary of a particle belief.
+
+    ``mean`` is ``(x, y, heading)`` with the circular mean heading; ``cov`` is
+    the weighted ``3x3`` covariance with heading deviations wrapped around the
+    mean; ``particles`` ``(N, 3)`` and ``weights`` ``(N,)`` (summing to 1) are
+    copies of the filter's state.
+    """
+
+    mean: np.ndarray
+    cov: np.ndarray
+    particles: np.ndarray
+    weights: np.ndarray
+
+
+def low_variance_indices(weights: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
+    """Low-variance (systematic) resampling: ``n`` indices drawn in proportion to ``weights``.
+
+    One uniform offset, ``n`` equally spaced pointers, O(n + len(weights)).
+    ``weights`` must be non-negative with a positive finite sum.
+    """
+    weights = np.asarray(weights, dtype=float)
+    total = weights.sum()
+    if not np.isfinite(total) or total <= 0 or weights.min(initial=0.0) < 0:
+        raise ValueError(
+            f"weights must be non-negative with a positive finite sum, got sum={total}"
+        )
+    if n < 0:
+        raise ValueError(f"n must be >= 0, got {n}")
+    cum = np.cumsum(weights)
+    pointers = (rng.random() + np.arange(n)) * (cum[-1] / max(n, 1))
+    idx = np.searchsorted(cum, pointers, side="right")
+    return np.minimum(idx, weights.size - 1)
+
+
+def kld_sample_bound(k: np.ndarray, epsilon: float, delta: float) -> np.ndarray:
+    """Samples needed for KLD-sampling with ``k`` occupied bins (Fox 2003, Wilson-Hilferty).
+
+    ``n = (k-1)/(2 eps) * (1 - 2/(9(k-1)) + sqrt(2/(9(k-1))) z_{1-delta})^3``;
+    1 for ``k <= 1``.
+    """
+    k = np.asarray(k, dtype=float)
+    z = ndtri(1.0 - delta)
+    km1 = np.maximum(k - 1.0, 1.0)
+    a = 2.0 / (9.0 * km1)
+    n = km1 / (2.0 * epsilon) * (1.0 - a + np.sqrt(a) * z) ** 3
+    return np.where(k <= 1, 1.0, np.ceil(n))
+
+
+def belief_feature_names(hist_cells: int = 5, heading_bins: int = 8) -> list[str]:
+    """Names of the entries of :meth:`ParticleFilter.belief_features`, in order.
+
+    Layout (``K = hist_cells``, ``H = heading_bins``; lengths in brackets)::
+
+        mean_x, mean_y                      [2]  weighted mean / position_scale
+        mean_cos, mean_sin                  [2]  cos, sin of circular-mean heading
+        std_x, std_y                        [2]  weighted std / position_scale
+        std_heading                         [1]  circular std (rad) / pi, capped at 1
+        corr_xy, corr_xh, corr_yh           [3]  weighted correlations
+        heading_resultant                   [1]  mean resultant length in [0, 1]
+        ess_fraction                        [1]  effective sample size / N
+        hist_entropy                        [1]  entropy of the histogram below / log(K*K+1)
+        count_fraction                      [1]  N / n_max (1 when not adaptive)
+        hist_r{i}_c{j}                      [K*K] particle mass in an egocentric K x K
+                                                  grid centred on the mean pose, rows
+                                                  along the mean heading (forward,
+                                                  i = 0 is farthest behind), columns
+                                                  to the left (j = 0 is rightmost)
+        hist_outside                        [1]  mass outside that grid
+        heading_hist_{h}                    [H]  mass of (heading - mean heading) in H
+                                                  equal bins starting at -pi
+
+    Total length ``14 + K*K + 1 + H``; the histogram entries plus
+    ``hist_outside`` sum to 1, as do the heading bins.
+    """
+    if hist_cells < 1 or heading_bins < 1:
+        raise ValueError(f"hist_cells and heading_bins must be >= 1, got {hist_cells}, "
+                         f"{heading_bins}")
+    names = [
+        "mean_x", "mean_y", "mean_cos", "mean_sin", "std_x", "std_y", "std_heading",
+        "corr_xy", "corr_xh", "corr_yh", "heading_resultant", "ess_fraction",
+        "hist_entropy", "count_fraction",
+    ]
+    names += [f"hist_r{i}_c{j}" for i in range(hist_cells) for j in range(hist_cells)]
+    names.append("hist_outside")
+    names += [f"heading_hist_{h}" for h in range(heading_bins)]
+    return names
+
+
+class ParticleFilter:
+    """Monte Carlo localization of one robot in a known occupancy grid.
+
+    Parameters
+    ----------
+    grid:
+        The map.
+    rng:
+        Seeded generator; the only source of randomness.
+    config:
+        Model and algorithm parameters.
+
+    The filter starts with ``config.n_particles`` particles uniformly spread
+    over free space (global localization); call :meth:`init_gaussian` for
+    position tracking. ``odometer`` accumulates the absolute translation
+    reported by odometry (used by the detection lockout).
+    """
+
+    def __init__(
+        self,
+        grid: OccupancyGrid,
+        rng: np.random.Generator,
+        config: MCLConfig | None = None,
+    ) -> None:
+        if not isinstance(grid, OccupancyGrid):
+            raise ValueError(f"grid must be an OccupancyGrid, got {type(grid).__name__}")
+        if not isinstance(rng, np.random.Generator):
+            raise ValueError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
+        self.grid = grid
+        self.rng = rng
+        self.config = config if config is not None else MCLConfig()
+        self.odometer = 0.0
+        self.w_slow = 0.0
+        self.w_fast = 0.0
+        self._lf_cache: dict[float, tuple[np.ndarray, int, int]] = {}
+        ny, nx = grid.shape
+        self._nx = nx
+        self._ny = ny
+        # Occupancy lookup with a one-cell "outside" border: value 0 free, 1 occupied.
+        self._occ_pad = np.pad(grid.occupied, 1, constant_values=True).ravel()
+        self._state = np.zeros((3, 0))
+        self._weights = np.zeros(0)
+        self.init_uniform()
+
+    # ---------------------------------------------------------------- state
+    @property
+    def particles(self) -> np.ndarray:
+        """``(N, 3)`` particle poses (a read-only view)."""
+        view = self._state.T
+        view.flags.writeable = False
+        return view
+
+    @property
+    def weights(self) -> np.ndarray:
+        """``(N,)`` normalized weights (a read-only view)."""
+        view = self._weights.view()
+        view.flags.writeable = False
+        return view
+
+    @property
+    def n_particles(self) -> int:
+        """Current number of particles."""
+        return self._weights.size
+
+    @property
+    def ess(self) -> float:
+        """Effective sample size ``1 / sum(w^2)``."""
+        return float(1.0 / np.dot(self._weights, self._weights))
+
+    @property
+    def inject_probability(self) -> float:
+        """Fraction of particles the next resampling replaces by uniform ones."""
+        cfg = self.config
+        p = cfg.random_fraction
+        if cfg.augmented and self.w_slow > 0:
+            p = max(p, min(cfg.max_inject_fraction, 1.0 - self.w_fast / self.w_slow))
+        return float(max(p, 0.0))
+
+    def set_particles(self, particles: np.ndarray, weights: np.ndarray | None = None) -> None:
+        """Replace the particle set (``(N, 3)``) and optionally its weights (normalized here)."""
+        particles = np.asarray(particles, dtype=float)
+        if particles.ndim != 2 or particles.shape[1] != 3 or particles.shape[0] < 1:
+            raise ValueError(f"particles must have shape (N>=1, 3), got {particles.shape}")
+        if not np.all(np.isfinite(particles)):
+            raise ValueError("particles must be finite")
+        n = particles.shape[0]
+        if weights is None:
+            w = np.full(n, 1.0 / n)
+        else:
+            w = np.asarray(weights, dtype=float)
+            if w.shape != (n,):
+                raise ValueError(f"weights must have shape ({n},), got {w.shape}")
+            total = w.sum()
+            if not np.isfinite(total) or total <= 0 or w.min() < 0:
+                raise ValueError(f"weights must be non-negative with a positive finite sum, "
+                                 f"got sum={total}")
+            w = w / total
+        state = particles.T.copy()
+        state[2] = wrap_angle(state[2])
+        self._state = state
+        self._weights = w
+
+    def _uniform_poses(self, n: int) -> np.ndarray:
+        xy = self.grid.sample_free(n, self.rng)
+        th = self.rng.uniform(-np.pi, np.pi, size=n)
+        return np.vstack([xy.T, th])
+
+    def init_uniform(self, n: int | None = None) -> None:
+        """Spread ``n`` (default ``config.n_particles``) particles uniformly over free space."""
+        n = self.config.n_particles if n is None else int(n)
+        if n < 1:
+            raise ValueError(f"n must be >= 1, got {n}")
+        self._state = self._uniform_poses(n)
+        self._weights = np.full(n, 1.0 / n)
+        self.w_slow = self.w_fast = 0.0
+
+    def init_gaussian(self, mean: np.ndarray, cov: np.ndarray, n: int | None = None) -> None:
+        """Draw ``n`` particles from a Gaussian ``(mean (3,), cov (3, 3))`` (position tracking)."""
+        n = self.config.n_particles if n is None else int(n)
+        if n < 1:
+            raise ValueError(f"n must be >= 1, got {n}")
+        mean = np.asarray(mean, dtype=float)
+        cov = np.asarray(cov, dtype=float)
+        if mean.shape != (3,) or not np.all(np.isfinite(mean)):
+            raise ValueError(f"mean must be 3 finite numbers, got {mean}")
+        if cov.shape != (3, 3) or not np.all(np.isfinite(cov)):
+            raise ValueError(f"cov must be a finite 3x3 matrix, got shape {cov.shape}")
+        if not np.allclose(cov, cov.T) or np.linalg.eigvalsh(cov).min() < -1e-12:
+            raise ValueError(f"cov must be symmetric positive semi-definite, got {cov.tolist()}")
+        draws = self.rng.multivariate_normal(mean, cov, size=n, method="eigh")
+        draws[:, 2] = wrap_angle(draws[:, 2])
+        self._state = draws.T.copy()
+        self._weights = np.full(n, 1.0 / n)
+        self.w_slow = self.w_fast = 0.0
+
+    # --------------------------------------------------------------- motion
+    def predict_odometry(self, v: float, w: float, dt: float) -> None:
+        """Move particles by a unicycle odometry reading: speed ``v``, turn rate ``w``, ``dt``."""
+        vals = (v, w, dt)
+        if not all(np.isfinite(vals)):
+            raise ValueError(f"odometry must be finite, got v={v}, w={w}, dt={dt}")
+        if dt < 0:
+            raise ValueError(f"dt must be >= 0, got {dt}")
+        dth = w * dt
+        if abs(dth) > 1e-9:
+            radius = v / w
+            dx = radius * np.sin(dth)
+            dy = radius * (1.0 - np.cos(dth))
+        else:
+            dx, dy = v * dt, 0.0
+        self.predict_delta((dx, dy, dth))
+
+    def predict_delta(self, delta: np.ndarray | tuple[float, float, float]) -> None:
+        """Move particles by a relative motion ``(dx, dy, dheading)`` in the previous robot frame.
+
+        Decomposed into rot1 / trans / rot2 (reverse driving gives a negative
+        translation, not a half-turn) and perturbed per :class:`MotionNoise`.
+        """
+        d = np.asarray(delta, dtype=float)
+        if d.shape != (3,) or not np.all(np.isfinite(d)):
+            raise ValueError(f"delta must be 3 finite numbers, got {delta}")
+        dx, dy, dth = d
+        trans = float(np.hypot(dx, dy))
+        if trans < 1e-9:
+            rot1 = 0.0
+        elif dx >= 0:
+            rot1 = float(np.arctan2(dy, dx))
+        else:  # reversing
+            rot1 = float(np.arctan2(-dy, -dx))
+            trans = -trans
+        rot2 = float(wrap_angle(dth - rot1))
+        self.odometer += abs(trans)
+        mn = self.config.motion
+        at = abs(trans)
+        sd_r1 = mn.rot_rot * abs(rot1) + mn.rot_trans * at + mn.min_heading
+        sd_t = mn.trans_trans * at + mn.trans_rot * (abs(rot1) + abs(rot2)) + mn.min_xy
+        sd_r2 = mn.rot_rot * abs(rot2) + mn.rot_trans * at + mn.min_heading
+        n = self._weights.size
+        noise = self.rng.standard_normal((3, n))
+        st = self._state
+        r1 = st[2] + (rot1 + sd_r1 * noise[0])
+        tr = trans + sd_t * noise[1]
+        st[0] += tr * np.cos(r1)
+        st[1] += tr * np.sin(r1)
+        th = r1 + (rot2 + sd_r2 * noise[2])
+        # cheap wrap: headings stay within one turn of [-pi, pi)
+        st[2] = (th + np.pi) % (2.0 * np.pi) - np.pi
+
+    # ---------------------------------------------------------- perception
+    def _scan_input(
+        self, ranges: np.ndarray, angles: np.ndarray, max_range: float
+    ) -> tuple[np.ndarray, np.ndarray, float]:
+        ranges = np.asarray(ranges, dtype=float).ravel()
+        angles = np.asarray(angles, dtype=float).ravel()
+        if ranges.shape != angles.shape:
+            raise ValueError(f"ranges {ranges.shape} and angles {angles.shape} must match")
+        if not np.isfinite(max_range) or max_range <= 0:
+            raise ValueError(f"max_range must be a positive finite number, got {max_range}")
+        if np.isnan(ranges).any():
+            raise ValueError(f"ranges contain NaN: {ranges}")
+        if (ranges < 0).any():
+            raise ValueError(f"ranges must be >= 0, got min {ranges.min()}")
+        if not np.all(np.isfinite(angles)):
+            raise ValueError(f"beam angles must be finite, got {angles}")
+        return np.minimum(ranges, max_range), angles, float(max_range)
+
+    def _lf_field(self, max_range: float) -> tuple[np.ndarray, int, int]:
+        """Padded, flattened log-likelihood field for ``max_range`` (cached)."""
+        key = float(max_range)
+        if key not in self._lf_cache:
+            cfg = self.config
+            res = self.grid.resolution
+            pad = int(np.ceil(max_range / res)) + 2
+            dist = np.minimum(self.grid.distance_field(pad), cfg.lf_max_dist)
+            lik = cfg.lf_z_hit * np.exp(-0.5 * (dist / cfg.lf_sigma) ** 2 - _LOG_SQRT_2PI) / (
+                cfg.lf_sigma
+            ) + cfg.lf_z_rand / max_range
+            field_ = np.log(lik).astype(np.float32).ravel()
+            self._lf_cache[key] = (field_, pad, dist.shape[1])
+        return self._lf_cache[key]
+
+    def _position_penalty(self) -> np.ndarray:
+        """``occupied_loglik`` for particles in occupied cells or outside the map, else 0."""
+        res = self.grid.resolution
+        ox, oy = self.grid.origin
+        ix = np.clip(np.floor((self._state[0] - ox) / res) + 1, 0, self._nx + 1)
+        iy = np.clip(np.floor((self._state[1] - oy) / res) + 1, 0, self._ny + 1)
+        flat = (iy * (self._nx + 2) + ix).astype(np.intp)
+        return self._occ_pad[flat] * self.config.occupied_loglik
+
+    def update_likelihood_field(
+        self, ranges: np.ndarray, angles: np.ndarray, max_range: float
+    ) -> float:
+        """Weight particles by the likelihood-field laser model; returns the scan's log evidence.
+
+        ``ranges`` and robot-frame beam ``angles`` are ``(B,)``; readings at or
+        beyond ``max_range`` (including ``inf``) carry no endpoint and are
+        skipped. Beam endpoints are precomputed in the robot frame and moved to
+        every particle with one matrix product, then gathered from a padded,
+        flattened log-likelihood field. The return value is
+        ``log sum_i w_i p(z | x_i)`` (before the position penalty and exponent).
+        """
+        ranges, angles, max_range = self._scan_input(ranges, angles, max_range)
+        keep = ranges < max_range
+        field_, pad, nxp = self._lf_field(max_range)
+        res = self.grid.resolution
+        inv = 1.0 / res
+        r = ranges[keep] * inv
+        a = angles[keep]
+        nb = r.size
+        bx = r * np.cos(a)
+        by = r * np.sin(a)
+        # E = [cos, sin, x, y] @ M gives endpoint cell coordinates (ex | ey).
+        mat = np.zeros((4, 2 * nb))
+        mat[0, :nb] = bx
+        mat[1, :nb] = -by
+        mat[0, nb:] = by
+        mat[1, nb:] = bx
+        mat[2, :nb] = 1.0
+        mat[3, nb:] = 1.0
+        st = self._state
+        n = st.shape[1]
+        a4 = np.empty((n, 4))
+        a4[:, 0] = np.cos(st[2])
+        a4[:, 1] = np.sin(st[2])
+        a4[:, 2] = (st[0] - self.grid.origin[0]) * inv + pad
+        a4[:, 3] = (st[1] - self.grid.origin[1]) * inv + pad
+        if nb:
+            cells = (a4 @ mat).astype(np.intp)
+            flat = cells[:, nb:] * nxp
+            flat += cells[:, :nb]
+            loglik = np.take(field_, flat, mode="clip").sum(axis=1, dtype=np.float64)
+        else:
+            loglik = np.zeros(n)
+        return self._apply_loglik(loglik, nb)
+
+    def expected_ranges(
+        self, angles: np.ndarray, max_range: float, cone_half_width: float = 0.0
+    ) -> np.ndarray:
+        """Ray-cast ranges ``(N, B)`` each particle expects for robot-frame beam ``angles``.
+
+        With ``cone_half_width`` > 0 each beam is the nearest of
+        ``config.beam_rays_per_cone`` rays spread over the cone.
+        """
+        angles = np.asarray(angles, dtype=float).ravel()
+        if not np.isfinite(cone_half_width) or cone_half_width < 0:
+            raise ValueError(f"cone_half_width must be finite and >= 0, got {cone_half_width}")
+        k = self.config.beam_rays_per_cone if cone_half_width > 0 else 1
+        offsets = np.linspace(-cone_half_width, cone_half_width, k) if k > 1 else np.zeros(1)
+        st = self._state
+        world = st[2][:, None, None] + angles[None, :, None] + offsets[None, None, :]
+        origins = st[:2].T[:, None, None, :]
+        rays = self.grid.cast_rays(origins, world, max_range)
+        return rays.min(axis=2)
+
+    def update_beam(
+        self,
+        ranges: np.ndarray,
+        angles: np.ndarray,
+        max_range: float,
+        cone_half_width: float = 0.0,
+    ) -> float:
+        """Weight particles by the beam model (hit / short / max / random mixture).
+
+        Suited to sonar-like sensors with few beams and wide cones: expected
+        ranges come from ray casting in the map (:meth:`expected_ranges`).
+        Max-range readings are scored by the ``beam_z_max`` term. Returns the
+        scan's log evidence like :meth:`update_likelihood_field`.
+        """
+        ranges, angles, max_range = self._scan_input(ranges, angles, max_range)
+        cfg = self.config
+        n = self._weights.size
+        if ranges.size == 0:
+            return self._apply_loglik(np.zeros(n), 0)
+        zexp = self.expected_ranges(angles, max_range, cone_half_width)
+        z = ranges[None, :]
+        is_max = z >= max_range
+        sig = cfg.beam_sigma
+        norm = ndtr((max_range - zexp) / sig) - ndtr(-zexp / sig)
+        p_hit = np.exp(-0.5 * ((z - zexp) / sig) ** 2 - _LOG_SQRT_2PI) / (
+            sig * np.maximum(norm, 1e-12)
+        )
+        lam = cfg.beam_lambda_short
+        with np.errstate(divide="ignore", invalid="ignore"):
+            short_norm = 1.0 - np.exp(-lam * zexp)
+            p_short = np.where(
+                (z <= zexp) & (short_norm > 0), lam * np.exp(-lam * z) / short_norm, 0.0
+            )
+        p = np.where(
+            is_max,
+            cfg.beam_z_max + cfg.beam_z_rand / max_range,
+            cfg.beam_z_hit * p_hit + cfg.beam_z_short * p_short + cfg.beam_z_rand / max_range,
+        )
+        loglik = np.log(p).sum(axis=1)
+        return self._apply_loglik(loglik, ranges.size)
+
+    def _apply_loglik(self, loglik: np.ndarray, n_beams: int) -> float:
+        """Multiply weights by ``exp(exponent * loglik + penalty)``; update slow/fast averages."""
+        cfg = self.config
+        with np.errstate(divide="ignore"):
+            logw = np.log(self._weights)
+        evidence_terms = logw + loglik
+        m = evidence_terms.max()
+        log_evidence = float(m + np.log(np.exp(evidence_terms - m).sum()))
+        if cfg.likelihood_exponent != 1.0:
+            loglik = loglik * cfg.likelihood_exponent
+        lw = logw + loglik + self._position_penalty()
+        lw -= lw.max()
+        w = np.exp(lw)
+        self._weights = w / w.sum()
+        if n_beams > 0 and np.isfinite(log_evidence):
+            w_avg = float(np.exp(log_evidence / n_beams))
+            if self.w_slow == 0.0:
+                self.w_slow = self.w_fast = w_avg
+            else:
+                self.w_slow += cfg.alpha_slow * (w_avg - self.w_slow)
+                self.w_fast += cfg.alpha_fast * (w_avg - self.w_fast)
+        return log_evidence
+
+    def apply_weight_factors(self, factors: np.ndarray) -> None:
+        """Multiply the weights by non-negative ``factors`` ``(N,)`` and renormalize.
+
+        Used for external evidence (robot detections). If every product is
+        zero the weights are left unchanged (the evidence is treated as
+        uninformative) rather than producing NaN.
+        """
+        f = np.asarray(factors, dtype=float)
+        if f.shape != self._weights.shape:
+            raise ValueError(f"factors must have shape {self._weights.shape}, got {f.shape}")
+        if not np.all(np.isfinite(f)) or f.min(initial=0.0) < 0:
+            raise ValueError("factors must be finite and non-negative")
+        w = self._weights * f
+        total = w.sum()
+        if total > 0 and np.isfinite(total):
+            self._weights = w / total
+
+    # ----------------------------------------------------------- resampling
+    def resample(self) -> None:
+        """Low-variance resampling with augmented-MCL injection and optional KLD sampling.
+
+        A fraction :attr:`inject_probability` (in expectation) of the new set is
+        drawn uniformly over free space; the rest by low-variance resampling.
+        With ``config.adaptive`` the new size is chosen by KLD sampling between
+        ``n_min`` and ``n_max``; otherwise the size is kept.
+        """
+        cfg = self.config
+        rng = self.rng
+        if cfg.adaptive:
+            n = self._kld_size()
+        else:
+            n = self._weights.size
+        p_inj = self.inject_probability
+        n_inj = int(rng.binomial(n, p_inj)) if p_inj > 0 else 0
+        idx = low_variance_indices(self._weights, n - n_inj, rng)
+        state = self._state[:, idx]
+        if n_inj:
+            state = np.concatenate([state, self._uniform_poses(n_inj)], axis=1)
+        self._state = state
+        self._weights = np.full(n, 1.0 / n)
+
+    def resample_if_needed(self) -> bool:
+        """Resample when ESS < ``resample_ess_fraction * N`` or injection is due; report it."""
+        cfg = self.config
+        if self.ess < cfg.resample_ess_fraction * self._weights.size or (
+            self.inject_probability > 0
+        ):
+            self.resample()
+            return True
+        return False
+
+    def _kld_size(self) -> int:
+        """KLD-sampling: size of the next set, from bins hit by a random-order resample."""
+        cfg = self.config
+        n_max = cfg.n_max
+        idx = low_variance_indices(self._weights, n_max, self.rng)
+        idx = idx[self.rng.permutation(n_max)]
+        st = self._state[:, idx]
+        bx, by, bt = cfg.kld_bin
+        kx = np.floor(st[0] / bx).astype(np.int64)
+        ky = np.floor(st[1] / by).astype(np.int64)
+        kt = np.floor((st[2] + np.pi) / bt).astype(np.int64)
+        kx -= kx.min()
+        ky -= ky.min()
+        key = (kx * (ky.max() + 1) + ky) * (kt.max() + 1) + kt
+        _, first = np.unique(key, return_index=True)
+        is_new = np.zeros(n_max, dtype=bool)
+        is_new[first] = True
+        k = np.cumsum(is_new)
+        need = np.maximum(kld_sample_bound(k, cfg.kld_epsilon, cfg.kld_delta), cfg.n_min)
+        enough = np.flatnonzero(np.arange(1, n_max + 1) >= need)
+        n = int(enough[0]) + 1 if enough.size else n_max
+        return int(np.clip(n, cfg.n_min, n_max))
+
+    # --------------------------------------------------------------- output
+    def mean_pose(self) -> np.ndarray:
+        """Weighted mean ``(x, y, heading)`` with the circular mean heading."""
+        w = self._weights
+        st = self._state
+        x = float(np.dot(w, st[0]))
+        y = float(np.dot(w, st[1]))
+        h = float(np.arctan2(np.dot(w, np.sin(st[2])), np.dot(w, np.cos(st[2]))))
+        return np.array([x, y, h])
+
+    def belief(self) -> ParticleBelief:
+        """Mean, weighted covariance (heading wrapped about the mean), particles, weights."""
+        mean = self.mean_pose()
+        w = self._weights
+        d = self._state - mean[:, None]
+        d[2] = wrap_angle(d[2])
+        cov = (d * w) @ d.T
+        cov = 0.5 * (cov + cov.T)
+        return ParticleBelief(
+            mean=mean, cov=cov, particles=self._state.T.copy(), weights=w.copy()
+        )
+
+    def particle_spread(self, true_pose: np.ndarray) -> float:
+        """Weighted mean distance (m) of the particles from the true position (Fox et al.)."""
+        p = np.asarray(true_pose, dtype=float)
+        if p.shape not in ((2,), (3,)) or not np.all(np.isfinite(p)):
+            raise ValueError(f"true_pose must be 2 or 3 finite numbers, got {true_pose}")
+        dist = np.hypot(self._state[0] - p[0], self._state[1] - p[1])
+        return float(np.dot(self._weights, dist))
+
+    def belief_features(
+        self,
+        hist_cells: int = 5,
+        cell_size: float = 1.0,
+        heading_bins: int = 8,
+        position_scale: float = 1.0,
+    ) -> np.ndarray:
+        """Fixed-size ``float32`` embedding of the belief; layout in :func:`belief_feature_names`.
+
+        The egocentric histogram is a ``hist_cells x hist_cells`` grid of
+        ``cell_size`` m cells centred on the mean pose and aligned with the mean
+        heading. The length does not depend on the particle count.
+        """
+        names = belief_feature_names(hist_cells, heading_bins)
+        if not np.isfinite(cell_size) or cell_size <= 0:
+            raise ValueError(f"cell_size must be positive, got {cell_size}")
+        if not np.isfinite(position_scale) or position_scale <= 0:
+            raise ValueError(f"position_scale must be positive, got {position_scale}")
+        w = self._weights
+        st = self._state
+        mean = self.mean_pose()
+        resultant = float(np.hypot(np.dot(w, np.cos(st[2])), np.dot(w, np.sin(st[2]))))
+        d = st - mean[:, None]
+        d[2] = wrap_angle(d[2])
+        cov = (d * w) @ d.T
+        std = np.sqrt(np.maximum(np.diag(cov), 0.0))
+        denom = np.outer(std, std)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            corr = np.where(denom > 0, cov / np.where(denom > 0, denom, 1.0), 0.0)
+        circ_std = np.sqrt(-2.0 * np.log(max(resultant, 1e-300)))
+        # egocentric histogram
+        c, s = np.cos(mean[2]), np.sin(mean[2])
+        fwd = c * d[0] + s * d[1]
+        left = -s * d[0] + c * d[1]
+        half = hist_cells * cell_size / 2.0
+        row = np.floor((fwd + half) / cell_size).astype(np.intp)
+        col = np.floor((half - left) / cell_size).astype(np.intp)
+        inside = (row >= 0) & (row < hist_cells) & (col >= 0) & (col < hist_cells)
+        hist = np.bincount(
+            row[inside] * hist_cells + col[inside], weights=w[inside],
+            minlength=hist_cells * hist_cells,
+        )
+        outside = max(0.0, 1.0 - float(hist.sum()))
+        mass = np.append(hist, outside)
+        nz = mass[mass > 0]
+        entropy = float(-(nz * np.log(nz)).sum() / np.log(mass.size)) if mass.size > 1 else 0.0
+        hb = np.floor((d[2] + np.pi) / (2 * np.pi) * heading_bins).astype(np.intp)
+        hhist = np.bincount(np.clip(hb, 0, heading_bins - 1), weights=w, minlength=heading_bins)
+        count_frac = self.n_particles / self.config.n_max if self.config.adaptive else 1.0
+        feats = np.concatenate([
+            [mean[0] / position_scale, mean[1] / position_scale, c, s,
+             std[0] / position_scale, std[1] / position_scale, min(circ_std / np.pi, 1.0),
+             corr[0, 1], corr[0, 2], corr[1, 2], resultant, self.ess / self.n_particles,
+             entropy, min(count_frac, 1.0)],
+            hist, [outside], hhist,
+        ]).astype(np.float32)
+        assert feats.size == len(names)
+        return feats
