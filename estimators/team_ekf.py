@@ -1,0 +1,341 @@
+"""Centralized full-covariance EKF over the poses of a robot team, for logged data.
+
+The state stacks every robot's ``(x, y, heading)``; the covariance is the full
+``3n x 3n`` matrix, so cross-covariances created by robot-to-robot
+measurements are kept (the centralized form of Eq. 3 of Madhavan et al.,
+with range-bearing instead of a Cartesian relative pose).
+
+* Prediction is the unicycle model of Eq. 1/2 driven by logged velocity
+  commands. :class:`OdometryTrack` integrates one robot's command log once, so
+  the motion and its process-noise covariance between *any* two times cost
+  O(1) (prefix sums), which lets the filter predict lazily: a robot is only
+  propagated when one of its measurements arrives or its belief is read.
+  Predictions of different robots touch disjoint rows/columns of the
+  covariance, so the lazy order gives the same result as stepping all robots.
+* :meth:`TeamEKF.update_landmark`: range-bearing to a known landmark.
+* :meth:`TeamEKF.update_robot`: range-bearing from robot ``i`` to robot ``j``,
+  one joint update of both poses and everything correlated with them.
+* Every update passes a chi-square validation gate (``scipy.stats.chi2``);
+  the covariance update is the Joseph form followed by symmetrization.
+
+Independent per-robot EKFs are the same class with ``cooperative=False``:
+robot-to-robot updates are then skipped and the covariance stays block
+diagonal.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from estimators.ekf import Belief, chi2_threshold
+from estimators.geometry import wrap_angle
+
+__all__ = ["MotionNoise", "OdometryTrack", "TeamEKF"]
+
+
+@dataclass(frozen=True)
+class MotionNoise:
+    """Continuous-time noise on the velocity commands ``(v, w)``.
+
+    The spectral densities grow with the command magnitude:
+    ``q_v = v0 + v1 * |v|`` [m^2/s^2 * s] and ``q_w = w0 + w1 * |w|``
+    [rad^2/s^2 * s]; the variance of the integrated velocity error over a
+    time ``T`` at constant command is ``q * T``.
+    """
+
+    v0: float
+    v1: float
+    w0: float
+    w1: float
+
+    def __post_init__(self) -> None:
+        for name in ("v0", "v1", "w0", "w1"):
+            value = getattr(self, name)
+            if not np.isfinite(value) or value < 0:
+                raise ValueError(f"MotionNoise.{name} must be finite and >= 0, got {value!r}")
+
+
+# Column layout of the prefix-sum table of OdometryTrack.
+_TH, _X, _Y, _CC, _CS, _SS, _S0, _SX, _SY, _SXX, _SXY, _SYY = range(12)
+
+
+class OdometryTrack:
+    """One robot's velocity-command log, integrated for O(1) motion queries.
+
+    Record ``k`` holds the command ``(v_k, w_k)`` from ``t_k + delay`` until the
+    next record's time (the last one holds forever); before the first record
+    the robot does not move. Commands are multiplied by ``v_scale`` and
+    ``w_scale`` (calibrated from ground truth). Within a record the heading
+    grows linearly and the position moves along the mid-step heading.
+
+    Args:
+        times: record times, shape ``(N,)``, non-decreasing.
+        v: forward velocity commands [m/s], shape ``(N,)``.
+        w: angular velocity commands [rad/s], shape ``(N,)``.
+        noise: the process noise model.
+        delay: command-to-motion latency [s] added to every time.
+        v_scale, w_scale: multiplicative calibration of the commands.
+    """
+
+    def __init__(
+        self,
+        times: np.ndarray,
+        v: np.ndarray,
+        w: np.ndarray,
+        noise: MotionNoise,
+        delay: float = 0.0,
+        v_scale: float = 1.0,
+        w_scale: float = 1.0,
+    ) -> None:
+        t = np.asarray(times, dtype=float) + float(delay)
+        v = np.asarray(v, dtype=float) * float(v_scale)
+        w = np.asarray(w, dtype=float) * float(w_scale)
+        if t.ndim != 1 or t.size == 0 or v.shape != t.shape or w.shape != t.shape:
+            raise ValueError(
+                f"times, v, w must be equal-length non-empty 1-D arrays, got shapes "
+                f"{np.shape(times)}, {np.shape(v)}, {np.shape(w)}"
+            )
+        for name, arr in (("times", t), ("v", v), ("w", w)):
+            if not np.all(np.isfinite(arr)):
+                raise ValueError(f"odometry {name} contains NaN or inf")
+        if np.any(np.diff(t) < 0):
+            k = int(np.flatnonzero(np.diff(t) < 0)[0]) + 1
+            raise ValueError(f"odometry times go backwards at index {k}: {t[k]!r} < {t[k - 1]!r}")
+        dt = np.diff(t)
+        n = t.size
+        qv = noise.v0 + noise.v1 * np.abs(v)
+        qw = noise.w0 + noise.w1 * np.abs(w)
+        theta = np.concatenate([[0.0], np.cumsum(w[:-1] * dt)])
+        mid = theta[:-1] + 0.5 * w[:-1] * dt
+        x = np.concatenate([[0.0], np.cumsum(v[:-1] * dt * np.cos(mid))])
+        y = np.concatenate([[0.0], np.cumsum(v[:-1] * dt * np.sin(mid))])
+        c, s = np.cos(theta), np.sin(theta)
+        rate = np.zeros((n, 12))  # integrand of each cumulative column within a record
+        rate[:, _TH] = w
+        rate[:, _CC] = qv * c * c
+        rate[:, _CS] = qv * c * s
+        rate[:, _SS] = qv * s * s
+        rate[:, _S0] = qw
+        rate[:, _SX] = qw * x
+        rate[:, _SY] = qw * y
+        rate[:, _SXX] = qw * x * x
+        rate[:, _SXY] = qw * x * y
+        rate[:, _SYY] = qw * y * y
+        cum = np.zeros((n, 12))
+        cum[1:] = np.cumsum(rate[:-1] * dt[:, None], axis=0)
+        cum[:, _X] = x
+        cum[:, _Y] = y
+        self.times = t
+        self._v = v
+        self._w = w
+        self._cum = cum
+        self._rate = rate
+
+    def state(self, t: float) -> np.ndarray:
+        """The cumulative table row (odometry-frame pose and noise integrals) at time ``t``."""
+        k = int(np.searchsorted(self.times, t, side="right")) - 1
+        if k < 0:
+            return np.zeros(12)
+        tau = t - self.times[k]
+        row = self._cum[k] + tau * self._rate[k]
+        th0 = self._cum[k, _TH]
+        step = self._v[k] * tau
+        mid = th0 + 0.5 * self._w[k] * tau
+        row[_X] = self._cum[k, _X] + step * np.cos(mid)
+        row[_Y] = self._cum[k, _Y] + step * np.sin(mid)
+        return row
+
+    @staticmethod
+    def motion(ca: np.ndarray, cb: np.ndarray, heading_a: float) -> tuple[np.ndarray, np.ndarray]:
+        """World-frame pose increment and process covariance between two table rows.
+
+        ``ca``/``cb`` come from :meth:`state` at the start and end times and
+        ``heading_a`` is the (estimated) heading at the start. Returns
+        ``(delta (3,), Q (3, 3))``: the new pose is ``pose_a + delta`` and the
+        Jacobian of the motion w.r.t. ``pose_a`` is
+        ``[[1, 0, -delta_y], [0, 1, delta_x], [0, 0, 1]]``.
+        """
+        d = cb - ca
+        xb, yb = cb[_X], cb[_Y]
+        s0 = d[_S0]
+        sx, sy = d[_SX], d[_SY]
+        qxx = yb * yb * s0 - 2.0 * yb * sy + d[_SYY] + d[_CC]
+        qyy = xb * xb * s0 - 2.0 * xb * sx + d[_SXX] + d[_SS]
+        qxy = -(xb * yb * s0 - yb * sx - xb * sy + d[_SXY]) + d[_CS]
+        qxt = -(yb * s0 - sy)
+        qyt = xb * s0 - sx
+        rot = heading_a - ca[_TH]
+        c, s = np.cos(rot), np.sin(rot)
+        dx = c * d[_X] - s * d[_Y]
+        dy = s * d[_X] + c * d[_Y]
+        m = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        q_odo = np.array([[qxx, qxy, qxt], [qxy, qyy, qyt], [qxt, qyt, s0]])
+        q = m @ q_odo @ m.T
+        return np.array([dx, dy, d[_TH]]), 0.5 * (q + q.T)
+
+
+class TeamEKF:
+    """Centralized EKF over ``n`` robot poses with a full ``3n x 3n`` covariance.
+
+    Args:
+        tracks: one :class:`OdometryTrack` per robot (index order = state order).
+        mean: initial poses ``(n, 3)``.
+        cov: initial covariance, ``(3, 3)`` per robot, ``(n, 3, 3)`` or ``(3n, 3n)``.
+        t0: time of the initial poses.
+        gate_prob: chi-square validation gate probability (2 degrees of freedom).
+        cooperative: apply robot-to-robot updates (``False`` = independent EKFs).
+    """
+
+    def __init__(
+        self,
+        tracks: list[OdometryTrack],
+        mean: np.ndarray,
+        cov: np.ndarray,
+        t0: float,
+        gate_prob: float = 0.99,
+        cooperative: bool = True,
+    ) -> None:
+        n = len(tracks)
+        mean = np.array(mean, dtype=float)
+        if mean.shape != (n, 3):
+            raise ValueError(f"mean must have shape ({n}, 3), got {mean.shape}")
+        cov = np.array(cov, dtype=float)
+        p = np.zeros((3 * n, 3 * n))
+        if cov.shape == (3, 3):
+            for i in range(n):
+                p[3 * i : 3 * i + 3, 3 * i : 3 * i + 3] = cov
+        elif cov.shape == (n, 3, 3):
+            for i in range(n):
+                p[3 * i : 3 * i + 3, 3 * i : 3 * i + 3] = cov[i]
+        elif cov.shape == (3 * n, 3 * n):
+            p = cov.copy()
+        else:
+            raise ValueError(f"cov must have shape (3, 3), ({n}, 3, 3) or ({3 * n}, {3 * n})")
+        if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(p))):
+            raise ValueError("initial mean/cov contain NaN or inf")
+        self.tracks = list(tracks)
+        self.x = mean.reshape(-1).copy()
+        self.x[2::3] = wrap_angle(self.x[2::3])
+        self.P = 0.5 * (p + p.T)
+        self.time = np.full(n, float(t0))
+        self._table = [tr.state(float(t0)) for tr in self.tracks]
+        self.gate = chi2_threshold(gate_prob, 2)
+        self.cooperative = bool(cooperative)
+        self.accepted = np.zeros(n, dtype=int)
+        self.rejected = np.zeros(n, dtype=int)
+
+    @property
+    def n(self) -> int:
+        """Number of robots."""
+        return len(self.tracks)
+
+    def predict_to(self, i: int, t: float) -> None:
+        """Propagate robot ``i`` to time ``t`` (no-op if it is already there or later)."""
+        if t <= self.time[i]:
+            return
+        cb = self.tracks[i].state(t)
+        a = 3 * i
+        delta, q = OdometryTrack.motion(self._table[i], cb, self.x[a + 2])
+        f = np.array([[1.0, 0.0, -delta[1]], [0.0, 1.0, delta[0]], [0.0, 0.0, 1.0]])
+        self.x[a : a + 3] += delta
+        self.x[a + 2] = wrap_angle(self.x[a + 2])
+        rows = self.P[a : a + 3, :]
+        rows = f @ rows
+        self.P[a : a + 3, :] = rows
+        self.P[:, a : a + 3] = self.P[:, a : a + 3] @ f.T
+        self.P[a : a + 3, a : a + 3] += q
+        self.time[i] = t
+        self._table[i] = cb
+
+    def predict_all(self, t: float) -> None:
+        """Propagate every robot to time ``t``."""
+        for i in range(self.n):
+            self.predict_to(i, t)
+
+    def belief(self, i: int) -> Belief:
+        """Robot ``i``'s current marginal belief (at its own last propagated time)."""
+        a = 3 * i
+        return Belief(self.x[a : a + 3].copy(), self.P[a : a + 3, a : a + 3].copy())
+
+    def _apply(
+        self, idx: np.ndarray, h: np.ndarray, nu: np.ndarray, r: np.ndarray, who: int
+    ) -> bool:
+        """Gated Joseph-form update with the Jacobian ``h`` over state indices ``idx``."""
+        p_cols = self.P[:, idx]  # (3n, m)
+        s = h @ p_cols[idx, :] @ h.T + r
+        try:
+            s_inv = np.linalg.inv(s)
+        except np.linalg.LinAlgError:
+            self.rejected[who] += 1
+            return False
+        d2 = float(nu @ s_inv @ nu)
+        if not np.isfinite(d2) or d2 > self.gate:
+            self.rejected[who] += 1
+            return False
+        k = p_cols @ h.T @ s_inv  # (3n, 2)
+        self.x += k @ nu
+        self.x[2::3] = wrap_angle(self.x[2::3])
+        a = -k @ h  # (3n, m): columns idx of (I - K H) minus identity
+        imkh = np.eye(len(self.x))
+        imkh[:, idx] += a
+        p = imkh @ self.P @ imkh.T + k @ r @ k.T
+        self.P = 0.5 * (p + p.T)
+        self.accepted[who] += 1
+        return True
+
+    def update_landmark(
+        self, i: int, landmark: np.ndarray, z: np.ndarray, r: np.ndarray, t: float | None = None
+    ) -> bool:
+        """Range-bearing ``z`` from robot ``i`` to a landmark at ``landmark`` (x, y).
+
+        ``r`` is the 2x2 measurement covariance. If ``t`` is given robot ``i``
+        is first propagated to it. Returns whether the gate accepted it.
+        """
+        if t is not None:
+            self.predict_to(i, t)
+        a = 3 * i
+        xi = self.x[a : a + 3]
+        dx, dy = landmark[0] - xi[0], landmark[1] - xi[1]
+        q = dx * dx + dy * dy
+        rng = np.sqrt(q)
+        if rng < 1e-6:
+            self.rejected[i] += 1
+            return False
+        nu = np.array([z[0] - rng, wrap_angle(z[1] - (np.arctan2(dy, dx) - xi[2]))])
+        h = np.array([[-dx / rng, -dy / rng, 0.0], [dy / q, -dx / q, -1.0]])
+        return self._apply(np.arange(a, a + 3), h, nu, r, i)
+
+    def update_robot(
+        self, i: int, j: int, z: np.ndarray, r: np.ndarray, t: float | None = None
+    ) -> bool:
+        """Range-bearing ``z`` of robot ``j`` measured by robot ``i``: joint update.
+
+        Skipped (returns ``False``, not counted as rejected) when the filter
+        is not cooperative.
+        """
+        if not self.cooperative:
+            return False
+        if i == j:
+            raise ValueError(f"a robot cannot measure itself (i = j = {i})")
+        if t is not None:
+            self.predict_to(i, t)
+            self.predict_to(j, t)
+        a, b = 3 * i, 3 * j
+        xi, xj = self.x[a : a + 3], self.x[b : b + 3]
+        dx, dy = xj[0] - xi[0], xj[1] - xi[1]
+        q = dx * dx + dy * dy
+        rng = np.sqrt(q)
+        if rng < 1e-6:
+            self.rejected[i] += 1
+            return False
+        nu = np.array([z[0] - rng, wrap_angle(z[1] - (np.arctan2(dy, dx) - xi[2]))])
+        h = np.array(
+            [
+                [-dx / rng, -dy / rng, 0.0, dx / rng, dy / rng, 0.0],
+                [dy / q, -dx / q, -1.0, -dy / q, dx / q, 0.0],
+            ]
+        )
+        idx = np.r_[a : a + 3, b : b + 3]
+        return self._apply(idx, h, nu, r, i)
