@@ -1,0 +1,518 @@
+"""Team terrain map from elevation samples (Madhavan, Fregene, Parker, Sec. 5.4-5.5).
+
+What the map stores
+-------------------
+The terrain matrix ``T[i, j]`` covers a global grid: ``i`` indexes X, ``j``
+indexes Y (``indexing="ij"``), cell ``(i, j)`` spans
+``[x0 + i*res, x0 + (i+1)*res) x [y0 + j*res, y0 + (j+1)*res)``. Each cell
+holds an *elevation* in the map frame (the base station's elevation plus the
+altitude above it, see :mod:`estimators.terrain_fusion`), not the paper's
+per-step increment, so the map can be compared with a true height field
+(:meth:`TerrainMap.rmse`). Unexplored cells hold 0 in :meth:`terrain_matrix`
+(the paper's Eq. 5) and NaN in :attr:`TerrainMap.elevation`.
+
+How a sample is made and registered
+-----------------------------------
+Each robot integrates its own elevation along its path with
+:func:`~estimators.terrain_fusion.fuse_elevation` (inclinometer pitch times
+distance driven, blended with DGPS altitude by the paper's satellite-count
+weights). The sample is registered at the robot's *estimated* pose, so
+localization error corrupts the map as on a real robot. With a footprint
+radius, the cells under the robot receive the elevation extrapolated along
+the heading with the measured pitch.
+
+Confidence and merging
+----------------------
+Every sample carries a confidence ``1 / var``, where ``var`` is the fused
+elevation variance (small with many satellites in view) plus the elevation
+error that the position uncertainty causes, ``slope^2 * (P_xx + P_yy)`` (the
+analogue of the paper's range variance: the less sure the robot is of where it
+is, the less sure it is of which cell it measured), plus a footprint term
+growing with the distance from the robot's centre. When a cell is covered
+again, by the same or by another robot, the value with the higher confidence
+is kept (Sec. 5.5).
+
+Samples first go to the robot's local map (its current motion segment
+``P1 -> P2``). With ``merge_every_step=True`` (default) each update merges
+straight into the team map, which is what a per-step coverage reward needs;
+with ``False`` the local maps accumulate until :meth:`TerrainMap.end_segment`
+merges them, as in the paper. Gaps are filled by cubic interpolation only in
+the derived view :meth:`TerrainMap.filled`; coverage counts measured cells.
+Objects of interest live in their own layer (:meth:`TerrainMap.mark_object`)
+and appear with a large value in :meth:`TerrainMap.terrain_matrix`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.interpolate import griddata
+from scipy.spatial import QhullError
+
+from estimators.terrain_fusion import fuse_elevation
+
+
+def _vector(name: str, value: np.ndarray | float, n: int) -> np.ndarray:
+    """``value`` as a float vector of length ``n`` (scalars broadcast)."""
+    arr = np.asarray(value, dtype=float)
+    if arr.ndim == 0:
+        return np.full(n, float(arr))
+    if arr.shape != (n,):
+        raise ValueError(f"{name} must have shape ({n},), got {arr.shape}")
+    return arr
+
+
+class TerrainMap:
+    """Team elevation map with per-robot elevation filters, local maps and confidence merging.
+
+    Args:
+        n_robots: number of robots; robot ids are ``0 .. n_robots - 1``.
+        size: ``(width, height)`` of the mapped area in metres.
+        resolution: cell edge length in metres.
+        origin: world coordinates ``(x0, y0)`` of the grid's lower-left corner.
+        datum: elevation of the DGPS base station in the map frame (the true
+            height field's value there, when comparing with it).
+        pitch_std: inclinometer noise standard deviation (rad).
+        gps_alt_std: DGPS altitude noise standard deviation at 10 satellites (m).
+        footprint_radius: cells whose centre lies within this distance (m) of
+            the robot are written by one sample; 0 writes the robot's cell only.
+        slope_floor: minimum terrain slope assumed when turning position
+            variance into elevation variance (also used for the footprint).
+        merge_every_step: merge local maps into the team map at every update.
+        min_var: variance floor, so confidences stay finite.
+    """
+
+    def __init__(
+        self,
+        n_robots: int,
+        size: tuple[float, float],
+        resolution: float = 0.5,
+        origin: tuple[float, float] = (0.0, 0.0),
+        datum: float = 0.0,
+        pitch_std: float = np.deg2rad(0.5),
+        gps_alt_std: float = 0.3,
+        footprint_radius: float = 0.0,
+        slope_floor: float = 0.05,
+        merge_every_step: bool = True,
+        min_var: float = 1e-6,
+    ) -> None:
+        if int(n_robots) != n_robots or n_robots < 1:
+            raise ValueError(f"n_robots must be a positive integer, got {n_robots!r}")
+        if not np.isfinite(resolution) or resolution <= 0:
+            raise ValueError(f"resolution must be > 0, got {resolution!r}")
+        width, height = (float(s) for s in size)
+        if not (width > 0 and height > 0):
+            raise ValueError(f"size must be positive, got {size!r}")
+        for name, val in (
+            ("pitch_std", pitch_std),
+            ("gps_alt_std", gps_alt_std),
+            ("footprint_radius", footprint_radius),
+            ("slope_floor", slope_floor),
+        ):
+            if not np.isfinite(val) or val < 0:
+                raise ValueError(f"{name} must be finite and >= 0, got {val!r}")
+        if not min_var > 0:
+            raise ValueError(f"min_var must be > 0, got {min_var!r}")
+        self.n_robots = int(n_robots)
+        self.resolution = float(resolution)
+        self.origin = (float(origin[0]), float(origin[1]))
+        nx = int(np.ceil(width / resolution - 1e-9))
+        ny = int(np.ceil(height / resolution - 1e-9))
+        self.shape = (nx, ny)
+        self.datum = float(datum)
+        self.pitch_std = float(pitch_std)
+        self.gps_alt_std = float(gps_alt_std)
+        self.slope_floor = float(slope_floor)
+        self.merge_every_step = bool(merge_every_step)
+        self.min_var = float(min_var)
+        self._n_cells = self.shape[0] * self.shape[1]
+        self._footprint = self._make_footprint(float(footprint_radius))
+        # Extra variance of footprint cells: unknown cross-slope over their offset.
+        self._footprint_var = (self._footprint**2).sum(axis=1) * self.slope_floor**2
+        self.reset()
+
+    # ------------------------------------------------------------------ setup
+    def _make_footprint(self, radius: float) -> np.ndarray:
+        """Offsets ``(K, 2)`` in metres of the cells a sample writes, centre first."""
+        n = int(np.floor(radius / self.resolution))
+        k = np.arange(-n, n + 1) * self.resolution
+        ox, oy = np.meshgrid(k, k, indexing="ij")
+        off = np.stack([ox.ravel(), oy.ravel()], axis=1)
+        off = off[np.hypot(off[:, 0], off[:, 1]) <= radius + 1e-9]
+        order = np.argsort(np.hypot(off[:, 0], off[:, 1]), kind="stable")
+        return off[order]
+
+    def reset(self, initial_elevation: np.ndarray | float | None = None,
+              initial_var: np.ndarray | float = 0.0) -> None:
+        """Clear the maps and objects; set every robot's elevation estimate.
+
+        ``initial_elevation`` defaults to ``datum`` (the paper assumes the
+        robots start at the base station's altitude, ``Zg = Zg0``).
+        """
+        elev0 = self.datum if initial_elevation is None else initial_elevation
+        self._robot_elev = _vector("initial_elevation", elev0, self.n_robots).copy()
+        self._robot_var = _vector("initial_var", initial_var, self.n_robots).copy()
+        if np.any(self._robot_var < 0):
+            raise ValueError(f"initial_var must be >= 0, got {initial_var!r}")
+        self._elev = np.zeros(self._n_cells)
+        self._conf = np.zeros(self._n_cells)  # 0 = unmapped
+        local_cells = 0 if self.merge_every_step else self._n_cells
+        self._local_elev = np.zeros((self.n_robots, local_cells))
+        self._local_conf = np.zeros((self.n_robots, local_cells))
+        self._objects = np.zeros(self._n_cells, dtype=bool)
+        self.objects: list[tuple[float, float, float]] = []
+        self.n_mapped = 0
+        self.newly_mapped_cells = 0
+
+    def set_robot_elevation(self, robot_ids: np.ndarray | int, elevation: np.ndarray | float,
+                            var: np.ndarray | float = 0.0) -> None:
+        """Overwrite the elevation estimate of some robots (e.g. a known start height)."""
+        ids = self._ids(robot_ids)
+        self._robot_elev[ids] = _vector("elevation", elevation, ids.size)
+        v = _vector("var", var, ids.size)
+        if np.any(v < 0):
+            raise ValueError(f"var must be >= 0, got {var!r}")
+        self._robot_var[ids] = v
+
+    # ------------------------------------------------------------- properties
+    @property
+    def elevation(self) -> np.ndarray:
+        """Mapped elevations, shape :attr:`shape`; NaN where unmapped (a copy)."""
+        out = np.where(self._conf > 0, self._elev, np.nan)
+        return out.reshape(self.shape)
+
+    @property
+    def confidence(self) -> np.ndarray:
+        """Confidence (inverse variance) of each cell's value; 0 where unmapped (a copy)."""
+        return self._conf.reshape(self.shape).copy()
+
+    @property
+    def mapped(self) -> np.ndarray:
+        """Boolean grid of cells holding a measured elevation."""
+        return (self._conf > 0).reshape(self.shape)
+
+    @property
+    def object_mask(self) -> np.ndarray:
+        """Boolean grid of cells marked as objects of interest."""
+        return self._objects.reshape(self.shape).copy()
+
+    def robot_elevation(self, robot_ids: np.ndarray | int | None = None) -> tuple[np.ndarray,
+                                                                                  np.ndarray]:
+        """Current elevation estimates and variances of ``robot_ids`` (all by default)."""
+        ids = np.arange(self.n_robots) if robot_ids is None else self._ids(robot_ids)
+        return self._robot_elev[ids].copy(), self._robot_var[ids].copy()
+
+    def cell_centers(self) -> tuple[np.ndarray, np.ndarray]:
+        """World ``(X, Y)`` of every cell centre, each of shape :attr:`shape` (``indexing='ij'``).
+
+        Evaluate the true height field there to get the grid :meth:`rmse` expects.
+        """
+        xs = self.origin[0] + (np.arange(self.shape[0]) + 0.5) * self.resolution
+        ys = self.origin[1] + (np.arange(self.shape[1]) + 0.5) * self.resolution
+        return np.meshgrid(xs, ys, indexing="ij")
+
+    def world_to_cell(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Cell indices ``(i, j)`` of world points ``(..., 2)`` and a mask of those inside."""
+        xy = np.asarray(xy, dtype=float)
+        i = np.floor((xy[..., 0] - self.origin[0]) / self.resolution)
+        j = np.floor((xy[..., 1] - self.origin[1]) / self.resolution)
+        inside = (i >= 0) & (i < self.shape[0]) & (j >= 0) & (j < self.shape[1])
+        inside &= np.isfinite(i) & np.isfinite(j)
+        i = np.where(inside, i, 0).astype(np.intp)
+        j = np.where(inside, j, 0).astype(np.intp)
+        return i, j, inside
+
+    # ---------------------------------------------------------------- update
+    def _ids(self, robot_ids: np.ndarray | int) -> np.ndarray:
+        ids = np.asarray(robot_ids)
+        if ids.ndim == 0:
+            ids = ids.reshape(1)
+        if ids.ndim != 1 or ids.dtype.kind not in "iu":
+            raise ValueError(f"robot_ids must be a 1-D array of ints, got {robot_ids!r}")
+        lst = ids.tolist()
+        if lst and (min(lst) < 0 or max(lst) >= self.n_robots):
+            raise ValueError(f"robot_ids must lie in [0, {self.n_robots}), got {robot_ids!r}")
+        if len(set(lst)) != len(lst):
+            raise ValueError(f"robot_ids must not repeat, got {robot_ids!r}")
+        return ids.astype(np.intp, copy=False)
+
+    def _flat_index(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Flat cell indices of finite world coordinates and the mask of those inside."""
+        fi = (x - self.origin[0]) * (1.0 / self.resolution)
+        fj = (y - self.origin[1]) * (1.0 / self.resolution)
+        # Negative values truncate towards 0, so test the floats, then cast.
+        inside = (fi >= 0) & (fi < self.shape[0]) & (fj >= 0) & (fj < self.shape[1])
+        flat = fi.astype(np.intp)
+        flat *= self.shape[1]
+        flat += fj.astype(np.intp)
+        return flat, inside
+
+    def update(
+        self,
+        robot_ids: np.ndarray,
+        est_poses: np.ndarray,
+        pose_covs: np.ndarray,
+        pitch: np.ndarray,
+        gps_alt: np.ndarray,
+        nos: np.ndarray,
+        distance: np.ndarray,
+        base_alt: float,
+    ) -> np.ndarray:
+        """Fuse one elevation sample per robot and register it at the estimated pose.
+
+        Args:
+            robot_ids: ``(N,)`` ints, distinct.
+            est_poses: ``(N, 3)`` estimated ``(x, y, heading)``.
+            pose_covs: ``(N, 3, 3)`` or ``(N, 2, 2)`` pose covariances (only the
+                position block is used).
+            pitch: ``(N,)`` inclinometer pitch (rad, nose up positive).
+            gps_alt: ``(N,)`` DGPS altitude ``Zg``; NaN (or None in a list) = no fix.
+            nos: ``(N,)`` satellites in view (0 = no fix).
+            distance: ``(N,)`` signed horizontal distance driven along the heading
+                since the robot's previous sample (negative when reversing).
+            base_alt: DGPS altitude of the base station ``Zg0``.
+
+        Returns:
+            ``(N,)`` ints: cells each robot newly added to the team map (all zero
+            when ``merge_every_step`` is False). The total is also in
+            :attr:`newly_mapped_cells`. Samples outside the grid are dropped.
+        """
+        ids = self._ids(robot_ids)
+        n = ids.size
+        poses = np.asarray(est_poses, dtype=float)
+        if poses.shape != (n, 3):
+            raise ValueError(f"est_poses must have shape ({n}, 3), got {poses.shape}")
+        covs = np.asarray(pose_covs, dtype=float)
+        if covs.ndim != 3 or covs.shape[0] != n or covs.shape[1:] not in ((3, 3), (2, 2)):
+            raise ValueError(
+                f"pose_covs must have shape ({n}, 3, 3) or ({n}, 2, 2), got {covs.shape}"
+            )
+        pitch = _vector("pitch", pitch, n)
+        gps_alt = _vector("gps_alt", gps_alt, n)
+        nos = _vector("nos", nos, n)
+        distance = _vector("distance", distance, n)
+        pos_var = covs[:, 0, 0] + covs[:, 1, 1]
+
+        elev, var = fuse_elevation(
+            self._robot_elev[ids], self._robot_var[ids], distance, pitch,
+            (self.datum - float(base_alt)) + gps_alt, nos, self.pitch_std, self.gps_alt_std,
+        )
+        # Sample variance: elevation + position error seen through the slope.
+        tan_p = np.tan(pitch)
+        slope2 = np.maximum(tan_p * tan_p, self.slope_floor**2)
+        var_s = np.maximum(var + slope2 * pos_var, self.min_var)
+        # One finiteness check covers poses, pitch, distance and covariances.
+        if not np.isfinite(np.add.reduce(elev) + np.add.reduce(var_s) + np.add.reduce(poses, None)):
+            raise ValueError(
+                f"est_poses, pose_covs, pitch and distance must be finite, got {poses!r}, "
+                f"{pos_var!r}, {pitch!r}, {distance!r}"
+            )
+        self._robot_elev[ids] = elev
+        self._robot_var[ids] = var
+
+        fp = self._footprint
+        if fp.shape[0] == 1:
+            x, y = poses[:, 0], poses[:, 1]
+            vals, vars_, owner = elev, var_s, ids
+        else:
+            x = (poses[:, 0:1] + fp[:, 0]).ravel()
+            y = (poses[:, 1:2] + fp[:, 1]).ravel()
+            c, s = np.cos(poses[:, 2:3]), np.sin(poses[:, 2:3])
+            vals = (elev[:, None] + tan_p[:, None] * (c * fp[:, 0] + s * fp[:, 1])).ravel()
+            vars_ = (var_s[:, None] + self._footprint_var).ravel()
+            owner = np.repeat(ids, fp.shape[0])
+        flat, inside = self._flat_index(x, y)
+        if not np.logical_and.reduce(inside):
+            flat, vals, vars_, owner = flat[inside], vals[inside], vars_[inside], owner[inside]
+        conf = 1.0 / vars_
+
+        if self.merge_every_step:  # the local map is this step's samples: merge them now
+            return self._merge(flat, vals, conf, owner)[ids]
+        # Register into the local (segment) maps, keeping the best sample per cell.
+        self._keep_best(self._local_elev.reshape(-1), self._local_conf.reshape(-1),
+                        owner * self._n_cells + flat, vals, conf)
+        self.newly_mapped_cells = 0
+        return np.zeros(n, dtype=np.int64)
+
+    @staticmethod
+    def _best_per_cell(flat: np.ndarray, conf: np.ndarray) -> np.ndarray:
+        """Indices of the highest-confidence sample of each distinct cell in ``flat``."""
+        lst = flat.tolist()
+        if len(set(lst)) == len(lst):  # no cell sampled twice: all samples are the best
+            return np.arange(len(lst))
+        order = np.lexsort((conf, flat))
+        f = flat[order]
+        last = np.empty(f.size, dtype=bool)
+        last[:-1] = f[1:] != f[:-1]
+        last[-1] = True
+        return order[last]
+
+    def _keep_best(self, elev: np.ndarray, confs: np.ndarray, flat: np.ndarray,
+                   vals: np.ndarray, conf: np.ndarray) -> np.ndarray:
+        """Write samples where they beat the stored confidence; return the winners' indices."""
+        best = self._best_per_cell(flat, conf)
+        f = flat[best]
+        win = conf[best] > confs[f]
+        idx = best[win]
+        fw = flat[idx]
+        elev[fw] = vals[idx]
+        confs[fw] = conf[idx]
+        return idx
+
+    def _merge(self, flat: np.ndarray, vals: np.ndarray, conf: np.ndarray,
+               owner: np.ndarray) -> np.ndarray:
+        """Merge samples into the team map; return newly mapped cells per robot id."""
+        was_unmapped = self._conf[flat] <= 0
+        idx = self._keep_best(self._elev, self._conf, flat, vals, conf)
+        newly = idx[was_unmapped[idx]]
+        self.newly_mapped_cells = int(newly.size)
+        self.n_mapped += self.newly_mapped_cells
+        return np.bincount(owner[newly], minlength=self.n_robots)
+
+    def end_segment(self, robot_ids: np.ndarray | int | None = None) -> np.ndarray:
+        """Merge the local maps of ``robot_ids`` (all by default) into the team map.
+
+        Call it when a robot finishes a motion segment (reaches the next object
+        of interest, Sec. 5.3). Each local map is cleared afterwards. Returns the
+        cells each of those robots newly added to the team map, shape ``(N,)``.
+        """
+        ids = np.arange(self.n_robots) if robot_ids is None else self._ids(robot_ids)
+        local = self._local_conf[ids]
+        r, flat = np.nonzero(local > 0)
+        owner = ids[r]
+        newly = self._merge(flat, self._local_elev[owner, flat], local[r, flat], owner)
+        self._local_conf[ids] = 0.0
+        return newly[ids]
+
+    def local_map(self, robot_id: int) -> np.ndarray:
+        """The robot's current (unmerged) segment map, NaN where it has no sample.
+
+        Always all NaN when ``merge_every_step`` is True (samples merge at once).
+        """
+        rid = int(self._ids(robot_id)[0])
+        if self.merge_every_step:
+            return np.full(self.shape, np.nan)
+        m = np.where(self._local_conf[rid] > 0, self._local_elev[rid], np.nan)
+        return m.reshape(self.shape)
+
+    # ---------------------------------------------------------------- objects
+    def mark_object(self, x: float, y: float, radius: float = 0.0) -> int:
+        """Mark an object of interest at world ``(x, y)`` (its estimated position).
+
+        Every cell whose centre lies within ``radius`` of the point is marked,
+        and always the cell containing the point. Returns the number of cells
+        newly marked (0 if the point lies outside the grid and no cell is hit).
+        """
+        if not (np.isfinite(x) and np.isfinite(y)):
+            raise ValueError(f"object position must be finite, got ({x!r}, {y!r})")
+        if not np.isfinite(radius) or radius < 0:
+            raise ValueError(f"radius must be finite and >= 0, got {radius!r}")
+        xc, yc = self.cell_centers()
+        hit = ((xc - x) ** 2 + (yc - y) ** 2 <= radius * radius).ravel()
+        i, j, inside = self.world_to_cell(np.array([x, y]))
+        if inside:
+            hit[int(i) * self.shape[1] + int(j)] = True
+        new = int(np.count_nonzero(hit & ~self._objects))
+        self._objects |= hit
+        self.objects.append((float(x), float(y), float(radius)))
+        return new
+
+    # ---------------------------------------------------------------- metrics
+    def coverage(self, drivable_mask: np.ndarray | None = None) -> float:
+        """Fraction of drivable cells mapped (all cells when no mask is given)."""
+        mapped = self._conf > 0
+        if drivable_mask is None:
+            return float(np.count_nonzero(mapped)) / self._n_cells
+        mask = np.asarray(drivable_mask, dtype=bool)
+        if mask.shape != self.shape:
+            raise ValueError(f"drivable_mask must have shape {self.shape}, got {mask.shape}")
+        total = np.count_nonzero(mask)
+        if total == 0:
+            raise ValueError("drivable_mask has no drivable cell")
+        return float(np.count_nonzero(mapped & mask.ravel())) / total
+
+    def rmse(self, true_height: np.ndarray, use_filled: bool = False) -> float:
+        """RMSE of mapped elevation vs the true height grid over mapped cells.
+
+        ``true_height`` is the true height field at :meth:`cell_centers`, in the
+        map frame (``datum`` = its value at the base station). With
+        ``use_filled`` the cubic gap-filled map is scored over every cell it
+        defines. NaN when no cell is mapped.
+        """
+        truth = np.asarray(true_height, dtype=float)
+        if truth.shape != self.shape:
+            raise ValueError(f"true_height must have shape {self.shape}, got {truth.shape}")
+        est = self.filled() if use_filled else self.elevation
+        ok = np.isfinite(est)
+        if not ok.any():
+            return float("nan")
+        err = est[ok] - truth[ok]
+        return float(np.sqrt(np.mean(err * err)))
+
+    # ------------------------------------------------------------------ views
+    def filled(self, method: str = "cubic") -> np.ndarray:
+        """The map with gaps filled by interpolation (``scipy.interpolate.griddata``).
+
+        Measured cells keep their values; unmapped cells inside the convex hull
+        of the measured ones are interpolated (``method`` = ``'cubic'``,
+        ``'linear'`` or ``'nearest'``); others stay NaN. When the measured cells
+        are too few or collinear for a triangulation, gaps stay NaN.
+        """
+        if method not in ("cubic", "linear", "nearest"):
+            raise ValueError(f"method must be 'cubic', 'linear' or 'nearest', got {method!r}")
+        out = self.elevation
+        known = np.isfinite(out)
+        if known.all() or np.count_nonzero(known) < 3:
+            return out
+        xc, yc = self.cell_centers()
+        pts = np.stack([xc[known], yc[known]], axis=1)
+        try:
+            out[~known] = griddata(pts, out[known], (xc[~known], yc[~known]), method=method)
+        except (QhullError, ValueError):
+            pass
+        return out
+
+    def terrain_matrix(self, object_value: float = 1e3) -> np.ndarray:
+        """The paper's Eq. 5: elevation where explored, 0 where not, ``object_value`` at objects."""
+        t = np.where(self._conf > 0, self._elev, 0.0)
+        t[self._objects] = object_value
+        return t.reshape(self.shape)
+
+    def local_patch(self, pose: np.ndarray, size_cells: int,
+                    reference: np.ndarray | float | None = None) -> np.ndarray:
+        """Egocentric map patch(es) around ``pose`` for observations.
+
+        Args:
+            pose: ``(3,)`` or ``(N, 3)`` estimated poses.
+            size_cells: patch edge in cells (odd keeps the robot on the centre cell).
+            reference: elevation(s) subtracted from mapped values, e.g. the
+                robot's own estimate from :meth:`robot_elevation`.
+
+        Returns:
+            ``(3, S, S)`` (or ``(N, 3, S, S)``) float32 channels: elevation
+            (minus ``reference``; 0 where unmapped), mapped mask, object mask.
+            Axis 1 runs along the robot's forward axis, axis 2 along its left
+            axis, both ascending, sampled every ``resolution`` metres; cells
+            outside the grid read as unmapped.
+        """
+        if int(size_cells) != size_cells or size_cells < 1:
+            raise ValueError(f"size_cells must be a positive integer, got {size_cells!r}")
+        poses = np.asarray(pose, dtype=float)
+        single = poses.ndim == 1
+        poses = np.atleast_2d(poses)
+        if poses.ndim != 2 or poses.shape[1] != 3 or not np.all(np.isfinite(poses)):
+            raise ValueError(f"pose must be finite with shape (3,) or (N, 3), got {pose!r}")
+        n, size = poses.shape[0], int(size_cells)
+        k = (np.arange(size) - (size - 1) / 2.0) * self.resolution
+        u, v = np.meshgrid(k, k, indexing="ij")
+        c, s = np.cos(poses[:, 2])[:, None, None], np.sin(poses[:, 2])[:, None, None]
+        wx = poses[:, 0, None, None] + c * u - s * v
+        wy = poses[:, 1, None, None] + s * u + c * v
+        i, j, inside = self.world_to_cell(np.stack([wx, wy], axis=-1))
+        flat = i * self.shape[1] + j
+        known = inside & (self._conf[flat] > 0)
+        ref = 0.0 if reference is None else _vector("reference", reference, n)[:, None, None]
+        out = np.empty((n, 3, size, size), dtype=np.float32)
+        out[:, 0] = np.where(known, self._elev[flat] - ref, 0.0)
+        out[:, 1] = known
+        out[:, 2] = inside & self._objects[flat]
+        return out[0] if single else out
