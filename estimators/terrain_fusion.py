@@ -56,7 +56,7 @@ def _as_nos(nos: np.ndarray | float) -> np.ndarray:
 
 def _gps_weight(nos: np.ndarray) -> np.ndarray:
     """``f_gps`` for validated counts; ``f_theta`` is always ``1 - f_gps``."""
-    return np.where(nos > 10, 0.9, np.minimum(np.maximum(nos * 0.1, 0.1), 1.0))
+    return np.where(nos > 10, 0.9, np.where(nos <= 4, 0.1, nos * 0.1))
 
 
 def fusion_weights(nos: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
