@@ -37,6 +37,10 @@ Without a DGPS fix (``Zg`` NaN, or NOS = 0) the weights become
 the result is propagated alongside (first order), with the DGPS altitude
 variance inversely proportional to NOS, as the paper sets the DGPS position
 variance. That variance feeds the map's confidence measure.
+
+The paper's weights are not variance-optimal: with many satellites the noisy
+DGPS altitude dominates even when the inclinometer track is better. For
+comparison, ``weights="kalman"`` replaces them by the 1-D Kalman gain.
 """
 
 from __future__ import annotations
@@ -107,6 +111,7 @@ def fuse_elevation(
     nos: np.ndarray,
     pitch_std: float,
     gps_alt_std: float,
+    weights: str = "paper",
 ) -> tuple[np.ndarray, np.ndarray]:
     """One complementary-filter step of elevation per robot (all arguments shape ``(N,)``).
 
@@ -118,15 +123,18 @@ def fuse_elevation(
         nos: satellites in view (0 = no fix).
         pitch_std: inclinometer noise standard deviation (rad).
         gps_alt_std: DGPS altitude noise standard deviation at 10 satellites (m).
+        weights: ``"paper"`` for the satellite-count weights, or ``"kalman"``
+            for the variance-optimal gain ``f_gps = var_inc / (var_inc + var_gps)``
+            (a 1-D Kalman filter, for comparison with the paper's choice).
 
     Returns:
         ``(elev, var)``: fused elevation and its first-order variance.
     """
+    if weights not in ("paper", "kalman"):
+        raise ValueError(f"weights must be 'paper' or 'kalman', got {weights!r}")
     nos = _as_nos(nos)
     gps_elev = np.asarray(gps_elev, dtype=float)
     has_fix = (nos > 0) & (gps_elev == gps_elev)  # NaN != NaN
-    f_gps = _gps_weight(nos) * has_fix
-    f_theta = 1.0 - f_gps
     tan_p = np.tan(pitch)
     z_inc = prev_elev + distance * tan_p
     # d/dtheta tan = sec^2, so var(d tan(theta)) = (d sec^2 sigma)^2 to first order.
@@ -134,6 +142,12 @@ def fuse_elevation(
     var_inc = prev_var + dev * dev
     z_gps = np.where(has_fix, gps_elev, 0.0)
     var_gps = (gps_alt_std * gps_alt_std * REF_NOS) / np.maximum(nos, 1e-12)
+    if weights == "paper":
+        f_gps = _gps_weight(nos) * has_fix
+    else:
+        total = var_inc + var_gps
+        f_gps = np.where(total > 0, var_inc / np.where(total > 0, total, 1.0), 0.5) * has_fix
+    f_theta = 1.0 - f_gps
     elev = f_theta * z_inc + f_gps * z_gps
     var = f_theta * f_theta * var_inc + f_gps * f_gps * var_gps
     return elev, var

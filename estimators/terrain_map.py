@@ -79,6 +79,8 @@ class TerrainMap:
             variance into elevation variance (also used for the footprint).
         merge_every_step: merge local maps into the team map at every update.
         min_var: variance floor, so confidences stay finite.
+        weights: ``"paper"`` (satellite-count fusion weights) or ``"kalman"``
+            (variance-optimal gain); see :func:`~estimators.terrain_fusion.fuse_elevation`.
     """
 
     def __init__(
@@ -94,6 +96,7 @@ class TerrainMap:
         slope_floor: float = 0.05,
         merge_every_step: bool = True,
         min_var: float = 1e-6,
+        weights: str = "paper",
     ) -> None:
         if int(n_robots) != n_robots or n_robots < 1:
             raise ValueError(f"n_robots must be a positive integer, got {n_robots!r}")
@@ -112,6 +115,9 @@ class TerrainMap:
                 raise ValueError(f"{name} must be finite and >= 0, got {val!r}")
         if not min_var > 0:
             raise ValueError(f"min_var must be > 0, got {min_var!r}")
+        if weights not in ("paper", "kalman"):
+            raise ValueError(f"weights must be 'paper' or 'kalman', got {weights!r}")
+        self.weights = weights
         self.n_robots = int(n_robots)
         self.resolution = float(resolution)
         self.origin = (float(origin[0]), float(origin[1]))
@@ -295,6 +301,7 @@ class TerrainMap:
         elev, var = fuse_elevation(
             self._robot_elev[ids], self._robot_var[ids], distance, pitch,
             (self.datum - float(base_alt)) + gps_alt, nos, self.pitch_std, self.gps_alt_std,
+            self.weights,
         )
         # Sample variance: elevation + position error seen through the slope.
         tan_p = np.tan(pitch)
@@ -507,8 +514,8 @@ class TerrainMap:
         c, s = np.cos(poses[:, 2])[:, None, None], np.sin(poses[:, 2])[:, None, None]
         wx = poses[:, 0, None, None] + c * u - s * v
         wy = poses[:, 1, None, None] + s * u + c * v
-        i, j, inside = self.world_to_cell(np.stack([wx, wy], axis=-1))
-        flat = i * self.shape[1] + j
+        flat, inside = self._flat_index(wx, wy)
+        flat[~inside] = 0
         known = inside & (self._conf[flat] > 0)
         ref = 0.0 if reference is None else _vector("reference", reference, n)[:, None, None]
         out = np.empty((n, 3, size, size), dtype=np.float32)

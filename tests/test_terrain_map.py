@@ -325,3 +325,51 @@ def test_reset_clears_map_and_sets_start_elevations():
     z, v = m.robot_elevation()
     np.testing.assert_array_equal(z, [1.0, 2.0])
     np.testing.assert_array_equal(v, [0.5, 0.5])
+
+
+# ------------------------------------------------------- kalman weights, end to end
+def test_kalman_weights_are_variance_optimal_and_match_paper_without_fix():
+    z, one = np.zeros(2), np.ones(2)
+    gps, nos = np.array([np.nan, 2.0]), np.array([0.0, 10.0])
+    zp, vp = fuse_elevation(z, 0.05 * one, one, 0.1 * one, gps, nos, 0.01, 0.3)
+    zk, vk = fuse_elevation(z, 0.05 * one, one, 0.1 * one, gps, nos, 0.01, 0.3, weights="kalman")
+    assert zk[0] == pytest.approx(zp[0]) and vk[0] == pytest.approx(vp[0])
+    var_inc = 0.05 + (1.0 * (1 + np.tan(0.1) ** 2) * 0.01) ** 2
+    gain = var_inc / (var_inc + 0.09)
+    assert zk[1] == pytest.approx(np.tan(0.1) + gain * (2.0 - np.tan(0.1)))
+    assert vk[1] == pytest.approx((1 - gain) * var_inc) and vk[1] < vp[1]
+    with pytest.raises(ValueError, match="weights"):
+        fuse_elevation(z, z, z, z, z, nos, 0.01, 0.3, weights="mean")
+
+
+def _drive_sine_terrain(weights: str, pos_err: float, nos: int) -> float:
+    """Three robots cross a sine terrain with noisy sensors; return the map RMSE."""
+    def height(x, y):
+        return 1.5 * np.sin(x / 6.0) + np.cos(y / 5.0)
+
+    rng = np.random.default_rng(7)
+    m = TerrainMap(3, (30.0, 30.0), resolution=0.5, datum=height(0.0, 0.0),
+                   pitch_std=np.deg2rad(0.5), gps_alt_std=0.3, weights=weights)
+    poses = np.array([[1.0, 5.0 + 10.0 * k, 0.0] for k in range(3)])
+    m.reset(initial_elevation=height(poses[:, 0], poses[:, 1]))
+    covs = np.tile(np.eye(3) * 0.01, (3, 1, 1))
+    d = 0.1
+    for _ in range(250):
+        poses[:, 0] += d
+        slope = 1.5 / 6.0 * np.cos(poses[:, 0] / 6.0)  # heading east: d h / d x
+        pitch = np.arctan(slope) + rng.normal(0, np.deg2rad(0.5), 3)
+        alt = 100.0 + height(poses[:, 0], poses[:, 1]) - height(0.0, 0.0)
+        alt += rng.normal(0, 0.3 * np.sqrt(10 / nos), 3)
+        est = poses + [pos_err, 0.0, 0.0]
+        m.update(np.arange(3), est, covs, pitch, alt, np.full(3, nos), np.full(3, d), 100.0)
+    xc, yc = m.cell_centers()
+    return m.rmse(height(xc, yc))
+
+
+def test_end_to_end_map_error_grows_with_pose_error_and_kalman_beats_paper_weights():
+    paper = _drive_sine_terrain("paper", 0.0, 11)
+    shifted = _drive_sine_terrain("paper", 1.5, 11)
+    kalman = _drive_sine_terrain("kalman", 0.0, 11)
+    assert paper < 0.4  # about the DGPS altitude noise
+    assert shifted > paper + 0.05
+    assert kalman < 0.5 * paper
