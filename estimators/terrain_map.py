@@ -40,6 +40,20 @@ merges them, as in the paper. Gaps are filled by cubic interpolation only in
 the derived view :meth:`TerrainMap.filled`; coverage counts measured cells.
 Objects of interest live in their own layer (:meth:`TerrainMap.mark_object`)
 and appear with a large value in :meth:`TerrainMap.terrain_matrix`.
+
+Use, once per mapping step, for all robots at once::
+
+    tmap = TerrainMap(n_robots, size=(w, h), resolution=0.5, datum=h_base)
+    tmap.reset(initial_elevation=start_heights)      # at episode start
+    new = tmap.update(ids, est_poses, pose_covs, pitch, gps_alt, nos,
+                      distance, base_alt)            # (N,) newly mapped cells
+    patches = tmap.local_patch(est_poses, 11)        # (N, 3, 11, 11) observations
+    tmap.coverage(drivable), tmap.rmse(true_heights) # metrics
+
+:meth:`TerrainMap.update` costs a few tens of numpy operations whatever the
+number of robots (about 70 us for 5 robots on a slow 2-core box);
+:meth:`TerrainMap.filled` runs a triangulation and is meant for evaluation
+and rendering, not for every step.
 """
 
 from __future__ import annotations
@@ -147,8 +161,11 @@ class TerrainMap:
         order = np.argsort(np.hypot(off[:, 0], off[:, 1]), kind="stable")
         return off[order]
 
-    def reset(self, initial_elevation: np.ndarray | float | None = None,
-              initial_var: np.ndarray | float = 0.0) -> None:
+    def reset(
+        self,
+        initial_elevation: np.ndarray | float | None = None,
+        initial_var: np.ndarray | float = 0.0,
+    ) -> None:
         """Clear the maps and objects; set every robot's elevation estimate.
 
         ``initial_elevation`` defaults to ``datum`` (the paper assumes the
@@ -169,8 +186,12 @@ class TerrainMap:
         self.n_mapped = 0
         self.newly_mapped_cells = 0
 
-    def set_robot_elevation(self, robot_ids: np.ndarray | int, elevation: np.ndarray | float,
-                            var: np.ndarray | float = 0.0) -> None:
+    def set_robot_elevation(
+        self,
+        robot_ids: np.ndarray | int,
+        elevation: np.ndarray | float,
+        var: np.ndarray | float = 0.0,
+    ) -> None:
         """Overwrite the elevation estimate of some robots (e.g. a known start height)."""
         ids = self._ids(robot_ids)
         self._robot_elev[ids] = _vector("elevation", elevation, ids.size)
@@ -201,8 +222,9 @@ class TerrainMap:
         """Boolean grid of cells marked as objects of interest."""
         return self._objects.reshape(self.shape).copy()
 
-    def robot_elevation(self, robot_ids: np.ndarray | int | None = None) -> tuple[np.ndarray,
-                                                                                  np.ndarray]:
+    def robot_elevation(
+        self, robot_ids: np.ndarray | int | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Current elevation estimates and variances of ``robot_ids`` (all by default)."""
         ids = np.arange(self.n_robots) if robot_ids is None else self._ids(robot_ids)
         return self._robot_elev[ids].copy(), self._robot_var[ids].copy()
@@ -299,8 +321,14 @@ class TerrainMap:
         pos_var = covs[:, 0, 0] + covs[:, 1, 1]
 
         elev, var = fuse_elevation(
-            self._robot_elev[ids], self._robot_var[ids], distance, pitch,
-            (self.datum - float(base_alt)) + gps_alt, nos, self.pitch_std, self.gps_alt_std,
+            self._robot_elev[ids],
+            self._robot_var[ids],
+            distance,
+            pitch,
+            (self.datum - float(base_alt)) + gps_alt,
+            nos,
+            self.pitch_std,
+            self.gps_alt_std,
             self.weights,
         )
         # Sample variance: elevation + position error seen through the slope.
@@ -335,8 +363,13 @@ class TerrainMap:
         if self.merge_every_step:  # the local map is this step's samples: merge them now
             return self._merge(flat, vals, conf, owner)[ids]
         # Register into the local (segment) maps, keeping the best sample per cell.
-        self._keep_best(self._local_elev.reshape(-1), self._local_conf.reshape(-1),
-                        owner * self._n_cells + flat, vals, conf)
+        self._keep_best(
+            self._local_elev.reshape(-1),
+            self._local_conf.reshape(-1),
+            owner * self._n_cells + flat,
+            vals,
+            conf,
+        )
         self.newly_mapped_cells = 0
         return np.zeros(n, dtype=np.int64)
 
@@ -353,8 +386,14 @@ class TerrainMap:
         last[-1] = True
         return order[last]
 
-    def _keep_best(self, elev: np.ndarray, confs: np.ndarray, flat: np.ndarray,
-                   vals: np.ndarray, conf: np.ndarray) -> np.ndarray:
+    def _keep_best(
+        self,
+        elev: np.ndarray,
+        confs: np.ndarray,
+        flat: np.ndarray,
+        vals: np.ndarray,
+        conf: np.ndarray,
+    ) -> np.ndarray:
         """Write samples where they beat the stored confidence; return the winners' indices."""
         best = self._best_per_cell(flat, conf)
         f = flat[best]
@@ -365,8 +404,9 @@ class TerrainMap:
         confs[fw] = conf[idx]
         return idx
 
-    def _merge(self, flat: np.ndarray, vals: np.ndarray, conf: np.ndarray,
-               owner: np.ndarray) -> np.ndarray:
+    def _merge(
+        self, flat: np.ndarray, vals: np.ndarray, conf: np.ndarray, owner: np.ndarray
+    ) -> np.ndarray:
         """Merge samples into the team map; return newly mapped cells per robot id."""
         was_unmapped = self._conf[flat] <= 0
         idx = self._keep_best(self._elev, self._conf, flat, vals, conf)
@@ -484,8 +524,9 @@ class TerrainMap:
         t[self._objects] = object_value
         return t.reshape(self.shape)
 
-    def local_patch(self, pose: np.ndarray, size_cells: int,
-                    reference: np.ndarray | float | None = None) -> np.ndarray:
+    def local_patch(
+        self, pose: np.ndarray, size_cells: int, reference: np.ndarray | float | None = None
+    ) -> np.ndarray:
         """Egocentric map patch(es) around ``pose`` for observations.
 
         Args:

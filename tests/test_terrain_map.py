@@ -16,9 +16,20 @@ from estimators.terrain_map import TerrainMap
 EYE = np.eye(3) * 1e-4  # a well-localized robot's pose covariance
 
 
-def _one(m: TerrainMap, rid: int, x: float, y: float, *, heading: float = 0.0,
-         pitch: float = 0.0, alt: float = np.nan, nos: float = 0.0, dist: float = 0.0,
-         cov: np.ndarray = EYE, base_alt: float = 0.0) -> int:
+def _one(
+    m: TerrainMap,
+    rid: int,
+    x: float,
+    y: float,
+    *,
+    heading: float = 0.0,
+    pitch: float = 0.0,
+    alt: float = np.nan,
+    nos: float = 0.0,
+    dist: float = 0.0,
+    cov: np.ndarray = EYE,
+    base_alt: float = 0.0,
+) -> int:
     """Update a single robot; return the cells it newly mapped."""
     out = m.update([rid], [[x, y, heading]], [cov], [pitch], [alt], [nos], [dist], base_alt)
     return int(out[0])
@@ -27,8 +38,15 @@ def _one(m: TerrainMap, rid: int, x: float, y: float, *, heading: float = 0.0,
 # ------------------------------------------------------------------ fusion weights
 @pytest.mark.parametrize(
     ("nos", "f_theta", "f_gps"),
-    [(0, 0.9, 0.1), (4, 0.9, 0.1), (5, 0.5, 0.5), (7, 0.3, 0.7), (10, 0.0, 1.0), (11, 0.1, 0.9),
-     (15, 0.1, 0.9)],
+    [
+        (0, 0.9, 0.1),
+        (4, 0.9, 0.1),
+        (5, 0.5, 0.5),
+        (7, 0.3, 0.7),
+        (10, 0.0, 1.0),
+        (11, 0.1, 0.9),
+        (15, 0.1, 0.9),
+    ],
 )
 def test_fusion_weights_match_paper_piecewise_formula(nos, f_theta, f_gps):
     ft, fg = fusion_weights(nos)
@@ -124,8 +142,16 @@ def test_footprint_writes_cells_around_robot_extrapolated_along_pitch():
 
 def test_samples_off_the_grid_are_dropped():
     m = TerrainMap(2, (5.0, 5.0), resolution=1.0)
-    out = m.update([0, 1], [[-1.0, 2.0, 0.0], [2.5, 2.5, 0.0]], [EYE, EYE], [0.0, 0.0],
-                   [1.0, 1.0], [10, 10], [0.0, 0.0], 0.0)
+    out = m.update(
+        [0, 1],
+        [[-1.0, 2.0, 0.0], [2.5, 2.5, 0.0]],
+        [EYE, EYE],
+        [0.0, 0.0],
+        [1.0, 1.0],
+        [10, 10],
+        [0.0, 0.0],
+        0.0,
+    )
     np.testing.assert_array_equal(out, [0, 1])
     assert m.mapped.sum() == 1
 
@@ -146,8 +172,16 @@ def test_coverage_is_monotone_and_newly_mapped_counts_add_up():
         poses[:, 1] = np.clip(poses[:, 1] + step * np.sin(poses[:, 2]), 0, 19.9)
         nos = rng.integers(0, 12, 4)
         alt = np.where(nos > 0, rng.normal(0, 0.3, 4), np.nan)
-        new = m.update(np.arange(4), poses, cov * rng.uniform(1, 100, (4, 1, 1)),
-                       rng.normal(0, 0.05, 4), alt, nos, step, 0.0)
+        new = m.update(
+            np.arange(4),
+            poses,
+            cov * rng.uniform(1, 100, (4, 1, 1)),
+            rng.normal(0, 0.05, 4),
+            alt,
+            nos,
+            step,
+            0.0,
+        )
         assert new.shape == (4,) and (new >= 0).all()
         assert new.sum() == m.newly_mapped_cells
         total += new.sum()
@@ -186,8 +220,16 @@ def test_same_step_collision_keeps_higher_confidence_sample():
     m = TerrainMap(2, (5.0, 5.0), resolution=1.0)
     m.reset(initial_var=1.0)
     # Robot 0: 5 satellites, poorly localized; robot 1: 10 satellites, well localized.
-    out = m.update([0, 1], [[2.5, 2.5, 0.0], [2.4, 2.6, 0.0]], [np.eye(3), EYE], [0.0, 0.0],
-                   [9.0, 3.0], [5, 10], [0.0, 0.0], 0.0)
+    out = m.update(
+        [0, 1],
+        [[2.5, 2.5, 0.0], [2.4, 2.6, 0.0]],
+        [np.eye(3), EYE],
+        [0.0, 0.0],
+        [9.0, 3.0],
+        [5, 10],
+        [0.0, 0.0],
+        0.0,
+    )
     assert m.elevation[2, 2] == pytest.approx(3.0)
     np.testing.assert_array_equal(out, [0, 1])  # credit goes to the sample kept
 
@@ -207,8 +249,16 @@ def test_lower_confidence_revisit_by_same_robot_does_not_overwrite():
 def test_segment_mode_holds_local_maps_until_end_segment():
     m = TerrainMap(2, (10.0, 10.0), resolution=1.0, merge_every_step=False)
     for x in (0.5, 1.5, 2.5):
-        out = m.update([0, 1], [[x, 0.5, 0.0], [x, 0.5, 0.0]], [EYE, np.eye(3)], [0.0, 0.0],
-                       [1.0, 4.0], [10, 10], [1.0, 1.0], 0.0)
+        out = m.update(
+            [0, 1],
+            [[x, 0.5, 0.0], [x, 0.5, 0.0]],
+            [EYE, np.eye(3)],
+            [0.0, 0.0],
+            [1.0, 4.0],
+            [10, 10],
+            [1.0, 1.0],
+            0.0,
+        )
         assert (out == 0).all()
     assert m.mapped.sum() == 0 and m.coverage() == 0.0
     assert np.isfinite(m.local_map(0)).sum() == 3
@@ -291,8 +341,15 @@ def test_local_patch_is_egocentric():
 # ------------------------------------------------------------------ bad input
 def test_bad_input_raises_value_error_naming_it():
     m = TerrainMap(2, (5.0, 5.0), resolution=1.0)
-    ok = dict(est_poses=[[1.0, 1.0, 0.0]], pose_covs=[EYE], pitch=[0.0], gps_alt=[1.0],
-              nos=[5], distance=[0.0], base_alt=0.0)
+    ok = dict(
+        est_poses=[[1.0, 1.0, 0.0]],
+        pose_covs=[EYE],
+        pitch=[0.0],
+        gps_alt=[1.0],
+        nos=[5],
+        distance=[0.0],
+        base_alt=0.0,
+    )
     with pytest.raises(ValueError, match="robot_ids"):
         m.update([2], **ok)
     with pytest.raises(ValueError, match="robot_ids"):
@@ -344,12 +401,20 @@ def test_kalman_weights_are_variance_optimal_and_match_paper_without_fix():
 
 def _drive_sine_terrain(weights: str, pos_err: float, nos: int) -> float:
     """Three robots cross a sine terrain with noisy sensors; return the map RMSE."""
+
     def height(x, y):
         return 1.5 * np.sin(x / 6.0) + np.cos(y / 5.0)
 
     rng = np.random.default_rng(7)
-    m = TerrainMap(3, (30.0, 30.0), resolution=0.5, datum=height(0.0, 0.0),
-                   pitch_std=np.deg2rad(0.5), gps_alt_std=0.3, weights=weights)
+    m = TerrainMap(
+        3,
+        (30.0, 30.0),
+        resolution=0.5,
+        datum=height(0.0, 0.0),
+        pitch_std=np.deg2rad(0.5),
+        gps_alt_std=0.3,
+        weights=weights,
+    )
     poses = np.array([[1.0, 5.0 + 10.0 * k, 0.0] for k in range(3)])
     m.reset(initial_elevation=height(poses[:, 0], poses[:, 1]))
     covs = np.tile(np.eye(3) * 0.01, (3, 1, 1))
