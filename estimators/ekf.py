@@ -110,34 +110,90 @@ class PoseEKF:
         ``v``, ``w``, ``var_v``, ``var_w`` are per robot (or scalars); ``idx``
         selects which robots to predict (default all).
         """
-        sel = slice(None) if idx is None else np.asarray(idx)
-        mean = self.mean[sel]
-        v = np.broadcast_to(np.asarray(v, dtype=float), mean.shape[:1])
-        w = np.broadcast_to(np.asarray(w, dtype=float), mean.shape[:1])
+        if idx is None:
+            mean, p = self.mean, self.cov
+        else:
+            idx = np.asarray(idx)
+            mean, p = self.mean[idx], self.cov[idx]
         phi = mean[:, 2]
         c, s = np.cos(phi), np.sin(phi)
-        new = np.empty_like(mean)
-        new[:, 0] = mean[:, 0] + dt * v * c
-        new[:, 1] = mean[:, 1] + dt * v * s
-        new[:, 2] = wrap_angle(phi + dt * w)
-        # P = Fx P Fx^T + Fw Q Fw^T written out for the sparse Fx = I + e.
-        p = self.cov[sel]
-        a = -dt * v * s  # dFx[0, 2]
-        b = dt * v * c  # dFx[1, 2]
-        fx = np.zeros((len(mean), 3, 3))
-        fx[:, 0, 0] = fx[:, 1, 1] = fx[:, 2, 2] = 1.0
-        fx[:, 0, 2] = a
-        fx[:, 1, 2] = b
-        p = fx @ p @ np.swapaxes(fx, 1, 2)
-        qv = dt * dt * np.broadcast_to(np.asarray(var_v, dtype=float), v.shape)
-        qw = dt * dt * np.broadcast_to(np.asarray(var_w, dtype=float), w.shape)
+        dv = dt * np.asarray(v, dtype=float)
+        mean[:, 0] += dv * c
+        mean[:, 1] += dv * s
+        mean[:, 2] = wrap_angle(phi + dt * np.asarray(w, dtype=float))
+        # P <- Fx P Fx^T with Fx = I + a e_02 + b e_12, written out elementwise.
+        a = (-dv * s)[:, None]
+        b = (dv * c)[:, None]
+        p[:, 0, :] += a * p[:, 2, :]
+        p[:, 1, :] += b * p[:, 2, :]
+        p[:, :, 0] += a * p[:, :, 2]
+        p[:, :, 1] += b * p[:, :, 2]
+        # + Fw Q Fw^T, Fw = dt [[c, 0], [s, 0], [0, 1]].
+        qv = dt * dt * np.asarray(var_v, dtype=float)
         p[:, 0, 0] += qv * c * c
         p[:, 0, 1] += qv * c * s
         p[:, 1, 0] += qv * c * s
         p[:, 1, 1] += qv * s * s
-        p[:, 2, 2] += qw
-        self.mean[sel] = new
-        self.cov[sel] = p
+        p[:, 2, 2] += dt * dt * np.asarray(var_w, dtype=float)
+        if idx is not None:
+            self.mean[idx] = mean
+            self.cov[idx] = p
+
+    def predict_sequence(
+        self,
+        v: np.ndarray,
+        w: np.ndarray,
+        dt: float,
+        var_v: np.ndarray | float,
+        var_w: np.ndarray | float,
+    ) -> None:
+        """Apply ``T`` consecutive :meth:`predict` steps at once (all robots).
+
+        ``v``, ``w`` (and the variances) have shape ``(T, n)``. The result equals
+        ``T`` sequential calls up to rounding: the headings along the way follow
+        from a cumulative sum, and the Jacobians ``Fx_k = I + a_k e02 + b_k e12``
+        commute, so their product and each noise term's propagation are sums.
+        """
+        v = np.asarray(v, dtype=float)
+        w = np.asarray(w, dtype=float)
+        phi0 = self.mean[:, 2]
+        # Heading before each substep k: phi0 + dt * sum_{j<k} w_j.
+        phi = phi0[None] + dt * np.concatenate([np.zeros((1, self.n)), np.cumsum(w, 0)[:-1]], 0)
+        c, s = np.cos(phi), np.sin(phi)
+        dv = dt * v
+        a = -dv * s  # (T, n)
+        b = dv * c
+        self.mean[:, 0] += (dv * c).sum(0)
+        self.mean[:, 1] += (dv * s).sum(0)
+        self.mean[:, 2] = wrap_angle(phi0 + dt * w.sum(0))
+        qv = dt * dt * np.broadcast_to(np.asarray(var_v, dtype=float), v.shape)
+        qw = dt * dt * np.broadcast_to(np.asarray(var_w, dtype=float), v.shape)
+        # Later Jacobians applied to the noise entering at substep k: sums over j > k.
+        a_tot, b_tot = a.sum(0), b.sum(0)
+        a_after = a_tot[None] - np.cumsum(a, 0)
+        b_after = b_tot[None] - np.cumsum(b, 0)
+        p = self.cov
+        p[:, 0, :] += a_tot[:, None] * p[:, 2, :]
+        p[:, 1, :] += b_tot[:, None] * p[:, 2, :]
+        p[:, :, 0] += a_tot[:, None] * p[:, :, 2]
+        p[:, :, 1] += b_tot[:, None] * p[:, :, 2]
+        # Noise M_k = [[qv c^2, qv cs, 0], [qv cs, qv s^2, 0], [0, 0, qw]] pushed through
+        # F = I + A e02 + B e12: adds A^2 qw, AB qw, B^2 qw, A qw, B qw terms.
+        m00 = qv * c * c + a_after**2 * qw
+        m01 = qv * c * s + a_after * b_after * qw
+        m11 = qv * s * s + b_after**2 * qw
+        m02 = a_after * qw
+        m12 = b_after * qw
+        p[:, 0, 0] += m00.sum(0)
+        p[:, 1, 1] += m11.sum(0)
+        p[:, 2, 2] += qw.sum(0)
+        s01, s02, s12 = m01.sum(0), m02.sum(0), m12.sum(0)
+        p[:, 0, 1] += s01
+        p[:, 1, 0] += s01
+        p[:, 0, 2] += s02
+        p[:, 2, 0] += s02
+        p[:, 1, 2] += s12
+        p[:, 2, 1] += s12
 
     # ------------------------------------------------------------------ updates
     def update(
@@ -225,6 +281,8 @@ class PoseEKF:
         model: str = "rbo",
         dims: tuple[int, ...] = (0, 1, 2),
         gate_prob: float | None = None,
+        fusion: str = "ci",
+        max_rounds: int | None = None,
     ) -> np.ndarray:
         """Cooperative update (Eq. 3) from relative measurements of ``b`` by ``a``.
 
@@ -237,15 +295,25 @@ class PoseEKF:
             dims: which of the three components to use (e.g. ``(0, 1)`` for
                 range and bearing only).
             gate_prob: chi-square gate probability.
-
-        Pairs are processed in rounds in which every robot appears at most
-        once, so a robot seen by several teammates is updated sequentially.
+            fusion: ``"naive"`` stacks the two marginals as if independent (the
+                paper's form; repeated meetings then double count and the
+                covariances become overconfident); ``"ci"`` (default) inflates
+                them by covariance-intersection weights ``P_a / w``,
+                ``P_b / (1 - w)`` with ``w = tr P_b / (tr P_a + tr P_b)``, an
+                upper bound of the joint covariance whatever the unknown
+                correlation, and keeps a robot's prior where the update would
+                not shrink it.
+            max_rounds: pairs are processed in rounds in which every robot
+                appears at most once (most uncertain targets first); at most
+                this many rounds run (``None`` = all), bounding the cost per step.
 
         Returns:
-            Boolean mask ``(k,)`` of accepted measurements.
+            Boolean mask ``(k,)``: the measurement passed the gate and was fused.
         """
         if model not in ("rbo", "cartesian"):
             raise ValueError(f"unknown relative measurement model {model!r}")
+        if fusion not in ("ci", "naive"):
+            raise ValueError(f"fusion must be 'ci' or 'naive', got {fusion!r}")
         idx_a = np.asarray(idx_a, dtype=int)
         idx_b = np.asarray(idx_b, dtype=int)
         z = np.asarray(z, dtype=float).reshape(-1, 3)
@@ -253,13 +321,15 @@ class PoseEKF:
         if np.any(idx_a == idx_b):
             raise ValueError("a robot cannot observe itself in a relative update")
         accepted = np.zeros(len(idx_a), dtype=bool)
-        for rows in _rounds(idx_a, idx_b, self.n):
+        priority = np.argsort(-np.trace(self.cov[idx_b], axis1=1, axis2=2), kind="stable")
+        for rows in _rounds(idx_a[priority], idx_b[priority], self.n)[:max_rounds]:
+            rows = priority[rows]
             accepted[rows] = self._joint_update(
-                idx_a[rows], idx_b[rows], z[rows], r[rows], model, dims, gate_prob
+                idx_a[rows], idx_b[rows], z[rows], r[rows], model, dims, gate_prob, fusion
             )
         return accepted
 
-    def _joint_update(self, ia, ib, z, r, model, dims, gate_prob) -> np.ndarray:
+    def _joint_update(self, ia, ib, z, r, model, dims, gate_prob, fusion) -> np.ndarray:
         dims = list(dims)
         xa, xb = self.mean[ia], self.mean[ib]
         h, ja, jb = relative_measurement(xa, xb, model)
@@ -268,14 +338,22 @@ class PoseEKF:
         r = r[:, dims][:, :, dims]
         k = len(ia)
         jac = np.concatenate([ja, jb], axis=2)  # (k, m, 6)
+        pa, pb = self.cov[ia], self.cov[ib]
         p = np.zeros((k, 6, 6))
-        p[:, :3, :3] = self.cov[ia]
-        p[:, 3:, 3:] = self.cov[ib]
+        if fusion == "ci":
+            ta = np.trace(pa, axis1=1, axis2=2)
+            tb = np.trace(pb, axis1=1, axis2=2)
+            w = np.clip(tb / (ta + tb), 1e-3, 1 - 1e-3)[:, None, None]
+            p[:, :3, :3] = pa / w
+            p[:, 3:, 3:] = pb / (1 - w)
+        else:
+            p[:, :3, :3] = pa
+            p[:, 3:, 3:] = pb
         nu = z - h
         first_angle = 2 if model == "cartesian" else 1
-        angle_dims = [j for j, d in enumerate(dims) if d >= first_angle]
-        for j in angle_dims:
-            nu[:, j] = wrap_angle(nu[:, j])
+        for j, d in enumerate(dims):
+            if d >= first_angle:
+                nu[:, j] = wrap_angle(nu[:, j])
         ph_t = p @ np.swapaxes(jac, 1, 2)
         s = jac @ ph_t + r
         s_inv = np.linalg.inv(s)
@@ -288,13 +366,15 @@ class PoseEKF:
         i_kh = np.eye(6) - gain @ jac[ok]
         p_new = i_kh @ p[ok] @ np.swapaxes(i_kh, 1, 2) + gain @ r[ok] @ np.swapaxes(gain, 1, 2)
         p_new = _symmetrize(p_new)
-        sa, sb = ia[ok], ib[ok]
-        self.mean[sa] += dx[:, :3]
-        self.mean[sb] += dx[:, 3:]
-        self.mean[sa, 2] = wrap_angle(self.mean[sa, 2])
-        self.mean[sb, 2] = wrap_angle(self.mean[sb, 2])
-        self.cov[sa] = p_new[:, :3, :3]
-        self.cov[sb] = p_new[:, 3:, 3:]
+        for sl, rob, prior in ((slice(0, 3), ia[ok], pa[ok]), (slice(3, 6), ib[ok], pb[ok])):
+            post = p_new[:, sl, sl]
+            keep = np.trace(post, axis1=1, axis2=2) < np.trace(prior, axis1=1, axis2=2)
+            if fusion == "naive":
+                keep[:] = True
+            rob = rob[keep]
+            self.mean[rob] += dx[keep, sl]
+            self.mean[rob, 2] = wrap_angle(self.mean[rob, 2])
+            self.cov[rob] = post[keep]
         return ok
 
 

@@ -30,7 +30,7 @@ def relative_pose(pose_a: np.ndarray, pose_b: np.ndarray) -> np.ndarray:
 
 
 def compose_relative(pose_a: np.ndarray, rbo: np.ndarray) -> np.ndarray:
-    """Inverse of :func:`relative_pose`: the pose at ``(range, bearing, orientation)`` from ``a``."""
+    """Inverse of :func:`relative_pose`: the pose at ``(range, bearing, orientation)`` from a."""
     pose_a = np.asarray(pose_a, dtype=float)
     rbo = np.asarray(rbo, dtype=float)
     ang = pose_a[..., 2] + rbo[..., 1]

@@ -1,0 +1,77 @@
+"""coop-loc-env: a PettingZoo multi-robot environment for cooperative localization and mapping.
+
+Quick start::
+
+    import coop_loc_env
+
+    env = coop_loc_env.parallel_env("outdoor_terrain", n_robots=3, max_cycles=200)
+    obs, infos = env.reset(seed=0)
+    while env.agents:
+        actions = {a: env.action_space(a).sample() for a in env.agents}
+        obs, rewards, terminations, truncations, infos = env.step(actions)
+
+Every scenario is also registered with PettingZoo's registry under the
+namespace ``coop_loc`` (``import coop_loc_env`` first)::
+
+    pettingzoo.make("parallel", "coop_loc/OutdoorTerrain-v0")
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pettingzoo.env_registry import register
+from pettingzoo.utils import parallel_to_aec, wrappers
+
+from coop_loc_env.config import Obstacle, RobotSpec, ScenarioConfig
+from coop_loc_env.env import CoopLocParallelEnv
+from coop_loc_env.scenarios import list_scenarios, make_config, register_scenario
+
+__version__ = "0.1.0"
+REGISTRY_NAMESPACE = "coop_loc"
+
+__all__ = [
+    "CoopLocParallelEnv",
+    "Obstacle",
+    "RobotSpec",
+    "ScenarioConfig",
+    "env",
+    "env_id",
+    "list_scenarios",
+    "make_config",
+    "parallel_env",
+    "raw_env",
+    "register_scenario",
+]
+
+
+def parallel_env(
+    scenario: str = "outdoor_terrain", render_mode: str | None = None, **overrides: Any
+) -> CoopLocParallelEnv:
+    """The parallel environment for ``scenario`` (any config field overridable by keyword)."""
+    return CoopLocParallelEnv(scenario=scenario, render_mode=render_mode, **overrides)
+
+
+def raw_env(scenario: str = "outdoor_terrain", render_mode: str | None = None, **overrides: Any):
+    """The AEC environment obtained by PettingZoo's ``parallel_to_aec`` conversion, unwrapped."""
+    return parallel_to_aec(parallel_env(scenario, render_mode=render_mode, **overrides))
+
+
+def env(scenario: str = "outdoor_terrain", render_mode: str | None = None, **overrides: Any):
+    """The AEC environment with PettingZoo's standard order-enforcing wrapper."""
+    return wrappers.OrderEnforcingWrapper(raw_env(scenario, render_mode=render_mode, **overrides))
+
+
+def env_id(scenario: str) -> str:
+    """PettingZoo registry id of ``scenario``, e.g. ``coop_loc/OutdoorTerrain-v0``."""
+    camel = "".join(part.capitalize() for part in scenario.split("_"))
+    return f"{REGISTRY_NAMESPACE}/{camel}-v0"
+
+
+def _register_all() -> None:
+    for name in list_scenarios():
+        register("parallel", env_id(name), entry_point=parallel_env, kwargs={"scenario": name})
+        register("aec", env_id(name), entry_point=env, kwargs={"scenario": name})
+
+
+_register_all()

@@ -1,0 +1,353 @@
+"""Scenario configuration as plain data.
+
+A :class:`ScenarioConfig` holds every parameter of an episode: world, terrain,
+obstacles, the team (one :class:`RobotSpec` pattern cycled over the robots so
+teams can be heterogeneous), sensor rates and noise, rewards and episode
+length. Named scenarios build one (see :mod:`coop_loc_env.scenarios`), and
+every field can be overridden by keyword; :meth:`ScenarioConfig.validate`
+rejects bad values with a ``ValueError`` that names the key and the value.
+
+Units: metres, seconds, radians (fields ending in ``_deg`` are degrees).
+Default rates and noise follow Table 1 of the outdoor paper (Madhavan et al.).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+ESTIMATORS = ("ekf", "mcl", "mle")
+DETECTION_MODELS = ("fox", "howard", "laser", "camera")
+OBSTACLE_KINDS = ("tree", "rock", "wall", "ooi", "building")
+OBSTACLE_SHAPES = ("circle", "segment", "polygon")
+RANGE_SENSOR_TYPES = ("laser", "sonar")
+
+
+@dataclass(frozen=True)
+class Obstacle:
+    """A static obstacle.
+
+    Args:
+        kind: ``"tree"``, ``"rock"``, ``"wall"``, ``"building"`` or ``"ooi"``
+            (object of interest: a landmark the camera looks for).
+        shape: ``"circle"`` (``center``, ``radius``), ``"segment"`` (``a``, ``b``,
+            ``radius`` = half thickness) or ``"polygon"`` (``vertices``).
+        canopy_radius: for trees, radius of the canopy that blocks GPS.
+        visible_to: which range sensor types see it (``"laser"``, ``"sonar"``);
+            lets a scenario hold features that only one sensor type perceives.
+        solid: whether robots collide with it.
+    """
+
+    kind: str
+    shape: str
+    center: tuple[float, float] = (0.0, 0.0)
+    radius: float = 0.5
+    a: tuple[float, float] = (0.0, 0.0)
+    b: tuple[float, float] = (0.0, 0.0)
+    vertices: tuple[tuple[float, float], ...] = ()
+    canopy_radius: float = 0.0
+    visible_to: tuple[str, ...] = RANGE_SENSOR_TYPES
+    solid: bool = True
+
+    def validate(self) -> None:
+        """Raise ``ValueError`` on an unknown kind/shape or a bad size."""
+        if self.kind not in OBSTACLE_KINDS:
+            raise ValueError(f"obstacle kind must be one of {OBSTACLE_KINDS}, got {self.kind!r}")
+        if self.shape not in OBSTACLE_SHAPES:
+            raise ValueError(
+                f"obstacle shape must be one of {OBSTACLE_SHAPES}, got {self.shape!r}"
+            )
+        if not self.radius > 0 and self.shape != "polygon":
+            raise ValueError(f"obstacle radius must be > 0, got {self.radius!r}")
+        if self.shape == "polygon" and len(self.vertices) < 3:
+            raise ValueError(f"polygon obstacle needs >= 3 vertices, got {self.vertices!r}")
+        for t in self.visible_to:
+            if t not in RANGE_SENSOR_TYPES:
+                raise ValueError(f"visible_to entries must be in {RANGE_SENSOR_TYPES}, got {t!r}")
+
+
+@dataclass(frozen=True)
+class RobotSpec:
+    """One robot's hardware and estimator; a team cycles a tuple of these.
+
+    Sensor flags switch sensors on; ``range_sensor`` picks ``"laser"`` (many
+    narrow beams) or ``"sonar"`` (few wide cones, noisier) for the range finder.
+    Fields left ``None`` take the scenario-wide value.
+    """
+
+    estimator: str | None = None
+    has_gps: bool = True
+    has_compass: bool = True
+    has_inclinometer: bool = True
+    has_range_sensor: bool = True
+    range_sensor: str = "laser"
+    has_camera: bool = True
+    has_detector: bool = True
+    max_speed: float | None = None
+    max_turn_rate: float | None = None
+
+    def validate(self) -> None:
+        """Raise ``ValueError`` on an unknown estimator or sensor type."""
+        if self.estimator is not None and self.estimator not in ESTIMATORS:
+            raise ValueError(f"estimator must be one of {ESTIMATORS}, got {self.estimator!r}")
+        if self.range_sensor not in RANGE_SENSOR_TYPES:
+            raise ValueError(
+                f"range_sensor must be one of {RANGE_SENSOR_TYPES}, got {self.range_sensor!r}"
+            )
+        for key in ("max_speed", "max_turn_rate"):
+            value = getattr(self, key)
+            if value is not None and not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{key} must be a positive number, got {value!r}")
+
+
+@dataclass(frozen=True)
+class ScenarioConfig:
+    """Every parameter of a scenario. See the module docstring for units."""
+
+    name: str = "custom"
+    # --- team and episode
+    n_robots: int = 3
+    team: tuple[RobotSpec, ...] = (RobotSpec(),)
+    estimator: str = "ekf"
+    max_cycles: int = 500
+    dt: float = 0.1
+    privileged_obs: bool = False
+    # --- world and layout (layout_seed fixes the map across episodes)
+    world_size: tuple[float, float] = (40.0, 40.0)
+    layout_seed: int = 0
+    obstacles: tuple[Obstacle, ...] = ()
+    n_random_trees: int = 0
+    n_random_rocks: int = 0
+    n_random_ooi: int = 0
+    tree_radius: float = 0.4
+    canopy_radius: float = 3.0
+    rock_radius: float = 0.8
+    start_region: tuple[float, float, float, float] | None = None
+    start_poses: tuple[tuple[float, float, float], ...] | None = None
+    # --- terrain
+    terrain_amplitude: float = 1.5
+    terrain_length_scale: float = 6.0
+    terrain_hills: int = 8
+    terrain_resolution: float = 0.5
+    steep_patches: int = 2
+    steep_patch_radius: float = 2.0
+    tip_over_slope_deg: float = 30.0
+    tip_over_terminates: bool = True
+    # --- robot motion
+    max_speed: float = 1.0
+    max_turn_rate: float = 1.0
+    robot_radius: float = 0.35
+    slip_std: float = 0.03
+    # --- odometry (Table 1: ~50 Hz)
+    odometry_rate: float = 50.0
+    odom_v_std: float = 0.05
+    odom_w_std: float = 0.05
+    # --- DGPS (~1 Hz); variance = gps_std**2 * gps_reference_satellites / NOS
+    gps_rate: float = 1.0
+    gps_std: float = 0.3
+    gps_reference_satellites: int = 8
+    gps_open_sky_satellites: tuple[int, int] = (7, 12)
+    gps_canopy_satellites: tuple[int, int] = (0, 3)
+    gps_multipath_prob: float = 0.02
+    gps_multipath_std: float = 5.0
+    gps_base_altitude: float = 0.0
+    gps_altitude_std: float = 0.5
+    # --- compass and inclinometer (~1 Hz)
+    compass_rate: float = 1.0
+    compass_std: float = 0.05
+    inclinometer_rate: float = 1.0
+    inclinometer_std: float = 0.01
+    # --- range finder (~10 Hz)
+    laser_rate: float = 10.0
+    laser_beams: int = 30
+    laser_fov_deg: float = 180.0
+    laser_max_range: float = 15.0
+    laser_range_std: float = 0.03
+    sonar_beams: int = 8
+    sonar_fov_deg: float = 360.0
+    sonar_max_range: float = 6.0
+    sonar_range_std: float = 0.15
+    # --- camera (~10 Hz): 160 px over 37 deg -> 0.231 deg/px
+    camera_rate: float = 10.0
+    camera_fov_deg: float = 37.0
+    camera_width_px: int = 160
+    camera_max_range: float = 20.0
+    camera_range_std: float = 1.0
+    # --- robot detector (identity + range, bearing, orientation)
+    detector_rate: float = 10.0
+    detector_range: float = 8.0
+    detector_fov_deg: float = 360.0
+    detection_model: str = "fox"
+    detection_prob: float = 0.933
+    false_positive_prob: float = 0.035
+    detection_range_std: float = 0.3
+    detection_bearing_std: float = 0.04
+    detection_orientation_std: float = 0.1
+    detection_range_fraction: float = 0.05
+    cooperative_updates: bool = True
+    cooperative_fusion: str = "ci"
+    cooperative_rounds_per_step: int = 1
+    # --- estimators
+    gate_prob: float = 0.99
+    init_pos_std: float = 0.5
+    init_heading_std: float = 0.1
+    n_particles: int = 1000
+    # --- observations
+    laser_obs_bins: int = 16
+    max_detections_obs: int = 3
+    # --- reward weights
+    reward_localization_weight: float = 1.0
+    reward_heading_weight: float = 0.0
+    reward_coverage_weight: float = 0.0
+    collision_penalty: float = 0.1
+    tip_over_penalty: float = 10.0
+    # --- free-form extras for scenario-specific modules
+    extras: dict[str, Any] = field(default_factory=dict)
+
+    # ------------------------------------------------------------------ helpers
+    def robot_spec(self, i: int) -> RobotSpec:
+        """Robot ``i``'s spec (the team pattern cycled), with defaults resolved."""
+        spec = self.team[i % len(self.team)]
+        return dataclasses.replace(
+            spec,
+            estimator=spec.estimator or self.estimator,
+            max_speed=spec.max_speed or self.max_speed,
+            max_turn_rate=spec.max_turn_rate or self.max_turn_rate,
+        )
+
+    def replace(self, **overrides: Any) -> ScenarioConfig:
+        """A validated copy with ``overrides``; unknown keys raise ``ValueError``."""
+        known = {f.name for f in dataclasses.fields(self)}
+        for key in overrides:
+            if key not in known:
+                raise ValueError(
+                    f"unknown config key {key!r} for scenario {self.name!r}; "
+                    f"known keys: {', '.join(sorted(known))}"
+                )
+        for key in ("team", "obstacles", "world_size", "start_region", "start_poses"):
+            if key in overrides and isinstance(overrides[key], list):
+                overrides[key] = tuple(overrides[key])
+        cfg = dataclasses.replace(self, **overrides)
+        cfg.validate()
+        return cfg
+
+    def validate(self) -> None:
+        """Check every field; raise ``ValueError`` naming the key and value."""
+        _int_at_least(self, "n_robots", 1)
+        _int_at_least(self, "max_cycles", 1)
+        _int_at_least(self, "laser_beams", 1)
+        _int_at_least(self, "sonar_beams", 1)
+        _int_at_least(self, "camera_width_px", 1)
+        _int_at_least(self, "laser_obs_bins", 1)
+        _int_at_least(self, "max_detections_obs", 0)
+        _int_at_least(self, "n_particles", 10)
+        _int_at_least(self, "gps_reference_satellites", 1)
+        for key in ("n_random_trees", "n_random_rocks", "n_random_ooi", "terrain_hills"):
+            _int_at_least(self, key, 0)
+        _int_at_least(self, "steep_patches", 0)
+        _int_at_least(self, "cooperative_rounds_per_step", 1)
+        if self.cooperative_fusion not in ("ci", "naive"):
+            raise ValueError(
+                f"cooperative_fusion must be 'ci' or 'naive', got {self.cooperative_fusion!r}"
+            )
+        positive = (
+            "dt", "max_speed", "max_turn_rate", "robot_radius", "odometry_rate", "gps_rate",
+            "compass_rate", "inclinometer_rate", "laser_rate", "camera_rate", "detector_rate",
+            "laser_max_range", "sonar_max_range", "camera_max_range", "detector_range",
+            "laser_fov_deg", "sonar_fov_deg", "camera_fov_deg", "detector_fov_deg",
+            "terrain_length_scale", "terrain_resolution", "tip_over_slope_deg", "tree_radius",
+            "rock_radius", "steep_patch_radius",
+        )
+        for key in positive:
+            _number(self, key, lower=0.0, strict=True)
+        non_negative = (
+            "slip_std", "odom_v_std", "odom_w_std", "gps_std", "gps_multipath_std",
+            "gps_altitude_std", "compass_std", "inclinometer_std", "laser_range_std",
+            "sonar_range_std", "camera_range_std", "detection_range_std",
+            "detection_bearing_std", "detection_orientation_std", "detection_range_fraction",
+            "init_pos_std", "init_heading_std", "terrain_amplitude", "canopy_radius",
+            "reward_localization_weight", "reward_heading_weight", "reward_coverage_weight",
+            "collision_penalty", "tip_over_penalty",
+        )
+        for key in non_negative:
+            _number(self, key, lower=0.0, strict=False)
+        for key in ("gps_multipath_prob", "detection_prob", "false_positive_prob"):
+            _number(self, key, lower=0.0, strict=False, upper=1.0)
+        _number(self, "gate_prob", lower=0.0, strict=True, upper=1.0)
+        if self.tip_over_slope_deg >= 90:
+            raise ValueError(f"tip_over_slope_deg must be < 90, got {self.tip_over_slope_deg!r}")
+        if self.estimator not in ESTIMATORS:
+            raise ValueError(f"estimator must be one of {ESTIMATORS}, got {self.estimator!r}")
+        if self.detection_model not in DETECTION_MODELS:
+            raise ValueError(
+                f"detection_model must be one of {DETECTION_MODELS}, got {self.detection_model!r}"
+            )
+        if len(self.world_size) != 2 or not all(
+            isinstance(v, (int, float)) and math.isfinite(v) and v > 0 for v in self.world_size
+        ):
+            raise ValueError(f"world_size must be two positive numbers, got {self.world_size!r}")
+        if not self.team:
+            raise ValueError("team must hold at least one RobotSpec, got ()")
+        for spec in self.team:
+            if not isinstance(spec, RobotSpec):
+                raise ValueError(f"team entries must be RobotSpec, got {spec!r}")
+            spec.validate()
+        for obstacle in self.obstacles:
+            if not isinstance(obstacle, Obstacle):
+                raise ValueError(f"obstacles entries must be Obstacle, got {obstacle!r}")
+            obstacle.validate()
+        for key in ("gps_open_sky_satellites", "gps_canopy_satellites"):
+            lo, hi = getattr(self, key)
+            if not (0 <= lo <= hi):
+                raise ValueError(f"{key} must be (low, high) with 0 <= low <= high, got {(lo, hi)}")
+        if self.start_region is not None:
+            x0, y0, x1, y1 = self.start_region
+            w, h = self.world_size
+            if not (0 <= x0 < x1 <= w and 0 <= y0 < y1 <= h):
+                raise ValueError(
+                    f"start_region must be (x0, y0, x1, y1) inside the world, "
+                    f"got {self.start_region!r}"
+                )
+        if self.start_poses is not None:
+            if len(self.start_poses) < self.n_robots:
+                raise ValueError(
+                    f"start_poses lists {len(self.start_poses)} poses for n_robots="
+                    f"{self.n_robots}"
+                )
+            for pose in self.start_poses:
+                if len(pose) != 3 or not all(math.isfinite(v) for v in pose):
+                    raise ValueError(f"start_poses entries must be finite (x, y, heading): {pose}")
+        if not self.dt * self.odometry_rate >= 1 - 1e-9:
+            raise ValueError(
+                f"odometry_rate must be at least 1/dt = {1 / self.dt:g} Hz, "
+                f"got {self.odometry_rate!r}"
+            )
+
+    @property
+    def odometry_substeps(self) -> int:
+        """Physics/odometry substeps per env step."""
+        return max(1, int(round(self.dt * self.odometry_rate)))
+
+
+def _int_at_least(cfg: ScenarioConfig, key: str, low: int) -> None:
+    value = getattr(cfg, key)
+    if isinstance(value, bool) or not isinstance(value, int) or value < low:
+        raise ValueError(f"{key} must be an integer >= {low}, got {value!r}")
+
+
+def _number(
+    cfg: ScenarioConfig, key: str, lower: float, strict: bool, upper: float | None = None
+) -> None:
+    value = getattr(cfg, key)
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    if ok:
+        ok = value > lower if strict else value >= lower
+    if ok and upper is not None:
+        ok = value <= upper
+    if not ok:
+        bound = f"> {lower}" if strict else f">= {lower}"
+        if upper is not None:
+            bound += f" and <= {upper}"
+        raise ValueError(f"{key} must be a finite number {bound}, got {value!r}")

@@ -1,0 +1,313 @@
+"""The PettingZoo parallel environment: a team of robots that localize cooperatively."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium
+import numpy as np
+from gymnasium import spaces
+from gymnasium.utils import seeding
+from pettingzoo import ParallelEnv
+
+from coop_loc_env.config import ScenarioConfig
+from coop_loc_env.estimation import GAUSSIAN_FEATURE_NAMES, make_backends
+from coop_loc_env.observations import ObservationBuilder
+from coop_loc_env.scenarios import make_config
+from coop_loc_env.sensors import Readings, SensorSuite
+from coop_loc_env.world import World
+from estimators.geometry import wrap_angle
+
+ACTION_TOLERANCE = 1e-6
+
+
+class CoopLocParallelEnv(ParallelEnv):
+    """Multi-robot cooperative localization as a PettingZoo ``ParallelEnv``.
+
+    Agents ``robot_0 .. robot_{n-1}`` drive skid-steer robots with normalized
+    actions ``(linear velocity, turn rate)`` in ``[-1, 1]^2``. Each robot's
+    sensors feed its estimator; its observation is its belief plus its own
+    readings (see :mod:`coop_loc_env.observations`); its reward is the
+    weighted negative true localization error, minus collision and tip-over
+    penalties (terms in ``info["reward_terms"]``).
+
+    Args:
+        scenario: a registered scenario name (:func:`coop_loc_env.list_scenarios`).
+        render_mode: ``None``, ``"rgb_array"`` or ``"human"``.
+        **overrides: any :class:`~coop_loc_env.config.ScenarioConfig` field,
+            e.g. ``n_robots=4``, ``estimator="ekf"``, ``max_cycles=200``.
+
+    Infos (per agent): ``true_pose``, ``est_pose`` (x, y, heading), ``pose_cov``
+    (3x3), ``position_error`` (m), ``heading_error`` (rad), ``reward_terms``,
+    ``gps_fix``, ``satellites``, ``collisions`` (new contacts this step),
+    ``tipped_over``.
+    """
+
+    metadata = {
+        "name": "coop_loc_v0",
+        "render_modes": ["human", "rgb_array"],
+        "render_fps": 10,
+        "is_parallelizable": True,
+    }
+
+    def __init__(
+        self,
+        scenario: str = "outdoor_terrain",
+        render_mode: str | None = None,
+        **overrides: Any,
+    ) -> None:
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(
+                f"render_mode must be one of {self.metadata['render_modes']} or None, "
+                f"got {render_mode!r}"
+            )
+        self.render_mode = render_mode
+        self.scenario = scenario
+        self.config: ScenarioConfig = make_config(scenario, **overrides)
+        cfg = self.config
+        self.possible_agents = [f"robot_{i}" for i in range(cfg.n_robots)]
+        self.agent_name_mapping = {a: i for i, a in enumerate(self.possible_agents)}
+        self.world = World(cfg)
+        self.sensors = SensorSuite(cfg, self.world)
+        self.backends = make_backends(cfg)
+        belief_size = max(b.feature_size for b in self.backends)
+        belief_names = GAUSSIAN_FEATURE_NAMES if belief_size == len(GAUSSIAN_FEATURE_NAMES) else ()
+        for b in self.backends:
+            if b.feature_size == belief_size and hasattr(b, "feature_names"):
+                belief_names = tuple(b.feature_names)
+        self.observations = ObservationBuilder(cfg, belief_size, belief_names)
+        self._observation_space = self.observations.space
+        self._action_space = spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
+        self._np_random: np.random.Generator | None = None
+        self._np_random_seed: int | None = None
+        self._renderer = None
+        self.agents: list[str] = []
+        self._reset_state()
+
+    # ------------------------------------------------------------------ spaces
+    def observation_space(self, agent: str) -> spaces.Box:
+        """The observation space of ``agent`` (the same object on every call)."""
+        self._check_agent_name(agent)
+        return self._observation_space
+
+    def action_space(self, agent: str) -> spaces.Box:
+        """The action space of ``agent``: ``Box(-1, 1, (2,))`` (the same object every call)."""
+        self._check_agent_name(agent)
+        return self._action_space
+
+    def _check_agent_name(self, agent: str) -> None:
+        if agent not in self.agent_name_mapping:
+            raise ValueError(f"unknown agent {agent!r}; agents are {self.possible_agents}")
+
+    @property
+    def np_random(self) -> np.random.Generator:
+        """The episode's random generator (seeded by :meth:`reset`)."""
+        if self._np_random is None:
+            self._np_random, self._np_random_seed = seeding.np_random()
+        return self._np_random
+
+    @property
+    def estimated_poses(self) -> np.ndarray:
+        """Current belief means of all robots ``(n, 3)``."""
+        return self._est_mean.copy()
+
+    # ------------------------------------------------------------------ reset
+    def _reset_state(self) -> None:
+        n = self.config.n_robots
+        self._step_count = 0
+        self._active = np.ones(n, dtype=bool)
+        self._tipped = np.zeros(n, dtype=bool)
+        self._last_action = np.zeros((n, 2))
+        self._est_mean = np.zeros((n, 3))
+        self._est_cov = np.repeat(np.eye(3)[None], n, axis=0)
+        self._last_readings: Readings | None = None
+
+    def reset(
+        self, seed: int | None = None, options: dict | None = None
+    ) -> tuple[dict[str, np.ndarray], dict[str, dict]]:
+        """Start an episode; ``seed`` makes it reproducible."""
+        if seed is not None:
+            self._np_random, self._np_random_seed = seeding.np_random(seed)
+        rng = self.np_random
+        self._reset_state()
+        self.world.reset(rng)
+        for backend in self.backends:
+            backend.reset(self.world.poses, rng)
+        self.observations.reset()
+        self._gather_beliefs()
+        self.agents = list(self.possible_agents)
+        zeros = np.zeros(self.config.n_robots)
+        infos = self._infos(zeros, np.zeros(self.config.n_robots, dtype=int))
+        obs = self._observe_all(self.agents)
+        if self.render_mode == "human":
+            self.render()
+        return obs, infos
+
+    # ------------------------------------------------------------------ step
+    def step(self, actions: dict[str, Any]):
+        """Apply one action per live agent; returns PettingZoo's five dicts."""
+        act = self._validate_actions(actions)
+        cfg = self.config
+        rng = self.np_random
+        live = list(self.agents)
+        v_cmd = act[:, 0] * self.world.max_speed
+        w_cmd = act[:, 1] * self.world.max_turn_rate
+        contacts = self.world.step(v_cmd, w_cmd, self._active, rng)
+        poses = self.world.poses
+        odom_truth = np.broadcast_to(
+            np.stack([np.where(self._active, v_cmd, 0.0), np.where(self._active, w_cmd, 0.0)], 1),
+            (cfg.odometry_substeps, cfg.n_robots, 2),
+        )
+        readings = self.sensors.read(self._step_count, poses, odom_truth, rng, self._active)
+        self._last_readings = readings
+        for backend in self.backends:
+            backend.step(readings, self._active)
+        self._gather_beliefs()
+        self.observations.ingest(readings, self.sensors.range_max)
+        self._last_action = act
+        self._step_count += 1
+
+        newly_tipped = self._active & self.world.terrain.is_steep(poses[:, :2])
+        self._tipped |= newly_tipped
+        if cfg.tip_over_terminates:
+            self._active &= ~newly_tipped
+        truncate = self._step_count >= cfg.max_cycles
+
+        infos = self._infos(newly_tipped.astype(float), contacts)
+        rewards = {a: float(sum(infos[a]["reward_terms"].values())) for a in live}
+        terminations = {a: bool(not self._active[self.agent_name_mapping[a]]) for a in live}
+        truncations = {a: bool(truncate) for a in live}
+        obs = self._observe_all(live)
+        infos = {a: infos[a] for a in live}
+        self.agents = [a for a in live if not (terminations[a] or truncations[a])]
+        if self.render_mode == "human":
+            self.render()
+        return obs, rewards, terminations, truncations, infos
+
+    def _validate_actions(self, actions: dict[str, Any]) -> np.ndarray:
+        """Check every action before touching any state; returns ``(n, 2)`` floats."""
+        if not self.agents:
+            raise ValueError("step() called on a finished episode: call reset() first")
+        if not isinstance(actions, dict):
+            raise ValueError(
+                f"actions must be a dict agent -> action, got {type(actions).__name__}"
+            )
+        unknown = [a for a in actions if a not in self.agent_name_mapping]
+        if unknown:
+            raise ValueError(f"unknown agent(s) {unknown} in actions; agents: {self.agents}")
+        done = [a for a in actions if a not in self.agents]
+        if done:
+            raise ValueError(f"agent(s) {done} are done and cannot act until reset()")
+        missing = [a for a in self.agents if a not in actions]
+        if missing:
+            raise ValueError(f"missing actions for agents {missing}")
+        out = np.zeros((self.config.n_robots, 2))
+        rows = [self.agent_name_mapping[a] for a in actions]
+        try:
+            stacked = np.asarray(list(actions.values()), dtype=float)
+        except (TypeError, ValueError):
+            stacked = None
+        if (
+            stacked is None
+            or stacked.shape != (len(rows), 2)
+            or not np.isfinite(stacked).all()
+            or (np.abs(stacked) > 1.0 + ACTION_TOLERANCE).any()
+        ):
+            for agent, action in actions.items():  # find and name the bad one
+                self._check_action(agent, action)
+        out[rows] = stacked
+        return np.clip(out, -1.0, 1.0)
+
+    @staticmethod
+    def _check_action(agent: str, action: Any) -> None:
+        """Raise a ``ValueError`` naming ``agent`` if ``action`` is malformed."""
+        try:
+            a = np.asarray(action, dtype=float)
+        except (TypeError, ValueError) as err:
+            raise ValueError(f"action of {agent!r} is not numeric: {action!r}") from err
+        if a.shape != (2,):
+            raise ValueError(
+                f"action of {agent!r} must have shape (2,), got shape {a.shape}: {action!r}"
+            )
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"action of {agent!r} contains NaN or inf: {action!r}")
+        if np.any(np.abs(a) > 1.0 + ACTION_TOLERANCE):
+            raise ValueError(f"action of {agent!r} is outside [-1, 1]: {action!r}")
+
+    # ------------------------------------------------------------------ beliefs, obs, infos
+    def _gather_beliefs(self) -> None:
+        for backend in self.backends:
+            self._est_mean[backend.robots] = backend.mean()
+            self._est_cov[backend.robots] = backend.cov()
+
+    def _observe_all(self, agents: list[str]) -> dict[str, np.ndarray]:
+        belief = np.zeros((self.config.n_robots, self.observations.belief_size))
+        for backend in self.backends:
+            feats = backend.features()
+            belief[backend.robots, : feats.shape[1]] = feats
+        obs = self.observations.build_all(belief, self._last_action, self.world.poses)
+        return {a: obs[self.agent_name_mapping[a]] for a in agents}
+
+    def _infos(self, tipped: np.ndarray, new_contacts: np.ndarray) -> dict[str, dict]:
+        cfg = self.config
+        poses = self.world.poses
+        err_xy = np.hypot(*(self._est_mean[:, :2] - poses[:, :2]).T)
+        err_th = np.abs(wrap_angle(self._est_mean[:, 2] - poses[:, 2]))
+        readings = self._last_readings
+        extra: dict[int, dict] = {}
+        for backend in self.backends:
+            if hasattr(backend, "extra_info"):
+                for i, entries in backend.extra_info(poses).items():
+                    extra.setdefault(int(i), {}).update(entries)
+        infos = {}
+        for agent in self.possible_agents:
+            i = self.agent_name_mapping[agent]
+            terms = {
+                "localization": -cfg.reward_localization_weight * float(err_xy[i])
+                - cfg.reward_heading_weight * float(err_th[i]),
+                "coverage": 0.0,
+                "collision": -cfg.collision_penalty * float(new_contacts[i]),
+                "tip_over": -cfg.tip_over_penalty * float(tipped[i]),
+            }
+            infos[agent] = {
+                "true_pose": poses[i].copy(),
+                "est_pose": self._est_mean[i].copy(),
+                "pose_cov": self._est_cov[i].copy(),
+                "position_error": float(err_xy[i]),
+                "heading_error": float(err_th[i]),
+                "reward_terms": terms,
+                "gps_fix": bool(readings.gps_mask[i]) if readings is not None else False,
+                "satellites": int(readings.satellites[i]) if readings is not None else 0,
+                "collisions": int(new_contacts[i]),
+                "tipped_over": bool(self._tipped[i]),
+                **extra.get(i, {}),
+            }
+        return infos
+
+    # ------------------------------------------------------------------ render
+    def render(self) -> np.ndarray | None:
+        """Draw the scene: terrain, canopy, obstacles, true/estimated poses with 2-sigma
+        ellipses, range rays and detections. ``rgb_array`` returns ``uint8 (H, W, 3)``."""
+        if self.render_mode is None:
+            gymnasium.logger.warn("render() called without a render_mode; pass render_mode=...")
+            return None
+        if self._renderer is None:
+            from coop_loc_env.rendering import Renderer
+
+            self._renderer = Renderer(self)
+        frame = self._renderer.draw()
+        if self.render_mode == "rgb_array":
+            return frame
+        self._renderer.show(frame)
+        return None
+
+    def close(self) -> None:
+        """Release the renderer."""
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    def __getstate__(self) -> dict:
+        state = self.__dict__.copy()
+        state["_renderer"] = None
+        return state

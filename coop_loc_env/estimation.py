@@ -1,0 +1,198 @@
+"""Glue between the sensors and the estimators: one backend per estimator type.
+
+A backend owns the robots of the team that run its estimator, consumes a
+step's :class:`~coop_loc_env.sensors.Readings`, and exposes Gaussian beliefs
+(``mean``, ``cov``) plus a fixed-size feature vector per robot for the
+observation. Backends never see the true poses except at :meth:`reset`, where
+the initial belief is drawn around them (``init_pos_std``,
+``init_heading_std``), as on a robot that was told roughly where it starts.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+
+from coop_loc_env.config import ScenarioConfig
+from coop_loc_env.sensors import Readings
+from estimators.ekf import PoseEKF
+
+
+class EstimatorBackend(Protocol):
+    """What the env needs from an estimator backend."""
+
+    robots: np.ndarray  # global indices of the robots this backend estimates
+    feature_size: int
+
+    def reset(self, true_poses: np.ndarray, rng: np.random.Generator) -> None: ...
+
+    def step(self, readings: Readings, active: np.ndarray) -> dict[str, int]: ...
+
+    def mean(self) -> np.ndarray: ...
+
+    def cov(self) -> np.ndarray: ...
+
+    def features(self) -> np.ndarray: ...
+
+    def extra_info(self, true_poses: np.ndarray) -> dict[int, dict]:
+        """Optional extra info entries per global robot index (may use the truth: logging only)."""
+        ...
+
+
+def gaussian_features(
+    mean: np.ndarray, cov: np.ndarray, world_size: tuple[float, float]
+) -> np.ndarray:
+    """Network-friendly encoding of Gaussian pose beliefs, shape ``(k, 10)``.
+
+    ``mean (k, 3)``, ``cov (k, 3, 3)``. Layout per row: ``[x/W*2-1, y/H*2-1,
+    cos(phi), sin(phi), log10 std_x, log10 std_y, log10 std_phi, rho_xy,
+    rho_xphi, rho_yphi]`` (log stds clipped to [-3, 2]).
+    """
+    w, h = world_size
+    var = np.maximum(np.diagonal(cov, axis1=1, axis2=2), 1e-12)
+    std = np.sqrt(var)
+    rho = np.stack(
+        [
+            cov[:, 0, 1] / (std[:, 0] * std[:, 1]),
+            cov[:, 0, 2] / (std[:, 0] * std[:, 2]),
+            cov[:, 1, 2] / (std[:, 1] * std[:, 2]),
+        ],
+        axis=1,
+    )
+    pose = np.stack(
+        [mean[:, 0] / w * 2 - 1, mean[:, 1] / h * 2 - 1, np.cos(mean[:, 2]), np.sin(mean[:, 2])],
+        axis=1,
+    )
+    return np.concatenate(
+        [pose, np.clip(0.5 * np.log10(var), -3.0, 2.0), np.clip(rho, -1.0, 1.0)], axis=1
+    )
+
+
+GAUSSIAN_FEATURE_NAMES = (
+    "x_norm",
+    "y_norm",
+    "cos_heading",
+    "sin_heading",
+    "log10_std_x",
+    "log10_std_y",
+    "log10_std_heading",
+    "rho_xy",
+    "rho_x_heading",
+    "rho_y_heading",
+)
+
+
+class EKFBackend:
+    """Per-robot EKFs (Madhavan et al.) for the robots in ``robots``.
+
+    Each step: predict at the odometry rate, gated DGPS and compass updates,
+    then the cooperative joint update (Eq. 3) for every detection between two
+    EKF robots (``cooperative_updates``). Cross-backend detections are left to
+    the backend of the observed robot.
+    """
+
+    feature_size = 10
+
+    def __init__(self, cfg: ScenarioConfig, robots: np.ndarray) -> None:
+        self.cfg = cfg
+        self.robots = np.asarray(robots, dtype=int)
+        self._local = {int(g): i for i, g in enumerate(self.robots)}
+        self.ekf: PoseEKF | None = None
+
+    def reset(self, true_poses: np.ndarray, rng: np.random.Generator) -> None:
+        """Start each filter at a noisy draw around the true pose."""
+        cfg = self.cfg
+        k = len(self.robots)
+        std = np.array([cfg.init_pos_std, cfg.init_pos_std, cfg.init_heading_std])
+        mean = true_poses[self.robots] + rng.standard_normal((k, 3)) * std
+        cov = np.diag(np.maximum(std, 1e-3) ** 2)
+        self.ekf = PoseEKF(mean, cov, gate_prob=cfg.gate_prob)
+
+    def step(self, readings: Readings, active: np.ndarray) -> dict[str, int]:
+        """Fuse one step of readings; returns counts of accepted/rejected updates."""
+        cfg = self.cfg
+        ekf = self.ekf
+        g = self.robots
+        act = active[g]
+        dt_sub = cfg.dt / cfg.odometry_substeps
+        odo = readings.odometry[:, g]  # (substeps, k, 2)
+        v = np.where(act, odo[..., 0], 0.0)
+        w = np.where(act, odo[..., 1], 0.0)
+        # Encoder noise plus the wheel slip the robot's maker specifies.
+        var_v = cfg.odom_v_std**2 + (cfg.slip_std * v) ** 2
+        var_w = cfg.odom_w_std**2 + (cfg.slip_std * w) ** 2
+        ekf.predict_sequence(v, w, dt_sub, var_v, var_w)
+        stats = {"accepted": 0, "rejected": 0, "cooperative": 0}
+        sel = np.nonzero(readings.gps_mask[g])[0]
+        if len(sel):
+            var = readings.gps_var[g[sel]]
+            r = np.zeros((len(sel), 2, 2))
+            r[:, 0, 0] = r[:, 1, 1] = var
+            ok = ekf.update_position(sel, readings.gps_xy[g[sel]], r)
+            stats["accepted"] += int(ok.sum())
+            stats["rejected"] += int((~ok).sum())
+        sel = np.nonzero(readings.compass_mask[g])[0]
+        if len(sel):
+            ok = ekf.update_heading(
+                sel, readings.compass[g[sel]], np.full(len(sel), cfg.compass_std**2)
+            )
+            stats["accepted"] += int(ok.sum())
+            stats["rejected"] += int((~ok).sum())
+        det = readings.detections
+        if cfg.cooperative_updates and len(det):
+            rows = [
+                k
+                for k in range(len(det))
+                if int(det.observer[k]) in self._local and int(det.target[k]) in self._local
+            ]
+            if rows:
+                rows = np.asarray(rows)
+                ia = np.array([self._local[int(det.observer[k])] for k in rows])
+                ib = np.array([self._local[int(det.target[k])] for k in rows])
+                ok = ekf.update_relative(
+                    ia,
+                    ib,
+                    det.z[rows],
+                    det.cov[rows],
+                    fusion=cfg.cooperative_fusion,
+                    max_rounds=cfg.cooperative_rounds_per_step,
+                )
+                stats["cooperative"] += int(ok.sum())
+                stats["rejected"] += int((~ok).sum())
+        return stats
+
+    def mean(self) -> np.ndarray:
+        """Estimated poses ``(k, 3)``."""
+        return self.ekf.mean
+
+    def cov(self) -> np.ndarray:
+        """Pose covariances ``(k, 3, 3)``."""
+        return self.ekf.cov
+
+    def features(self) -> np.ndarray:
+        """Belief features of this backend's robots ``(k, 10)`` (:func:`gaussian_features`)."""
+        return gaussian_features(self.ekf.mean, self.ekf.cov, self.cfg.world_size)
+
+
+BACKENDS: dict[str, type] = {"ekf": EKFBackend}
+
+
+def register_backend(name: str, cls: type) -> None:
+    """Register an estimator backend class under ``name`` (e.g. ``"mcl"``)."""
+    BACKENDS[name] = cls
+
+
+def make_backends(cfg: ScenarioConfig) -> list[EstimatorBackend]:
+    """One backend per estimator type used by the team."""
+    by_type: dict[str, list[int]] = {}
+    for i in range(cfg.n_robots):
+        by_type.setdefault(cfg.robot_spec(i).estimator, []).append(i)
+    backends = []
+    for name, robots in by_type.items():
+        if name not in BACKENDS:
+            raise ValueError(
+                f"estimator {name!r} is not available; available: {', '.join(sorted(BACKENDS))}"
+            )
+        backends.append(BACKENDS[name](cfg, np.array(robots)))
+    return backends

@@ -1,0 +1,129 @@
+"""Observation builder: what a robot knows (its belief and its own readings) as one vector.
+
+Layout of an agent's observation (float32, every entry clipped to [-10, 10]):
+
+=====================  ==========================  ===========================================
+block                  size                        content
+=====================  ==========================  ===========================================
+belief                 ``belief_size``             the estimator backend's features, zero-padded
+                                                   (EKF: ``estimation.gaussian_features``)
+gps                    2                           fix held (0/1), satellites in view / 12
+inclinometer           2                           last pitch and roll (rad)
+range                  ``laser_obs_bins``          min-pooled ranges / max range (1 = nothing)
+detections             ``6 * max_detections_obs``  per slot, nearest first: present, range /
+                                                   detector range, cos/sin bearing, cos/sin
+                                                   orientation
+last action            2                           the normalized action applied last step
+privileged (optional)  4                           true x/W*2-1, y/H*2-1, cos, sin heading
+=====================  ==========================  ===========================================
+
+The agent's own index is not in the observation, so one policy can be shared
+by interchangeable robots.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from gymnasium import spaces
+
+from coop_loc_env.config import ScenarioConfig
+from coop_loc_env.sensors import Readings
+
+OBS_LIMIT = 10.0
+
+
+class ObservationBuilder:
+    """Keeps each robot's latched sensor features and assembles observation vectors."""
+
+    def __init__(self, cfg: ScenarioConfig, belief_size: int, belief_names: tuple[str, ...]):
+        self.cfg = cfg
+        self.belief_size = belief_size
+        self.names = self._names(belief_names)
+        self.size = len(self.names)
+        self.space = spaces.Box(-OBS_LIMIT, OBS_LIMIT, shape=(self.size,), dtype=np.float32)
+        n = cfg.n_robots
+        self.gps = np.zeros((n, 2))
+        self.incl = np.zeros((n, 2))
+        self.range = np.ones((n, cfg.laser_obs_bins))
+        self.det = np.zeros((n, 6 * cfg.max_detections_obs))
+
+    def _names(self, belief_names: tuple[str, ...]) -> list[str]:
+        cfg = self.cfg
+        names = list(belief_names) + [
+            f"belief_pad_{i}" for i in range(self.belief_size - len(belief_names))
+        ]
+        names += ["gps_fix", "gps_satellites", "pitch", "roll"]
+        names += [f"range_bin_{i}" for i in range(cfg.laser_obs_bins)]
+        for k in range(cfg.max_detections_obs):
+            fields = ("present", "range", "cos_bearing", "sin_bearing", "cos_orient", "sin_orient")
+            names += [f"det{k}_{f}" for f in fields]
+        names += ["last_v", "last_w"]
+        if cfg.privileged_obs:
+            names += ["true_x", "true_y", "true_cos_heading", "true_sin_heading"]
+        return names
+
+    def reset(self) -> None:
+        """Forget latched readings (start of an episode)."""
+        self.gps[:] = 0.0
+        self.incl[:] = 0.0
+        self.range[:] = 1.0
+        self.det[:] = 0.0
+
+    def ingest(self, readings: Readings, max_range: np.ndarray) -> None:
+        """Latch the sensor features of one step."""
+        cfg = self.cfg
+        gps_step = readings.satellites.any() or readings.gps_mask.any()
+        if gps_step:
+            self.gps[:, 0] = readings.gps_mask
+            self.gps[:, 1] = readings.satellites / 12.0
+        m = readings.inclinometer_mask
+        self.incl[m, 0] = readings.pitch[m]
+        self.incl[m, 1] = readings.roll[m]
+        m = readings.range_mask
+        if m.any():
+            scans = readings.ranges[m] / max_range[m, None]
+            self.range[m] = _pool(np.nan_to_num(scans, nan=1.0), cfg.laser_obs_bins)
+        det = readings.detections
+        self.det[:] = 0.0
+        if len(det):
+            order = np.lexsort((det.z[:, 0], det.observer))
+            slot = np.zeros(cfg.n_robots, dtype=int)
+            for k in order:
+                i = det.observer[k]
+                s = slot[i]
+                if s >= cfg.max_detections_obs:
+                    continue
+                r, b, o = det.z[k]
+                self.det[i, 6 * s : 6 * s + 6] = (
+                    1.0, r / cfg.detector_range, np.cos(b), np.sin(b), np.cos(o), np.sin(o)
+                )
+                slot[i] = s + 1
+
+    def build_all(
+        self, belief: np.ndarray, last_action: np.ndarray, true_poses: np.ndarray
+    ) -> np.ndarray:
+        """Observation matrix of all robots ``(n, size)`` from belief features ``(n, b)``."""
+        cfg = self.cfg
+        n = len(belief)
+        parts = [
+            belief,
+            np.zeros((n, self.belief_size - belief.shape[1])),
+            self.gps,
+            self.incl,
+            self.range,
+            self.det,
+            last_action,
+        ]
+        if cfg.privileged_obs:
+            w, h = cfg.world_size
+            x, y, th = true_poses.T
+            parts.append(np.stack([x / w * 2 - 1, y / h * 2 - 1, np.cos(th), np.sin(th)], 1))
+        obs = np.concatenate(parts, axis=1).astype(np.float32)
+        return np.clip(obs, -OBS_LIMIT, OBS_LIMIT, out=obs)
+
+
+def _pool(scans: np.ndarray, bins: int) -> np.ndarray:
+    """Min-pool each row of ``scans (k, beams)`` into ``bins`` columns."""
+    beams = scans.shape[1]
+    starts = np.minimum(np.floor(np.linspace(0, beams, bins + 1)[:-1]).astype(int), beams - 1)
+    return np.minimum.reduceat(scans, starts, axis=1)

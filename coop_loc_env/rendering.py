@@ -1,0 +1,140 @@
+"""Matplotlib renderer: terrain shading, canopy, obstacles, true and estimated poses.
+
+Imported lazily by :meth:`CoopLocParallelEnv.render`, so matplotlib is only
+needed when rendering (``pip install coop-loc-env[render]``).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from coop_loc_env.env import CoopLocParallelEnv
+
+ROBOT_COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown",
+                "tab:pink", "tab:olive", "tab:cyan", "tab:gray")
+OBSTACLE_COLORS = {"tree": "#2e6b30", "rock": "#6d6d6d", "wall": "#333333",
+                   "building": "#555555", "ooi": "#d4a017"}
+
+
+def _import_matplotlib():
+    try:
+        from matplotlib import patches
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.collections import LineCollection
+        from matplotlib.figure import Figure
+    except ImportError as err:  # pragma: no cover - exercised only without matplotlib
+        raise ImportError("rendering needs matplotlib: pip install 'coop-loc-env[render]'") from err
+    return Figure, FigureCanvasAgg, patches, LineCollection
+
+
+def _has_display() -> bool:
+    import os
+
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def covariance_ellipse(mean: np.ndarray, cov: np.ndarray, n_sigma: float = 2.0, points: int = 36):
+    """Points ``(points, 2)`` on the ``n_sigma`` ellipse of a 2x2 covariance."""
+    vals, vecs = np.linalg.eigh(cov)
+    vals = np.maximum(vals, 0.0)
+    t = np.linspace(0, 2 * np.pi, points)
+    circle = np.stack([np.cos(t), np.sin(t)], 1)
+    return mean + n_sigma * (circle * np.sqrt(vals)) @ vecs.T
+
+
+class Renderer:
+    """Draws an env's current state into an RGB array (and a window for ``human``)."""
+
+    def __init__(self, env: CoopLocParallelEnv, size_px: int = 600) -> None:
+        self.env = env
+        figure_cls, canvas_cls, self.patches, self.line_collection = _import_matplotlib()
+        dpi = 100
+        self.fig = figure_cls(figsize=(size_px / dpi, size_px / dpi), dpi=dpi)
+        self.canvas = canvas_cls(self.fig)
+        self.ax = self.fig.add_axes((0, 0, 1, 1))
+        self._window = None
+
+    def draw(self) -> np.ndarray:
+        """Render the current state; returns ``uint8 (H, W, 3)``."""
+        env = self.env
+        cfg = env.config
+        world = env.world
+        ax = self.ax
+        ax.clear()
+        w, h = cfg.world_size
+        terrain = world.terrain
+        ax.imshow(terrain.z, origin="lower", extent=(0, w, 0, h), cmap="terrain", alpha=0.8)
+        if terrain.steep.any():
+            ax.contourf(terrain.xs, terrain.ys, terrain.steep.astype(float), levels=[0.5, 1.5],
+                        colors=["#b22222"], alpha=0.35)
+        for c, r in zip(world.layout.canopy_centers, world.layout.canopy_radii, strict=True):
+            ax.add_patch(self.patches.Circle(c, r, color="#1b4d1b", alpha=0.25, lw=0))
+        for o in world.layout.obstacles:
+            color = OBSTACLE_COLORS.get(o.kind, "k")
+            if o.shape == "circle":
+                ax.add_patch(self.patches.Circle(o.center, o.radius, color=color))
+            elif o.shape == "segment":
+                ax.plot(*zip(o.a, o.b, strict=True), color=color, lw=2)
+            else:
+                ax.add_patch(self.patches.Polygon(o.vertices, color=color))
+        readings = env._last_readings
+        poses = world.poses
+        est = env._est_mean
+        cov = env._est_cov
+        if readings is not None and readings.range_mask.any():
+            segs = []
+            for i in np.nonzero(readings.range_mask)[0]:
+                angles = env.sensors.beam_angles[i] + poses[i, 2]
+                rng = readings.ranges[i, : len(angles)]
+                for a, r in zip(angles, rng, strict=True):
+                    segs.append([poses[i, :2], poses[i, :2] + r * np.array([np.cos(a), np.sin(a)])])
+            ax.add_collection(self.line_collection(segs, colors="red", linewidths=0.3, alpha=0.35))
+        if readings is not None and len(readings.detections):
+            det = readings.detections
+            for o, t, genuine in zip(det.observer, det.target, det.genuine, strict=True):
+                ax.plot(*zip(poses[o, :2], poses[t, :2], strict=True),
+                        color="k" if genuine else "m", lw=0.8, ls="--")
+        for i in range(cfg.n_robots):
+            color = ROBOT_COLORS[i % len(ROBOT_COLORS)]
+            x, y, th = poses[i]
+            ax.add_patch(self.patches.Circle((x, y), cfg.robot_radius, color=color, alpha=0.9))
+            ax.plot([x, x + 0.8 * np.cos(th)], [y, y + 0.8 * np.sin(th)], color="k", lw=1)
+            ax.plot(est[i, 0], est[i, 1], marker="x", color=color, ms=7, mew=2)
+            ell = covariance_ellipse(est[i, :2], cov[i, :2, :2])
+            ax.plot(ell[:, 0], ell[:, 1], color=color, lw=1)
+        ax.set_xlim(0, w)
+        ax.set_ylim(0, h)
+        ax.set_aspect("equal")
+        ax.set_axis_off()
+        ax.text(0.5, h - 0.5, f"{cfg.name}  t = {env._step_count * cfg.dt:.1f} s",
+                va="top", fontsize=9, color="k")
+        self.canvas.draw()
+        buf = np.asarray(self.canvas.buffer_rgba())
+        return np.ascontiguousarray(buf[..., :3])
+
+    def show(self, frame: np.ndarray) -> None:
+        """Show ``frame`` in a window (``human`` mode); silently a no-op without a display."""
+        if not _has_display():
+            return
+        import matplotlib.pyplot as plt
+
+        if self._window is None:
+            plt.ion()
+            fig, ax = plt.subplots()
+            ax.set_axis_off()
+            self._window = (fig, ax.imshow(frame))
+        else:
+            self._window[1].set_data(frame)
+        plt.pause(1.0 / self.env.metadata["render_fps"])
+
+    def close(self) -> None:
+        """Close the figures."""
+        self.fig.clear()
+        if self._window is not None:
+            import matplotlib.pyplot as plt
+
+            plt.close(self._window[0])
+            self._window = None

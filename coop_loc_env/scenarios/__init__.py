@@ -1,0 +1,53 @@
+"""Named scenarios: registry, lookup and keyword overrides.
+
+A scenario is a function returning a :class:`~coop_loc_env.config.ScenarioConfig`
+from a dict of overrides. :func:`make_config` looks one up by name and applies
+the overrides (unknown keys and invalid values raise ``ValueError``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+from coop_loc_env.config import ScenarioConfig
+
+ScenarioFactory = Callable[[dict[str, Any]], ScenarioConfig]
+_REGISTRY: dict[str, ScenarioFactory] = {}
+
+
+def register_scenario(name: str, factory: ScenarioFactory) -> None:
+    """Register ``factory`` under ``name``; it receives the user's overrides."""
+    if name in _REGISTRY:
+        raise ValueError(f"scenario {name!r} is already registered")
+    _REGISTRY[name] = factory
+
+
+def scenario_from_base(base: Callable[[], ScenarioConfig]) -> ScenarioFactory:
+    """A factory that builds ``base()`` and applies the overrides on top."""
+
+    def factory(overrides: dict[str, Any]) -> ScenarioConfig:
+        return base().replace(**overrides)
+
+    factory.__doc__ = base.__doc__
+    return factory
+
+
+def list_scenarios() -> list[str]:
+    """Names of the registered scenarios, sorted."""
+    return sorted(_REGISTRY)
+
+
+def make_config(scenario: str, **overrides: Any) -> ScenarioConfig:
+    """The config of ``scenario`` with ``overrides`` applied and validated."""
+    if not isinstance(scenario, str) or scenario not in _REGISTRY:
+        raise ValueError(f"unknown scenario {scenario!r}; known scenarios: {list_scenarios()}")
+    if "name" in overrides:
+        raise ValueError(f"the config key 'name' cannot be overridden (got {overrides['name']!r})")
+    cfg = _REGISTRY[scenario](dict(overrides))
+    cfg.validate()
+    return cfg
+
+
+# Import the scenario modules so they register themselves.
+from coop_loc_env.scenarios import outdoor  # noqa: E402, F401

@@ -1,0 +1,398 @@
+"""Sensor models: odometry, DGPS, compass, inclinometer, range finder, camera, robot detector.
+
+Every sensor reads the whole team at once (numpy over robots), has its own
+rate (``*_rate`` in Hz, defaults from the outdoor paper's Table 1) and noise
+model, and is switched on per robot by its :class:`~coop_loc_env.config.RobotSpec`.
+A sensor with rate ``f`` fires on the env steps where ``floor(t * f)``
+changes; rates above ``1 / dt`` fire every step (odometry instead runs at its
+full rate through the physics substeps).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from coop_loc_env.config import ScenarioConfig
+from coop_loc_env.raycast import CHANNEL, cast
+from coop_loc_env.world import World
+from estimators.geometry import wrap_angle
+
+
+@dataclass
+class Detections:
+    """Robot-detector output for one step: ``k`` sightings of ``target`` by ``observer``.
+
+    ``z`` holds (range, bearing, orientation) of the target in the observer's
+    frame and ``cov`` the 3x3 noise the observer believes; ``genuine`` is
+    privileged (False for false positives) and never given to estimators.
+    """
+
+    observer: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    target: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    z: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    cov: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))
+    genuine: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+
+    def __len__(self) -> int:
+        return len(self.observer)
+
+
+@dataclass
+class Readings:
+    """Everything the team's sensors produced during one env step.
+
+    Arrays are indexed by robot; a ``*_mask`` says which robots got a reading.
+    """
+
+    odometry: np.ndarray  # (substeps, n, 2) measured (V, w)
+    gps_mask: np.ndarray  # (n,) a fix arrived
+    gps_xy: np.ndarray  # (n, 2)
+    gps_var: np.ndarray  # (n,) per-axis variance the receiver reports
+    gps_altitude: np.ndarray  # (n,)
+    satellites: np.ndarray  # (n,) satellites in view (on every GPS step)
+    compass_mask: np.ndarray
+    compass: np.ndarray  # (n,)
+    inclinometer_mask: np.ndarray
+    pitch: np.ndarray  # (n,)
+    roll: np.ndarray  # (n,)
+    range_mask: np.ndarray  # (n,) a scan arrived
+    ranges: np.ndarray  # (n, max_beams), max range where nothing returned; NaN pads
+    camera_mask: np.ndarray
+    camera: list[list[tuple[str, int, float, float]]]  # per robot: (kind, id, bearing, range)
+    detections: Detections
+
+
+def _due(step: int, dt: float, rate: float) -> bool:
+    """Whether a sensor of ``rate`` Hz fires during env step ``step`` (0-based)."""
+    return int((step + 1) * dt * rate + 1e-9) > int(step * dt * rate + 1e-9)
+
+
+class SensorSuite:
+    """All sensors of a team; call :meth:`read` once per env step."""
+
+    def __init__(self, cfg: ScenarioConfig, world: World) -> None:
+        self.cfg = cfg
+        self.world = world
+        n = cfg.n_robots
+        specs = [cfg.robot_spec(i) for i in range(n)]
+        self.has_gps = np.array([s.has_gps for s in specs])
+        self.has_compass = np.array([s.has_compass for s in specs])
+        self.has_incl = np.array([s.has_inclinometer for s in specs])
+        self.has_range = np.array([s.has_range_sensor for s in specs])
+        self.is_sonar = np.array([s.range_sensor == "sonar" for s in specs])
+        self.has_camera = np.array([s.has_camera for s in specs])
+        self.has_detector = np.array([s.has_detector for s in specs])
+        self.beam_angles = [self._beams(sonar) for sonar in self.is_sonar]
+        self.max_beams = max(len(b) for b in self.beam_angles)
+        self.range_max = np.where(self.is_sonar, cfg.sonar_max_range, cfg.laser_max_range)
+        self.range_std = np.where(self.is_sonar, cfg.sonar_range_std, cfg.laser_range_std)
+        self._build_ray_tables()
+
+    def _beams(self, sonar: bool) -> np.ndarray:
+        cfg = self.cfg
+        count = cfg.sonar_beams if sonar else cfg.laser_beams
+        fov = np.deg2rad(cfg.sonar_fov_deg if sonar else cfg.laser_fov_deg)
+        if fov >= 2 * np.pi - 1e-9:
+            return -np.pi + (np.arange(count) + 0.5) * 2 * np.pi / count
+        return np.linspace(-fov / 2, fov / 2, count)
+
+    def _build_ray_tables(self) -> None:
+        """Precompute, for every robot's range sensor, its sub-ray angles in the robot frame.
+
+        A sonar beam is a wide cone: three sub-rays across it, the shortest wins.
+        """
+        cfg = self.cfg
+        sonar_half = 0.5 * np.deg2rad(cfg.sonar_fov_deg) / cfg.sonar_beams
+        rows, beams, angles, lasers = [], [], [], []
+        for i in np.nonzero(self.has_range)[0]:
+            for b, ang in enumerate(self.beam_angles[i]):
+                subs = (ang - sonar_half, ang, ang + sonar_half) if self.is_sonar[i] else (ang,)
+                for a in subs:
+                    rows.append(i)
+                    beams.append(b)
+                    angles.append(a)
+                    lasers.append(not self.is_sonar[i])
+        self._ray_robot = np.array(rows, dtype=int)
+        self._ray_beam = np.array(beams, dtype=int)
+        self._ray_angle = np.array(angles, dtype=float)
+        self._ray_laser = np.array(lasers, dtype=bool)
+
+    # ------------------------------------------------------------------ read
+    def read(
+        self,
+        step: int,
+        poses: np.ndarray,
+        odom_cmd: np.ndarray,
+        rng: np.random.Generator,
+        active: np.ndarray,
+    ) -> Readings:
+        """Read every sensor due at env step ``step``.
+
+        Args:
+            step: env step index (0-based) that just finished.
+            poses: true poses after the step ``(n, 3)``.
+            odom_cmd: wheel-encoder truth per substep ``(substeps, n, 2)``.
+            rng: the episode's noise generator.
+            active: robots still in the episode.
+        """
+        cfg = self.cfg
+        n = len(poses)
+        dt = cfg.dt
+        odo = odom_cmd + rng.standard_normal(odom_cmd.shape) * np.array(
+            [cfg.odom_v_std, cfg.odom_w_std]
+        )
+        gps_mask = np.zeros(n, dtype=bool)
+        gps_xy = np.zeros((n, 2))
+        gps_var = np.full(n, np.inf)
+        gps_alt = np.full(n, np.nan)
+        sats = np.zeros(n, dtype=int)
+        if _due(step, dt, cfg.gps_rate):
+            gps_mask, gps_xy, gps_var, gps_alt, sats = self._gps(poses, rng, active)
+        compass_mask = np.zeros(n, dtype=bool)
+        compass = np.zeros(n)
+        if _due(step, dt, cfg.compass_rate):
+            compass_mask = self.has_compass & active
+            compass = wrap_angle(poses[:, 2] + cfg.compass_std * rng.standard_normal(n))
+        incl_mask = np.zeros(n, dtype=bool)
+        pitch = np.zeros(n)
+        roll = np.zeros(n)
+        if _due(step, dt, cfg.inclinometer_rate):
+            incl_mask = self.has_incl & active
+            p, r = self.world.terrain.pitch_roll(poses)
+            pitch = p + cfg.inclinometer_std * rng.standard_normal(n)
+            roll = r + cfg.inclinometer_std * rng.standard_normal(n)
+        range_mask = np.zeros(n, dtype=bool)
+        ranges = np.full((n, self.max_beams), np.nan)
+        if _due(step, dt, cfg.laser_rate) and len(self._ray_robot):
+            range_mask = self.has_range & active
+            ranges = self._scan(poses, rng, active)
+        camera_mask = np.zeros(n, dtype=bool)
+        camera: list[list[tuple[str, int, float, float]]] = [[] for _ in range(n)]
+        if _due(step, dt, cfg.camera_rate) and self.has_camera.any():
+            camera_mask = self.has_camera & active
+            camera = self._camera(poses, rng, camera_mask)
+        detections = Detections()
+        if _due(step, dt, cfg.detector_rate) and self.has_detector.any() and n > 1:
+            detections = self._detect(poses, rng, active)
+        return Readings(
+            odometry=odo,
+            gps_mask=gps_mask,
+            gps_xy=gps_xy,
+            gps_var=gps_var,
+            gps_altitude=gps_alt,
+            satellites=sats,
+            compass_mask=compass_mask,
+            compass=compass,
+            inclinometer_mask=incl_mask,
+            pitch=pitch,
+            roll=roll,
+            range_mask=range_mask,
+            ranges=ranges,
+            camera_mask=camera_mask,
+            camera=camera,
+            detections=detections,
+        )
+
+    # ------------------------------------------------------------------ DGPS
+    def _gps(self, poses: np.ndarray, rng: np.random.Generator, active: np.ndarray):
+        """Satellites fall under canopy; variance ~ 1/NOS; no fix below 4; multipath outliers."""
+        cfg = self.cfg
+        n = len(poses)
+        depth = self.world.layout.under_canopy(poses[:, :2])
+        lo, hi = cfg.gps_open_sky_satellites
+        clo, chi = cfg.gps_canopy_satellites
+        open_sky = rng.integers(lo, hi + 1, size=n)
+        canopy = rng.integers(clo, chi + 1, size=n)
+        blend = np.clip(depth / 0.5, 0.0, 1.0)
+        sats = np.rint((1 - blend) * open_sky + blend * canopy).astype(int)
+        sats = np.where(self.has_gps, sats, 0)
+        fix = self.has_gps & active & (sats >= 4)
+        safe = np.maximum(sats, 1)
+        var = cfg.gps_std**2 * cfg.gps_reference_satellites / safe
+        noise = rng.standard_normal((n, 2)) * np.sqrt(var)[:, None]
+        multipath = rng.random(n) < cfg.gps_multipath_prob
+        noise += multipath[:, None] * rng.standard_normal((n, 2)) * cfg.gps_multipath_std
+        xy = poses[:, :2] + noise
+        z_true = self.world.terrain.elevation(poses[:, :2])
+        alt_std = cfg.gps_altitude_std * np.sqrt(cfg.gps_reference_satellites / safe)
+        alt = z_true + cfg.gps_base_altitude + alt_std * rng.standard_normal(n)
+        return (
+            fix,
+            np.where(fix[:, None], xy, 0.0),
+            np.where(fix, var, np.inf),
+            np.where(fix, alt, np.nan),
+            sats,
+        )
+
+    # ------------------------------------------------------------------ range finder
+    def _scan(self, poses: np.ndarray, rng: np.random.Generator, active: np.ndarray) -> np.ndarray:
+        """Range scans of every robot with a range sensor, in one vectorized cast."""
+        cfg = self.cfg
+        n = len(poses)
+        rob = self._ray_robot
+        ang = poses[rob, 2] + self._ray_angle
+        dirs = np.stack([np.cos(ang), np.sin(ang)], axis=1)
+        origins = poses[rob, :2]
+        dist = np.empty(len(rob))
+        radii = np.full(n, cfg.robot_radius)
+        for channel_laser in (True, False):
+            sel = self._ray_laser == channel_laser
+            if not sel.any():
+                continue
+            channel = CHANNEL["laser" if channel_laser else "sonar"]
+            d, _ = cast(
+                self.world.layout.scene,
+                origins[sel],
+                dirs[sel],
+                channel,
+                extra_centers=poses[:, :2],
+                extra_radii=radii,
+                extra_exclude=rob[sel],
+            )
+            dist[sel] = d
+        ranges = np.full((n, self.max_beams), np.inf)
+        np.minimum.at(ranges, (rob, self._ray_beam), dist)
+        rmax = self.range_max[:, None]
+        noisy = ranges + self.range_std[:, None] * rng.standard_normal(ranges.shape)
+        out = np.where(ranges >= rmax, rmax, np.clip(noisy, 0.0, rmax))
+        for i in range(n):
+            out[i, len(self.beam_angles[i]) :] = np.nan
+        out[~(self.has_range & active)] = np.nan
+        return out
+
+    # ------------------------------------------------------------------ camera
+    def _camera(self, poses: np.ndarray, rng: np.random.Generator, mask: np.ndarray):
+        """Objects of interest and robots in the camera's view, bearing quantized to pixels."""
+        cfg = self.cfg
+        n = len(poses)
+        ooi = self.world.layout.ooi_centers
+        targets = np.concatenate([ooi, poses[:, :2]], axis=0)
+        kinds = ["ooi"] * len(ooi) + ["robot"] * n
+        ids = list(range(len(ooi))) + list(range(n))
+        fov = np.deg2rad(cfg.camera_fov_deg)
+        px = fov / cfg.camera_width_px
+        out: list[list[tuple[str, int, float, float]]] = [[] for _ in range(n)]
+        obs_i, tgt_j = np.nonzero(mask[:, None] & np.ones((1, len(targets)), dtype=bool))
+        keep = ~((tgt_j >= len(ooi)) & (tgt_j - len(ooi) == obs_i))
+        obs_i, tgt_j = obs_i[keep], tgt_j[keep]
+        d = targets[tgt_j] - poses[obs_i, :2]
+        dist = np.hypot(d[:, 0], d[:, 1])
+        bearing = wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - poses[obs_i, 2])
+        cand = (dist < cfg.camera_max_range) & (np.abs(bearing) <= fov / 2) & (dist > 1e-6)
+        obs_i, tgt_j, dist, bearing = obs_i[cand], tgt_j[cand], dist[cand], bearing[cand]
+        if len(obs_i) == 0:
+            return out
+        visible = self._line_of_sight(poses[obs_i, :2], targets[tgt_j], dist, exclude_ooi=tgt_j)
+        pixel = np.round(bearing / px)
+        measured = pixel * px
+        rng_noise = dist + cfg.camera_range_std * rng.standard_normal(len(dist))
+        for i, j, b, r, vis in zip(obs_i, tgt_j, measured, rng_noise, visible, strict=True):
+            if vis:
+                out[i].append((kinds[j], ids[j], float(b), float(max(r, 0.1))))
+        return out
+
+    def _line_of_sight(
+        self,
+        origins: np.ndarray,
+        targets: np.ndarray,
+        dist: np.ndarray,
+        exclude_ooi: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Whether nothing static blocks the segment from each origin to its target."""
+        d = (targets - origins) / np.maximum(dist, 1e-9)[:, None]
+        hit, _ = cast(self.world.layout.scene, origins, d, CHANNEL["sight"])
+        # The target itself may be a circle in the scene (an OOI): allow hits at its surface.
+        return hit >= dist - 0.6
+
+    # ------------------------------------------------------------------ robot detector
+    def _detect(
+        self, poses: np.ndarray, rng: np.random.Generator, active: np.ndarray
+    ) -> Detections:
+        """Identity + (range, bearing, orientation) of teammates in view.
+
+        Fox et al.'s model: a robot in view is detected with ``detection_prob``
+        (93.3 %) and missed otherwise; when no robot is in view a false positive
+        appears with ``false_positive_prob`` (3.5 %), naming a random teammate
+        at a random place in the field of view. Noise is Gaussian; for
+        ``detection_model="howard"`` the range noise is proportional to range.
+        """
+        cfg = self.cfg
+        n = len(poses)
+        can = self.has_detector & active
+        fov = np.deg2rad(cfg.detector_fov_deg)
+        rel_xy = poses[None, :, :2] - poses[:, None, :2]  # [i, j] = p_j - p_i
+        dist = np.hypot(rel_xy[..., 0], rel_xy[..., 1])
+        bearing = wrap_angle(np.arctan2(rel_xy[..., 1], rel_xy[..., 0]) - poses[:, None, 2])
+        in_view = (
+            can[:, None]
+            & active[None, :]
+            & ~np.eye(n, dtype=bool)
+            & (dist <= cfg.detector_range)
+            & (np.abs(bearing) <= fov / 2 + 1e-9)
+        )
+        oi, tj = np.nonzero(in_view)
+        if len(oi):
+            los = self._line_of_sight(poses[oi, :2], poses[tj, :2], dist[oi, tj])
+            oi, tj = oi[los], tj[los]
+        seen_any = np.zeros(n, dtype=bool)
+        seen_any[oi] = True
+        detected = rng.random(len(oi)) < cfg.detection_prob
+        oi, tj = oi[detected], tj[detected]
+        true_z = np.stack(
+            [dist[oi, tj], bearing[oi, tj], wrap_angle(poses[tj, 2] - poses[oi, 2])], axis=1
+        )
+        # False positives for robots with nothing in view.
+        fp_obs = np.nonzero(can & ~seen_any & (rng.random(n) < cfg.false_positive_prob))[0]
+        fp_tgt = (fp_obs + rng.integers(1, n, size=len(fp_obs))) % n
+        half = min(fov / 2, np.pi)
+        fp_z = np.stack(
+            [
+                rng.uniform(2 * cfg.robot_radius, cfg.detector_range, len(fp_obs)),
+                rng.uniform(-half, half, len(fp_obs)),
+                rng.uniform(-np.pi, np.pi, len(fp_obs)),
+            ],
+            axis=1,
+        )
+        observer = np.concatenate([oi, fp_obs])
+        target = np.concatenate([tj, fp_tgt])
+        genuine = np.concatenate([np.ones(len(oi), bool), np.zeros(len(fp_obs), bool)])
+        z = np.concatenate([true_z, fp_z], axis=0)
+        std = self._detection_std(z[:, 0])
+        noisy = z + std * rng.standard_normal(z.shape)
+        noisy[:, 0] = np.maximum(noisy[:, 0], 0.05)
+        noisy[:, 1:] = wrap_angle(noisy[:, 1:])
+        if cfg.detection_model == "camera":
+            px = np.deg2rad(cfg.camera_fov_deg) / cfg.camera_width_px
+            noisy[:, 1] = np.round(z[:, 1] / px) * px
+        cov = np.zeros((len(z), 3, 3))
+        believed = self._detection_std(noisy[:, 0])
+        if cfg.detection_model == "camera":
+            believed[:, 1] = np.deg2rad(cfg.camera_fov_deg) / cfg.camera_width_px / np.sqrt(12)
+        cov[:, [0, 1, 2], [0, 1, 2]] = believed**2
+        return Detections(observer, target, noisy, cov, genuine)
+
+    def _detection_std(self, ranges: np.ndarray) -> np.ndarray:
+        """Per-detection standard deviations of (range, bearing, orientation), ``(k, 3)``."""
+        cfg = self.cfg
+        k = len(ranges)
+        std = np.empty((k, 3))
+        model = cfg.detection_model
+        if model == "howard":
+            std[:, 0] = cfg.detection_range_fraction * ranges + 1e-3
+        elif model == "laser":
+            std[:, 0] = cfg.laser_range_std + 0.05  # centre of the robot from its surface
+        elif model == "camera":
+            std[:, 0] = cfg.camera_range_std
+        else:
+            std[:, 0] = cfg.detection_range_std
+        if model == "laser":
+            spacing = np.deg2rad(cfg.laser_fov_deg) / max(cfg.laser_beams - 1, 1)
+            std[:, 1] = spacing / np.sqrt(12)
+        elif model == "camera":
+            std[:, 1] = 1e-4  # quantization is applied separately
+        else:
+            std[:, 1] = cfg.detection_bearing_std
+        std[:, 2] = cfg.detection_orientation_std
+        return std

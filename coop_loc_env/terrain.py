@@ -1,0 +1,88 @@
+"""Seeded smooth terrain: a height field with hills and steep (tip-over) patches."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from coop_loc_env.config import ScenarioConfig
+
+
+class HeightField:
+    """A height field on a regular grid covering the world.
+
+    Heights are a sum of Gaussian hills (smooth, drivable) plus a few narrow
+    steep patches whose slope exceeds the tip-over limit. Queries interpolate
+    bilinearly and accept batches of points.
+
+    Args:
+        cfg: the scenario (size, resolution, amplitude, slopes).
+        rng: generator that places the hills (seeded from ``layout_seed``).
+    """
+
+    def __init__(self, cfg: ScenarioConfig, rng: np.random.Generator) -> None:
+        self.width, self.height = map(float, cfg.world_size)
+        self.resolution = float(cfg.terrain_resolution)
+        nx = int(np.ceil(self.width / self.resolution)) + 1
+        ny = int(np.ceil(self.height / self.resolution)) + 1
+        xs = np.linspace(0.0, self.width, nx)
+        ys = np.linspace(0.0, self.height, ny)
+        self.xs, self.ys = xs, ys
+        gx, gy = np.meshgrid(xs, ys, indexing="xy")
+        z = np.zeros_like(gx)
+        for _ in range(cfg.terrain_hills):
+            cx, cy = rng.uniform(0, self.width), rng.uniform(0, self.height)
+            sigma = cfg.terrain_length_scale * rng.uniform(0.6, 1.4)
+            amp = cfg.terrain_amplitude * rng.uniform(-1.0, 1.0)
+            z += amp * np.exp(-((gx - cx) ** 2 + (gy - cy) ** 2) / (2 * sigma**2))
+        self.steep_centers = []
+        tip = np.tan(np.deg2rad(cfg.tip_over_slope_deg))
+        for _ in range(cfg.steep_patches):
+            cx = rng.uniform(0.15, 0.85) * self.width
+            cy = rng.uniform(0.15, 0.85) * self.height
+            sigma = cfg.steep_patch_radius / 2.0
+            # A Gaussian's maximum slope is amp / (sigma * sqrt(e)); make it 2x the limit.
+            amp = 2.0 * tip * sigma * np.sqrt(np.e)
+            z += amp * np.exp(-((gx - cx) ** 2 + (gy - cy) ** 2) / (2 * sigma**2))
+            self.steep_centers.append((cx, cy))
+        self.z = z  # (ny, nx), row = y
+        dzdy, dzdx = np.gradient(z, self.resolution)
+        self.dzdx, self.dzdy = dzdx, dzdy
+        self.slope = np.arctan(np.hypot(dzdx, dzdy))
+        self.tip_over_slope = np.deg2rad(cfg.tip_over_slope_deg)
+        self.steep = self.slope > self.tip_over_slope
+
+    def _cells(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        p = np.asarray(points, dtype=float).reshape(-1, 2)
+        fx = np.clip(p[:, 0] / self.resolution, 0, len(self.xs) - 1.000001)
+        fy = np.clip(p[:, 1] / self.resolution, 0, len(self.ys) - 1.000001)
+        ix, iy = fx.astype(int), fy.astype(int)
+        return ix, iy, fx - ix, fy - iy
+
+    def _bilinear(self, grid: np.ndarray, points: np.ndarray) -> np.ndarray:
+        ix, iy, tx, ty = self._cells(points)
+        g00 = grid[iy, ix]
+        g10 = grid[iy, ix + 1]
+        g01 = grid[iy + 1, ix]
+        g11 = grid[iy + 1, ix + 1]
+        return (g00 * (1 - tx) + g10 * tx) * (1 - ty) + (g01 * (1 - tx) + g11 * tx) * ty
+
+    def elevation(self, points: np.ndarray) -> np.ndarray:
+        """Height at ``points (k, 2)``."""
+        return self._bilinear(self.z, points)
+
+    def gradient(self, points: np.ndarray) -> np.ndarray:
+        """``(dz/dx, dz/dy)`` at ``points``, shape ``(k, 2)``."""
+        return np.stack([self._bilinear(self.dzdx, points), self._bilinear(self.dzdy, points)], 1)
+
+    def pitch_roll(self, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pitch (nose up positive) and roll of robots at ``poses (k, 3)``."""
+        poses = np.asarray(poses, dtype=float).reshape(-1, 3)
+        g = self.gradient(poses[:, :2])
+        c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+        along = g[:, 0] * c + g[:, 1] * s
+        across = -g[:, 0] * s + g[:, 1] * c
+        return np.arctan(along), np.arctan(across)
+
+    def is_steep(self, points: np.ndarray) -> np.ndarray:
+        """Whether the slope at ``points`` exceeds the tip-over limit."""
+        return self._bilinear(self.slope, points) > self.tip_over_slope

@@ -1,0 +1,258 @@
+"""The simulated world: static layout, terrain, and skid-steer robots on pymunk.
+
+The layout (obstacles, canopy, terrain) comes from ``cfg.layout_seed`` so the
+map is the same in every episode; the episode seed places the robots and
+drives all noise. Robot motion follows Eq. 1 of the outdoor paper: the
+commanded ``(V, w)`` with multiplicative slip noise sets each body's velocity
+for every physics substep, and pymunk resolves collisions with obstacles,
+objects of interest, the world boundary and other robots.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pymunk
+
+from coop_loc_env.config import Obstacle, ScenarioConfig
+from coop_loc_env.raycast import RayScene
+from coop_loc_env.terrain import HeightField
+
+ROBOT_COLLISION_TYPE = 1
+_WALL_RADIUS = 0.05
+
+
+def _count_contact(arbiter: pymunk.Arbiter, space: pymunk.Space, data: dict) -> None:
+    """pymunk begin-callback: count a new contact for the robot(s) involved."""
+    for shape in arbiter.shapes:
+        index = getattr(shape, "robot_index", None)
+        if index is not None:
+            data["counts"][index] += 1
+
+
+class Layout:
+    """Static obstacles of a scenario, with canopy zones and ray-casting arrays."""
+
+    def __init__(self, cfg: ScenarioConfig, terrain: HeightField, rng: np.random.Generator):
+        obstacles = list(cfg.obstacles)
+        obstacles += _scatter(cfg, terrain, rng, obstacles)
+        self.obstacles: tuple[Obstacle, ...] = tuple(obstacles)
+        trees = [o for o in obstacles if o.canopy_radius > 0]
+        self.canopy_centers = np.array([o.center for o in trees], dtype=float).reshape(-1, 2)
+        self.canopy_radii = np.array([o.canopy_radius for o in trees], dtype=float)
+        self.ooi_centers = np.array(
+            [o.center for o in obstacles if o.kind == "ooi"], dtype=float
+        ).reshape(-1, 2)
+        self.scene = _ray_scene(cfg, obstacles)
+
+    def under_canopy(self, points: np.ndarray) -> np.ndarray:
+        """Depth of each point under canopy in [0, 1] (0 = open sky)."""
+        points = np.asarray(points, dtype=float).reshape(-1, 2)
+        if len(self.canopy_radii) == 0:
+            return np.zeros(len(points))
+        d = np.linalg.norm(points[:, None, :] - self.canopy_centers[None], axis=2)
+        depth = 1.0 - d / self.canopy_radii[None]
+        return np.clip(depth.max(1), 0.0, 1.0)
+
+    def clearance(self, points: np.ndarray) -> np.ndarray:
+        """Distance from each point to the nearest solid obstacle surface."""
+        points = np.asarray(points, dtype=float).reshape(-1, 2)
+        best = np.full(len(points), np.inf)
+        s = self.scene
+        if len(s.circle_radii):
+            d = np.linalg.norm(points[:, None] - s.circle_centers[None], axis=2) - s.circle_radii
+            best = np.minimum(best, d.min(1))
+        if len(s.seg_a):
+            e = s.seg_b - s.seg_a
+            t = np.einsum("psd,sd->ps", points[:, None] - s.seg_a[None], e) / np.maximum(
+                np.einsum("sd,sd->s", e, e), 1e-12
+            )
+            proj = s.seg_a[None] + np.clip(t, 0, 1)[..., None] * e[None]
+            best = np.minimum(best, np.linalg.norm(points[:, None] - proj, axis=2).min(1))
+        return best
+
+
+def _scatter(
+    cfg: ScenarioConfig, terrain: HeightField, rng: np.random.Generator, fixed: list[Obstacle]
+) -> list[Obstacle]:
+    """Randomly place the scenario's trees, rocks and objects of interest."""
+    w, h = cfg.world_size
+    placed: list[tuple[float, float, float]] = [
+        (*o.center, o.radius) for o in fixed if o.shape == "circle"
+    ]
+    out: list[Obstacle] = []
+    plan = (
+        [("tree", cfg.tree_radius)] * cfg.n_random_trees
+        + [("rock", cfg.rock_radius)] * cfg.n_random_rocks
+        + [("ooi", 0.3)] * cfg.n_random_ooi
+    )
+    for kind, radius in plan:
+        for _ in range(200):
+            x, y = rng.uniform(2.0, w - 2.0), rng.uniform(2.0, h - 2.0)
+            if terrain.is_steep(np.array([[x, y]]))[0]:
+                continue
+            if cfg.start_region is not None:
+                x0, y0, x1, y1 = cfg.start_region
+                if x0 - 1 <= x <= x1 + 1 and y0 - 1 <= y <= y1 + 1:
+                    continue
+            if all(
+                (x - px) ** 2 + (y - py) ** 2 > (radius + pr + 2.0) ** 2 for px, py, pr in placed
+            ):
+                break
+        else:
+            continue
+        placed.append((x, y, radius))
+        out.append(
+            Obstacle(
+                kind=kind,
+                shape="circle",
+                center=(float(x), float(y)),
+                radius=radius,
+                canopy_radius=cfg.canopy_radius if kind == "tree" else 0.0,
+            )
+        )
+    return out
+
+
+def _ray_scene(cfg: ScenarioConfig, obstacles: list[Obstacle]) -> RayScene:
+    w, h = cfg.world_size
+    corners = [(0.0, 0.0), (w, 0.0), (w, h), (0.0, h)]
+    segs = [(corners[i], corners[(i + 1) % 4], (True, True, True)) for i in range(4)]
+    circles = []
+    for o in obstacles:
+        mask = ("laser" in o.visible_to, "sonar" in o.visible_to, True)
+        if o.shape == "circle":
+            circles.append((o.center, o.radius, mask))
+        elif o.shape == "segment":
+            segs.append((o.a, o.b, mask))
+        else:
+            v = o.vertices
+            segs += [(v[i], v[(i + 1) % len(v)], mask) for i in range(len(v))]
+    return RayScene(
+        circle_centers=np.array([c[0] for c in circles], dtype=float).reshape(-1, 2),
+        circle_radii=np.array([c[1] for c in circles], dtype=float),
+        circle_mask=np.array([c[2] for c in circles], dtype=bool).reshape(-1, 3),
+        seg_a=np.array([s[0] for s in segs], dtype=float).reshape(-1, 2),
+        seg_b=np.array([s[1] for s in segs], dtype=float).reshape(-1, 2),
+        seg_mask=np.array([s[2] for s in segs], dtype=bool).reshape(-1, 3),
+    )
+
+
+class World:
+    """Physics of one episode: robots on pymunk among the static layout.
+
+    Args:
+        cfg: the scenario.
+    """
+
+    def __init__(self, cfg: ScenarioConfig) -> None:
+        self.cfg = cfg
+        layout_rng = np.random.default_rng(cfg.layout_seed)
+        self.terrain = HeightField(cfg, layout_rng)
+        self.layout = Layout(cfg, self.terrain, layout_rng)
+        n = cfg.n_robots
+        specs = [cfg.robot_spec(i) for i in range(n)]
+        self.max_speed = np.array([s.max_speed for s in specs])
+        self.max_turn_rate = np.array([s.max_turn_rate for s in specs])
+        self.poses = np.zeros((n, 3))
+        self.space: pymunk.Space | None = None
+        self.bodies: list[pymunk.Body] = []
+        self.contacts = {"counts": np.zeros(n, dtype=int)}
+
+    # ------------------------------------------------------------------ reset
+    def reset(self, rng: np.random.Generator) -> None:
+        """Build the pymunk space and place the robots (seeded by ``rng``)."""
+        cfg = self.cfg
+        space = pymunk.Space()
+        space.iterations = 5
+        static = space.static_body
+        w, h = cfg.world_size
+        corners = [(0.0, 0.0), (w, 0.0), (w, h), (0.0, h)]
+        for i in range(4):
+            space.add(pymunk.Segment(static, corners[i], corners[(i + 1) % 4], _WALL_RADIUS))
+        for o in self.layout.obstacles:
+            if not o.solid:
+                continue
+            if o.shape == "circle":
+                shape = pymunk.Circle(static, o.radius, o.center)
+            elif o.shape == "segment":
+                shape = pymunk.Segment(static, o.a, o.b, o.radius)
+            else:
+                shape = pymunk.Poly(static, list(o.vertices))
+            space.add(shape)
+        self.contacts["counts"][:] = 0
+        space.on_collision(ROBOT_COLLISION_TYPE, None, begin=_count_contact, data=self.contacts)
+        self.poses = self._start_poses(rng)
+        self.bodies = []
+        for i, (x, y, th) in enumerate(self.poses):
+            body = pymunk.Body(1.0, float("inf"))
+            body.position = (float(x), float(y))
+            body.angle = float(th)
+            shape = pymunk.Circle(body, cfg.robot_radius)
+            shape.collision_type = ROBOT_COLLISION_TYPE
+            shape.robot_index = i
+            shape.friction = 0.0
+            space.add(body, shape)
+            self.bodies.append(body)
+        self.space = space
+
+    def _start_poses(self, rng: np.random.Generator) -> np.ndarray:
+        cfg = self.cfg
+        n = cfg.n_robots
+        if cfg.start_poses is not None:
+            return np.array(cfg.start_poses[:n], dtype=float)
+        w, h = cfg.world_size
+        x0, y0, x1, y1 = cfg.start_region or (1.0, 1.0, w - 1.0, h - 1.0)
+        r = cfg.robot_radius
+        poses = []
+        for i in range(n):
+            for _ in range(2000):
+                p = np.array([rng.uniform(x0 + r, x1 - r), rng.uniform(y0 + r, y1 - r)])
+                if self.terrain.is_steep(p[None])[0]:
+                    continue
+                if self.layout.clearance(p[None])[0] < r + 0.2:
+                    continue
+                if all(np.hypot(*(p - q[:2])) > 2 * r + 0.3 for q in poses):
+                    break
+            else:
+                raise ValueError(
+                    f"could not place robot {i} of n_robots={n} in start_region "
+                    f"{(x0, y0, x1, y1)}: make it larger or use fewer robots"
+                )
+            poses.append(np.array([p[0], p[1], rng.uniform(-np.pi, np.pi)]))
+        return np.array(poses)
+
+    # ------------------------------------------------------------------ step
+    def step(
+        self, v_cmd: np.ndarray, w_cmd: np.ndarray, active: np.ndarray, rng: np.random.Generator
+    ) -> np.ndarray:
+        """Advance one env step (``odometry_substeps`` physics substeps).
+
+        Args:
+            v_cmd, w_cmd: commanded linear and angular velocities ``(n,)``.
+            active: robots that can move (tipped-over robots stand still).
+            rng: noise source for wheel slip.
+
+        Returns:
+            Number of new contacts per robot during the step, ``(n,)``.
+        """
+        cfg = self.cfg
+        n_sub = cfg.odometry_substeps
+        dt = cfg.dt / n_sub
+        before = self.contacts["counts"].copy()
+        slip = 1.0 + cfg.slip_std * rng.standard_normal((n_sub, len(v_cmd), 2))
+        v = np.where(active, v_cmd, 0.0)
+        w = np.where(active, w_cmd, 0.0)
+        for k in range(n_sub):
+            vk = v * slip[k, :, 0]
+            wk = w * slip[k, :, 1]
+            for i, body in enumerate(self.bodies):
+                th = body.angle
+                body.velocity = (vk[i] * np.cos(th), vk[i] * np.sin(th))
+                body.angular_velocity = wk[i]
+            self.space.step(dt)
+        for i, body in enumerate(self.bodies):
+            body.velocity = (0.0, 0.0)
+            x, y = body.position
+            self.poses[i] = (x, y, body.angle)
+        self.poses[:, 2] = (self.poses[:, 2] + np.pi) % (2 * np.pi) - np.pi
+        return self.contacts["counts"] - before
