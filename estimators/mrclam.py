@@ -146,8 +146,8 @@ def read_table(path: str | Path, ncols: int, *, time_column: bool = True) -> np.
 def load_mrclam(path: str | Path, robots: tuple[int, ...] | None = None) -> MrclamDataset:
     """Load an MR.CLAM dataset directory.
 
-    ``robots`` selects robot subject numbers (default: every ``RobotN_*``
-    triple present, which must be 1..5 without gaps for the standard data).
+    ``robots`` selects robot subject numbers (default: every ``N`` with any
+    ``RobotN_*.dat`` file; each needs all three files).
     Measurements with barcodes missing from ``Barcodes.dat`` are skipped and
     counted in ``unknown_barcodes``; measurements of subjects that are neither
     a loaded robot nor a surveyed landmark are counted there as well.
@@ -166,15 +166,14 @@ def load_mrclam(path: str | Path, robots: tuple[int, ...] | None = None) -> Mrcl
     landmark_std = {int(r[0]): r[3:5].copy() for r in lm}
 
     if robots is None:
-        robots = tuple(
-            sorted(
-                int(p.name[len("Robot") : -len("_Odometry.dat")])
-                for p in root.glob("Robot*_Odometry.dat")
-                if p.name[len("Robot") : -len("_Odometry.dat")].isdigit()
-            )
-        )
-        if not robots:
-            raise FileNotFoundError(f"no RobotN_Odometry.dat files in {root}")
+        found = set()
+        for p in root.glob("Robot*_*.dat"):
+            stem = p.name[len("Robot") :].split("_", 1)[0]
+            if stem.isdigit():
+                found.add(int(stem))
+        if not found:
+            raise FileNotFoundError(f"no RobotN_*.dat files in {root}")
+        robots = tuple(sorted(found))
     raw: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
     for rid in robots:
         raw[rid] = (

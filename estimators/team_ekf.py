@@ -67,8 +67,9 @@ class OdometryTrack:
     Record ``k`` holds the command ``(v_k, w_k)`` from ``t_k + delay`` until the
     next record's time (the last one holds forever); before the first record
     the robot does not move. Commands are multiplied by ``v_scale`` and
-    ``w_scale`` (calibrated from ground truth). Within a record the heading
-    grows linearly and the position moves along the mid-step heading.
+    ``w_scale`` (calibrated from ground truth). Within a record the robot
+    follows the exact circular arc of constant ``(v, w)`` (Eq. 1 of the
+    outdoor paper is its first-order Euler form).
 
     Args:
         times: record times, shape ``(N,)``, non-decreasing.
@@ -108,9 +109,11 @@ class OdometryTrack:
         qv = noise.v0 + noise.v1 * np.abs(v)
         qw = noise.w0 + noise.w1 * np.abs(w)
         theta = np.concatenate([[0.0], np.cumsum(w[:-1] * dt)])
-        mid = theta[:-1] + 0.5 * w[:-1] * dt
-        x = np.concatenate([[0.0], np.cumsum(v[:-1] * dt * np.cos(mid))])
-        y = np.concatenate([[0.0], np.cumsum(v[:-1] * dt * np.sin(mid))])
+        half = 0.5 * w[:-1] * dt
+        mid = theta[:-1] + half
+        chord = v[:-1] * dt * np.sinc(half / np.pi)  # exact arc: v dt sin(h)/h
+        x = np.concatenate([[0.0], np.cumsum(chord * np.cos(mid))])
+        y = np.concatenate([[0.0], np.cumsum(chord * np.sin(mid))])
         c, s = np.cos(theta), np.sin(theta)
         rate = np.zeros((n, 12))  # integrand of each cumulative column within a record
         rate[:, _TH] = w
@@ -141,8 +144,9 @@ class OdometryTrack:
         tau = t - self.times[k]
         row = self._cum[k] + tau * self._rate[k]
         th0 = self._cum[k, _TH]
-        step = self._v[k] * tau
-        mid = th0 + 0.5 * self._w[k] * tau
+        half = 0.5 * self._w[k] * tau
+        step = self._v[k] * tau * np.sinc(half / np.pi)
+        mid = th0 + half
         row[_X] = self._cum[k, _X] + step * np.cos(mid)
         row[_Y] = self._cum[k, _Y] + step * np.sin(mid)
         return row
@@ -186,6 +190,9 @@ class TeamEKF:
         t0: time of the initial poses.
         gate_prob: chi-square validation gate probability (2 degrees of freedom).
         cooperative: apply robot-to-robot updates (``False`` = independent EKFs).
+        sensor_offset: ``(n, 2)`` position of each robot's range-bearing sensor
+            in its body frame (default: at the pose's origin). Targets (landmarks,
+            other robots' poses) are points.
     """
 
     def __init__(
@@ -196,6 +203,7 @@ class TeamEKF:
         t0: float,
         gate_prob: float = 0.99,
         cooperative: bool = True,
+        sensor_offset: np.ndarray | None = None,
     ) -> None:
         n = len(tracks)
         mean = np.array(mean, dtype=float)
@@ -223,6 +231,10 @@ class TeamEKF:
         self._table = [tr.state(float(t0)) for tr in self.tracks]
         self.gate = chi2_threshold(gate_prob, 2)
         self.cooperative = bool(cooperative)
+        off = np.zeros((n, 2)) if sensor_offset is None else np.array(sensor_offset, dtype=float)
+        if off.shape != (n, 2) or not np.all(np.isfinite(off)):
+            raise ValueError(f"sensor_offset must be a finite ({n}, 2) array, got {off!r}")
+        self.sensor_offset = off
         self.accepted = np.zeros(n, dtype=int)
         self.rejected = np.zeros(n, dtype=int)
 
@@ -285,6 +297,36 @@ class TeamEKF:
         self.accepted[who] += 1
         return True
 
+    def _range_bearing(
+        self, i: int, target: np.ndarray, z: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """Innovation and Jacobians of a range-bearing reading from robot ``i`` to a point.
+
+        Returns ``(nu, H_i (2, 3), H_target (2, 2))`` or ``None`` when the
+        predicted range is degenerate.
+        """
+        a = 3 * i
+        px, py, phi = self.x[a], self.x[a + 1], self.x[a + 2]
+        c, s = np.cos(phi), np.sin(phi)
+        ox, oy = self.sensor_offset[i]
+        sx = px + c * ox - s * oy
+        sy = py + s * ox + c * oy
+        dsx, dsy = -s * ox - c * oy, c * ox - s * oy  # d(sensor)/d(phi)
+        dx, dy = target[0] - sx, target[1] - sy
+        q = dx * dx + dy * dy
+        if q < 1e-12:
+            return None
+        rng = np.sqrt(q)
+        nu = np.array([z[0] - rng, wrap_angle(z[1] - (np.arctan2(dy, dx) - phi))])
+        h_t = np.array([[dx / rng, dy / rng], [-dy / q, dx / q]])
+        h_i = np.array(
+            [
+                [-dx / rng, -dy / rng, -(dx * dsx + dy * dsy) / rng],
+                [dy / q, -dx / q, (dy * dsx - dx * dsy) / q - 1.0],
+            ]
+        )
+        return nu, h_i, h_t
+
     def update_landmark(
         self, i: int, landmark: np.ndarray, z: np.ndarray, r: np.ndarray, t: float | None = None
     ) -> bool:
@@ -295,17 +337,12 @@ class TeamEKF:
         """
         if t is not None:
             self.predict_to(i, t)
-        a = 3 * i
-        xi = self.x[a : a + 3]
-        dx, dy = landmark[0] - xi[0], landmark[1] - xi[1]
-        q = dx * dx + dy * dy
-        rng = np.sqrt(q)
-        if rng < 1e-6:
+        res = self._range_bearing(i, np.asarray(landmark, dtype=float), z)
+        if res is None:
             self.rejected[i] += 1
             return False
-        nu = np.array([z[0] - rng, wrap_angle(z[1] - (np.arctan2(dy, dx) - xi[2]))])
-        h = np.array([[-dx / rng, -dy / rng, 0.0], [dy / q, -dx / q, -1.0]])
-        return self._apply(np.arange(a, a + 3), h, nu, r, i)
+        nu, h_i, _ = res
+        return self._apply(np.arange(3 * i, 3 * i + 3), h_i, nu, r, i)
 
     def update_robot(
         self, i: int, j: int, z: np.ndarray, r: np.ndarray, t: float | None = None
@@ -322,20 +359,12 @@ class TeamEKF:
         if t is not None:
             self.predict_to(i, t)
             self.predict_to(j, t)
-        a, b = 3 * i, 3 * j
-        xi, xj = self.x[a : a + 3], self.x[b : b + 3]
-        dx, dy = xj[0] - xi[0], xj[1] - xi[1]
-        q = dx * dx + dy * dy
-        rng = np.sqrt(q)
-        if rng < 1e-6:
+        b = 3 * j
+        res = self._range_bearing(i, self.x[b : b + 2], z)
+        if res is None:
             self.rejected[i] += 1
             return False
-        nu = np.array([z[0] - rng, wrap_angle(z[1] - (np.arctan2(dy, dx) - xi[2]))])
-        h = np.array(
-            [
-                [-dx / rng, -dy / rng, 0.0, dx / rng, dy / rng, 0.0],
-                [dy / q, -dx / q, -1.0, -dy / q, dx / q, 0.0],
-            ]
-        )
-        idx = np.r_[a : a + 3, b : b + 3]
+        nu, h_i, h_t = res
+        h = np.hstack([h_i, h_t])
+        idx = np.r_[3 * i : 3 * i + 3, b : b + 2]
         return self._apply(idx, h, nu, r, i)
