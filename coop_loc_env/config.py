@@ -174,7 +174,9 @@ class ScenarioConfig:
     camera_fov_deg: float = 37.0
     camera_width_px: int = 160
     camera_max_range: float = 20.0
-    camera_range_std: float = 1.0
+    camera_range_std: float = 1.0  # range std of a fresh track (depth from motion refines it)
+    camera_flow_std_px: float = 0.5  # optical-flow bearing noise for depth from motion (pixels)
+    camera_looming_gain: float = 0.3  # weight of motion along the line of sight in the baseline
     # --- robot detector (identity + range, bearing, orientation)
     detector_rate: float = 10.0
     detector_range: float = 8.0
@@ -197,6 +199,10 @@ class ScenarioConfig:
     # --- observations
     laser_obs_bins: int = 16
     max_detections_obs: int = 3
+    map_patch_obs: int = 0  # egocentric terrain-map patch edge in cells (0 = off)
+    # --- team terrain map (coop_loc_env.mapping)
+    map_resolution: float = 0.5
+    map_footprint_radius: float = 0.5
     # --- reward weights
     reward_localization_weight: float = 1.0
     reward_heading_weight: float = 0.0
@@ -242,6 +248,7 @@ class ScenarioConfig:
         _int_at_least(self, "camera_width_px", 1)
         _int_at_least(self, "laser_obs_bins", 1)
         _int_at_least(self, "max_detections_obs", 0)
+        _int_at_least(self, "map_patch_obs", 0)
         _int_at_least(self, "n_particles", 10)
         _int_at_least(self, "gps_reference_satellites", 1)
         for key in ("n_random_trees", "n_random_rocks", "n_random_ooi", "terrain_hills"):
@@ -258,7 +265,7 @@ class ScenarioConfig:
             "laser_max_range", "sonar_max_range", "camera_max_range", "detector_range",
             "laser_fov_deg", "sonar_fov_deg", "camera_fov_deg", "detector_fov_deg",
             "terrain_length_scale", "terrain_resolution", "tip_over_slope_deg", "tree_radius",
-            "rock_radius", "steep_patch_radius",
+            "rock_radius", "steep_patch_radius", "map_resolution",
         )
         for key in positive:
             _number(self, key, lower=0.0, strict=True)
@@ -269,7 +276,8 @@ class ScenarioConfig:
             "detection_bearing_std", "detection_orientation_std", "detection_range_fraction",
             "init_pos_std", "init_heading_std", "terrain_amplitude", "canopy_radius",
             "reward_localization_weight", "reward_heading_weight", "reward_coverage_weight",
-            "collision_penalty", "tip_over_penalty",
+            "collision_penalty", "tip_over_penalty", "camera_flow_std_px", "camera_looming_gain",
+            "map_footprint_radius",
         )
         for key in non_negative:
             _number(self, key, lower=0.0, strict=False)

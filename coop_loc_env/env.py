@@ -11,7 +11,9 @@ from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
 
 from coop_loc_env.config import ScenarioConfig
+from coop_loc_env.depth_from_motion import CameraRecord, DepthFromMotion
 from coop_loc_env.estimation import GAUSSIAN_FEATURE_NAMES, make_backends
+from coop_loc_env.mapping import TeamMapper
 from coop_loc_env.observations import ObservationBuilder
 from coop_loc_env.scenarios import make_config
 from coop_loc_env.sensors import Readings, SensorSuite
@@ -28,8 +30,12 @@ class CoopLocParallelEnv(ParallelEnv):
     actions ``(linear velocity, turn rate)`` in ``[-1, 1]^2``. Each robot's
     sensors feed its estimator; its observation is its belief plus its own
     readings (see :mod:`coop_loc_env.observations`); its reward is the
-    weighted negative true localization error, minus collision and tip-over
-    penalties (terms in ``info["reward_terms"]``).
+    weighted negative true localization error, plus the weighted number of
+    team-map cells it newly mapped (``reward_coverage_weight``), minus
+    collision and tip-over penalties (terms in ``info["reward_terms"]``).
+    The team terrain map (:mod:`coop_loc_env.mapping`) is updated every step
+    from the robots' beliefs, inclinometers and DGPS altitudes; camera ranges
+    come from depth from motion (:mod:`coop_loc_env.depth_from_motion`).
 
     Args:
         scenario: a registered scenario name (:func:`coop_loc_env.list_scenarios`).
@@ -40,7 +46,9 @@ class CoopLocParallelEnv(ParallelEnv):
     Infos (per agent): ``true_pose``, ``est_pose`` (x, y, heading), ``pose_cov``
     (3x3), ``position_error`` (m), ``heading_error`` (rad), ``reward_terms``,
     ``gps_fix``, ``satellites``, ``collisions`` (new contacts this step),
-    ``tipped_over``.
+    ``tipped_over``, ``new_cells`` (team-map cells this robot newly mapped this
+    step), ``coverage`` (fraction of the drivable area the team has mapped)
+    and ``map_rmse`` (m, team map vs true height field over mapped cells).
     """
 
     metadata = {
@@ -70,6 +78,8 @@ class CoopLocParallelEnv(ParallelEnv):
         self.world = World(cfg)
         self.sensors = SensorSuite(cfg, self.world)
         self.backends = make_backends(cfg)
+        self.mapper = TeamMapper(cfg, self.world)
+        self.depth = DepthFromMotion(cfg, len(self.world.layout.ooi_centers))
         belief_size = max(b.feature_size for b in self.backends)
         belief_names = GAUSSIAN_FEATURE_NAMES if belief_size == len(GAUSSIAN_FEATURE_NAMES) else ()
         for b in self.backends:
@@ -111,6 +121,39 @@ class CoopLocParallelEnv(ParallelEnv):
         """Current belief means of all robots ``(n, 3)``."""
         return self._est_mean.copy()
 
+    @property
+    def estimated_covariances(self) -> np.ndarray:
+        """Current belief covariances of all robots ``(n, 3, 3)``."""
+        return self._est_cov.copy()
+
+    @property
+    def last_readings(self) -> Readings | None:
+        """The sensor readings of the last step (``None`` right after :meth:`reset`)."""
+        return self._last_readings
+
+    @property
+    def terrain_map(self):
+        """The team terrain map (:class:`estimators.terrain_map.TerrainMap`) built so far."""
+        return self.mapper.map
+
+    def camera_readings(self, agent: str) -> list[CameraRecord]:
+        """What ``agent``'s camera saw in the last step (empty when it took no frame).
+
+        Each :class:`~coop_loc_env.depth_from_motion.CameraRecord` holds the
+        object's kind and id, its pixel-quantized bearing and a depth-from-motion
+        range with its standard deviation.
+        """
+        self._check_agent_name(agent)
+        return list(self._camera[self.agent_name_mapping[agent]])
+
+    def mark_object(self, agent: str, x: float, y: float, radius: float = 0.0) -> int:
+        """``agent`` reports an object of interest at world ``(x, y)`` to the team map.
+
+        Returns the number of map cells newly marked.
+        """
+        self._check_agent_name(agent)
+        return self.mapper.map.mark_object(float(x), float(y), radius)
+
     # ------------------------------------------------------------------ reset
     def _reset_state(self) -> None:
         n = self.config.n_robots
@@ -121,6 +164,8 @@ class CoopLocParallelEnv(ParallelEnv):
         self._est_mean = np.zeros((n, 3))
         self._est_cov = np.repeat(np.eye(3)[None], n, axis=0)
         self._last_readings: Readings | None = None
+        self._camera: list[list[CameraRecord]] = [[] for _ in range(n)]
+        self._new_cells = np.zeros(n, dtype=np.int64)
 
     def reset(
         self, seed: int | None = None, options: dict | None = None
@@ -133,8 +178,10 @@ class CoopLocParallelEnv(ParallelEnv):
         self.world.reset(rng)
         for backend in self.backends:
             backend.reset(self.world.poses, rng)
+        self.depth.reset(self.world.poses)
         self.observations.reset()
         self._gather_beliefs()
+        self.mapper.reset(self.world.poses, self._est_mean, self._est_cov)
         self.agents = list(self.possible_agents)
         zeros = np.zeros(self.config.n_robots)
         infos = self._infos(zeros, np.zeros(self.config.n_robots, dtype=int))
@@ -159,10 +206,15 @@ class CoopLocParallelEnv(ParallelEnv):
             (cfg.odometry_substeps, cfg.n_robots, 2),
         )
         readings = self.sensors.read(self._step_count, poses, odom_truth, rng, self._active)
+        self._camera = self.depth.process(
+            readings.camera, readings.camera_mask, poses, self.world.layout.ooi_centers, rng
+        )
+        readings.camera = [[(c.kind, c.id, c.bearing, c.range) for c in cs] for cs in self._camera]
         self._last_readings = readings
         for backend in self.backends:
             backend.step(readings, self._active)
         self._gather_beliefs()
+        self._new_cells = self.mapper.step(readings, self._est_mean, self._est_cov, self._active)
         self.observations.ingest(readings, self.sensors.range_max)
         self._last_action = act
         self._step_count += 1
@@ -245,7 +297,10 @@ class CoopLocParallelEnv(ParallelEnv):
         for backend in self.backends:
             feats = backend.features()
             belief[backend.robots, : feats.shape[1]] = feats
-        obs = self.observations.build_all(belief, self._last_action, self.world.poses)
+        patch = None
+        if self.config.map_patch_obs:
+            patch = self.mapper.patches(self._est_mean, self.config.map_patch_obs)
+        obs = self.observations.build_all(belief, self._last_action, self.world.poses, patch)
         return {a: obs[self.agent_name_mapping[a]] for a in agents}
 
     def _infos(self, tipped: np.ndarray, new_contacts: np.ndarray) -> dict[str, dict]:
@@ -259,13 +314,16 @@ class CoopLocParallelEnv(ParallelEnv):
             if hasattr(backend, "extra_info"):
                 for i, entries in backend.extra_info(poses).items():
                     extra.setdefault(int(i), {}).update(entries)
+        coverage = self.mapper.coverage()
+        map_rmse = self.mapper.map_rmse()
+        new_cells = self._new_cells
         infos = {}
         for agent in self.possible_agents:
             i = self.agent_name_mapping[agent]
             terms = {
                 "localization": -cfg.reward_localization_weight * float(err_xy[i])
                 - cfg.reward_heading_weight * float(err_th[i]),
-                "coverage": 0.0,
+                "coverage": cfg.reward_coverage_weight * float(new_cells[i]),
                 "collision": -cfg.collision_penalty * float(new_contacts[i]),
                 "tip_over": -cfg.tip_over_penalty * float(tipped[i]),
             }
@@ -280,6 +338,9 @@ class CoopLocParallelEnv(ParallelEnv):
                 "satellites": int(readings.satellites[i]) if readings is not None else 0,
                 "collisions": int(new_contacts[i]),
                 "tipped_over": bool(self._tipped[i]),
+                "new_cells": int(new_cells[i]),
+                "coverage": coverage,
+                "map_rmse": map_rmse,
                 **extra.get(i, {}),
             }
         return infos

@@ -14,6 +14,13 @@ detections             ``6 * max_detections_obs``  per slot, nearest first: pres
                                                    detector range, cos/sin bearing, cos/sin
                                                    orientation
 last action            2                           the normalized action applied last step
+map patch (optional)   ``3 * map_patch_obs**2``    egocentric team-map patch (``map_patch_obs``
+                                                   cells a side, ``map_resolution`` m apart,
+                                                   axis 0 forward, axis 1 left, row-major),
+                                                   three channels one after the other:
+                                                   elevation minus the robot's own elevation
+                                                   estimate (m, 0 where unmapped), mapped
+                                                   (0/1), object of interest marked (0/1)
 privileged (optional)  4                           true x/W*2-1, y/H*2-1, cos, sin heading
 =====================  ==========================  ===========================================
 
@@ -58,6 +65,9 @@ class ObservationBuilder:
             fields = ("present", "range", "cos_bearing", "sin_bearing", "cos_orient", "sin_orient")
             names += [f"det{k}_{f}" for f in fields]
         names += ["last_v", "last_w"]
+        size = cfg.map_patch_obs
+        for channel in ("elev", "mapped", "object"):
+            names += [f"map_{channel}_{u}_{v}" for u in range(size) for v in range(size)]
         if cfg.privileged_obs:
             names += ["true_x", "true_y", "true_cos_heading", "true_sin_heading"]
         return names
@@ -100,9 +110,16 @@ class ObservationBuilder:
                 slot[i] = s + 1
 
     def build_all(
-        self, belief: np.ndarray, last_action: np.ndarray, true_poses: np.ndarray
+        self,
+        belief: np.ndarray,
+        last_action: np.ndarray,
+        true_poses: np.ndarray,
+        map_patch: np.ndarray | None = None,
     ) -> np.ndarray:
-        """Observation matrix of all robots ``(n, size)`` from belief features ``(n, b)``."""
+        """Observation matrix of all robots ``(n, size)`` from belief features ``(n, b)``.
+
+        ``map_patch`` ``(n, 3, S, S)`` is required when ``map_patch_obs = S > 0``.
+        """
         cfg = self.cfg
         n = len(belief)
         parts = [
@@ -114,6 +131,10 @@ class ObservationBuilder:
             self.det,
             last_action,
         ]
+        if cfg.map_patch_obs:
+            if map_patch is None:
+                raise ValueError("map_patch is required when map_patch_obs > 0, got None")
+            parts.append(np.asarray(map_patch).reshape(n, -1))
         if cfg.privileged_obs:
             w, h = cfg.world_size
             x, y, th = true_poses.T

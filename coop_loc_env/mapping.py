@@ -1,0 +1,149 @@
+"""The team terrain map inside the env: elevation samples every step, coverage and map RMSE.
+
+:class:`TeamMapper` wraps :class:`estimators.terrain_map.TerrainMap` (the
+paper's DGPS/inclinometer elevation fusion and confidence-merged team map) and
+feeds it what each robot knows, once per env step:
+
+* its *estimated* pose and covariance (localization error corrupts the map);
+* the last inclinometer pitch it read (latched between 1 Hz readings);
+* the signed distance it drove since the previous step, from its odometry;
+* its DGPS altitude and satellite count on steps with a fix (NaN / 0 otherwise).
+
+The map frame is the true height field's frame: the DGPS base station's
+altitude ``gps_base_altitude`` maps to elevation 0 (``datum = 0``), so
+:meth:`TeamMapper.map_rmse` compares the map with the height field directly.
+The true heights at the map's cell centres and the drivable mask (not steep,
+not inside an obstacle) are computed once, so the per-step metrics cost a few
+vectorized operations over the grid.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from coop_loc_env.config import ScenarioConfig
+from coop_loc_env.sensors import Readings
+from coop_loc_env.world import World
+from estimators.terrain_fusion import REF_NOS
+from estimators.terrain_map import TerrainMap
+
+#: Variance (m^2) of each robot's elevation estimate at the start of an episode.
+INITIAL_ELEVATION_VAR = 0.01
+
+
+class TeamMapper:
+    """Builds the team elevation map from the robots' beliefs and readings.
+
+    Args:
+        cfg: the scenario (``map_resolution``, ``map_footprint_radius``,
+            inclinometer/DGPS noise, ``gps_base_altitude``).
+        world: the world whose terrain is mapped (truth used only for the
+            metrics and for each robot's starting elevation).
+    """
+
+    def __init__(self, cfg: ScenarioConfig, world: World) -> None:
+        self.cfg = cfg
+        self.world = world
+        n = cfg.n_robots
+        self.map = TerrainMap(
+            n,
+            size=cfg.world_size,
+            resolution=cfg.map_resolution,
+            origin=(0.0, 0.0),
+            datum=0.0,
+            pitch_std=cfg.inclinometer_std,
+            # The env's altitude std is gps_altitude_std at gps_reference_satellites;
+            # TerrainMap specifies it at REF_NOS satellites (variance ~ 1 / NOS).
+            gps_alt_std=cfg.gps_altitude_std * np.sqrt(cfg.gps_reference_satellites / REF_NOS),
+            footprint_radius=cfg.map_footprint_radius,
+        )
+        xc, yc = self.map.cell_centers()
+        centers = np.stack([xc.ravel(), yc.ravel()], axis=1)
+        self.true_height = world.terrain.elevation(centers).reshape(self.map.shape)
+        clear = world.layout.clearance(centers) > 0.0
+        drivable = (~world.terrain.is_steep(centers)) & clear
+        self.drivable = drivable.reshape(self.map.shape)
+        self._drivable_flat = drivable
+        self._n_drivable = max(int(drivable.sum()), 1)
+        self._pitch = np.zeros(n)
+        self._dt_sub = cfg.dt / cfg.odometry_substeps
+        self.last_new_cells = np.zeros(n, dtype=np.int64)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """Grid shape ``(nx, ny)`` (axis 0 = x, as in :class:`TerrainMap`)."""
+        return self.map.shape
+
+    def reset(self, true_poses: np.ndarray, est_mean: np.ndarray, est_cov: np.ndarray) -> None:
+        """Clear the map; each robot starts knowing its elevation (variance 0.01 m^2).
+
+        Each robot then maps the ground it stands on, at its estimated start
+        pose, so the map (and :meth:`map_rmse`) is defined from the first step.
+        """
+        z0 = self.world.terrain.elevation(np.asarray(true_poses)[:, :2])
+        self.map.reset(initial_elevation=z0, initial_var=INITIAL_ELEVATION_VAR)
+        self._pitch[:] = 0.0
+        n = self.cfg.n_robots
+        zeros = np.zeros(n)
+        self.map.update(
+            np.arange(n), est_mean, est_cov, zeros, np.full(n, np.nan), zeros, zeros,
+            self.cfg.gps_base_altitude,
+        )
+        self.last_new_cells = np.zeros(n, dtype=np.int64)
+
+    def step(
+        self,
+        readings: Readings,
+        est_mean: np.ndarray,
+        est_cov: np.ndarray,
+        active: np.ndarray,
+    ) -> np.ndarray:
+        """Register one elevation sample per active robot; returns newly mapped cells ``(n,)``.
+
+        Args:
+            readings: this step's sensor readings (odometry, inclinometer, DGPS).
+            est_mean: estimated poses ``(n, 3)`` after this step's update.
+            est_cov: pose covariances ``(n, 3, 3)``.
+            active: robots still in the episode (others are not sampled).
+        """
+        m = readings.inclinometer_mask
+        self._pitch[m] = readings.pitch[m]
+        new = np.zeros(self.cfg.n_robots, dtype=np.int64)
+        ids = np.flatnonzero(active)
+        if ids.size:
+            distance = readings.odometry[:, ids, 0].sum(axis=0) * self._dt_sub
+            fix = readings.gps_mask[ids]
+            alt = np.where(fix, readings.gps_altitude[ids], np.nan)
+            nos = np.where(fix, readings.satellites[ids], 0)
+            new[ids] = self.map.update(
+                ids,
+                est_mean[ids],
+                est_cov[ids],
+                self._pitch[ids],
+                alt,
+                nos,
+                distance,
+                self.cfg.gps_base_altitude,
+            )
+        self.last_new_cells = new
+        return new
+
+    def coverage(self) -> float:
+        """Fraction of drivable cells that hold a measured elevation."""
+        mapped = self.map.mapped.ravel()
+        return float(np.count_nonzero(mapped & self._drivable_flat)) / self._n_drivable
+
+    def map_rmse(self) -> float:
+        """RMSE (m) of the mapped cells against the true height field; NaN when none mapped."""
+        if self.map.n_mapped == 0:
+            return float("nan")
+        return self.map.rmse(self.true_height)
+
+    def patches(self, est_mean: np.ndarray, size_cells: int) -> np.ndarray:
+        """Egocentric patches ``(n, 3, S, S)`` around the estimated poses.
+
+        Channels: elevation relative to the robot's own elevation estimate
+        (0 where unmapped), mapped mask, object-of-interest mask.
+        """
+        ref, _ = self.map.robot_elevation()
+        return self.map.local_patch(est_mean, size_cells, reference=ref)
