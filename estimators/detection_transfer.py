@@ -64,6 +64,7 @@ __all__ = [
     "RobotDetection",
     "TransferConfig",
     "TransferResult",
+    "detection_from_measurement",
     "detection_weight_factors",
     "sample_detected_poses",
     "sample_observer_poses",
@@ -113,6 +114,24 @@ class RobotDetection:
             if std is None or not math.isfinite(std) or std <= 0:
                 raise ValueError(f"orientation_std must be > 0 when orientation is given, "
                                  f"got {std}")
+
+
+def detection_from_measurement(
+    observer: Hashable, target: Hashable, z: np.ndarray, cov: np.ndarray
+) -> RobotDetection:
+    """Build a :class:`RobotDetection` from ``z = (range, bearing, orientation)`` and its
+    ``3x3`` noise covariance (standard deviations from the diagonal; correlations dropped).
+    """
+    z = np.asarray(z, dtype=float)
+    cov = np.asarray(cov, dtype=float)
+    if z.shape != (3,) or cov.shape != (3, 3):
+        raise ValueError(f"z must be (3,) and cov (3, 3), got {z.shape} and {cov.shape}")
+    std = np.sqrt(np.diag(cov))
+    return RobotDetection(
+        observer=observer, target=target, range=float(z[0]), bearing=float(z[1]),
+        range_std=float(std[0]), bearing_std=float(std[1]), orientation=float(z[2]),
+        orientation_std=float(std[2]),
+    )
 
 
 @dataclass(frozen=True)

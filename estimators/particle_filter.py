@@ -72,16 +72,18 @@ class MotionNoise:
         std(trans) = trans_trans * |trans| + trans_rot * (|rot1| + |rot2|) + min_xy
         std(rot2)  = rot_rot * |rot2| + rot_trans * |trans| + min_heading
 
-    ``min_xy`` (m) and ``min_heading`` (rad) are small per-step floors that keep
-    particle diversity while the robot stands still.
+    ``min_xy`` (m) and ``min_heading`` (rad) are per-prediction floors
+    ("roughening"): they keep particle diversity while the robot stands still
+    and let a set that collapsed slightly off the truth drift back to it.
+    They are per call, so scale them with the prediction rate.
     """
 
     rot_rot: float = 0.05
     rot_trans: float = 0.02
     trans_trans: float = 0.05
     trans_rot: float = 0.01
-    min_xy: float = 0.005
-    min_heading: float = 0.003
+    min_xy: float = 0.02
+    min_heading: float = 0.01
 
     def __post_init__(self) -> None:
         for name in ("rot_rot", "rot_trans", "trans_trans", "trans_rot", "min_xy", "min_heading"):
@@ -116,6 +118,10 @@ class MCLConfig:
     per-beam geometric-mean likelihood with rates ``alpha_slow`` < ``alpha_fast``
     and injects uniform particles with probability
     ``max(random_fraction, min(max_inject_fraction, 1 - w_fast / w_slow))``.
+    The constant ``random_fraction`` is Fox et al.'s "small number of uniformly
+    distributed samples after each estimation step": it is what lets global
+    localization escape a wrong mode that a too-early collapse locked in (the
+    slow/fast averages cannot notice a consistently mediocre match).
 
     KLD sampling (``adaptive=True``) chooses the particle count between
     ``n_min`` and ``n_max`` so that, with probability ``1 - kld_delta``, the
@@ -143,7 +149,7 @@ class MCLConfig:
     alpha_slow: float = 0.01
     alpha_fast: float = 0.2
     max_inject_fraction: float = 0.3
-    random_fraction: float = 0.0
+    random_fraction: float = 0.03
     adaptive: bool = False
     n_min: int = 100
     n_max: int = 5000
@@ -267,11 +273,13 @@ def belief_feature_names(hist_cells: int = 5, heading_bins: int = 8) -> list[str
 
     Layout (``K = hist_cells``, ``H = heading_bins``; lengths in brackets)::
 
-        mean_x, mean_y                      [2]  weighted mean / position_scale
-        mean_cos, mean_sin                  [2]  cos, sin of circular-mean heading
-        std_x, std_y                        [2]  weighted std / position_scale
-        std_heading                         [1]  circular std (rad) / pi, capped at 1
-        corr_xy, corr_xh, corr_yh           [3]  weighted correlations
+        x_norm, y_norm                      [2]  weighted mean mapped to [-1, 1] over the
+                                                  map's bounds
+        cos_heading, sin_heading            [2]  cos, sin of the circular-mean heading
+        log10_std_x, log10_std_y            [2]  log10 of the weighted std (m), clipped
+                                                  to [-3, 2]
+        log10_std_heading                   [1]  log10 of the circular std (rad), same clip
+        rho_xy, rho_xheading, rho_yheading  [3]  weighted correlations
         heading_resultant                   [1]  mean resultant length in [0, 1]
         ess_fraction                        [1]  effective sample size / N
         hist_entropy                        [1]  entropy of the histogram below / log(K*K+1)
@@ -286,15 +294,16 @@ def belief_feature_names(hist_cells: int = 5, heading_bins: int = 8) -> list[str
                                                   equal bins starting at -pi
 
     Total length ``14 + K*K + 1 + H``; the histogram entries plus
-    ``hist_outside`` sum to 1, as do the heading bins.
+    ``hist_outside`` sum to 1, as do the heading bins. The first ten entries
+    have the same meaning and scaling as the env's Gaussian-belief features.
     """
     if hist_cells < 1 or heading_bins < 1:
         raise ValueError(f"hist_cells and heading_bins must be >= 1, got {hist_cells}, "
                          f"{heading_bins}")
     names = [
-        "mean_x", "mean_y", "mean_cos", "mean_sin", "std_x", "std_y", "std_heading",
-        "corr_xy", "corr_xh", "corr_yh", "heading_resultant", "ess_fraction",
-        "hist_entropy", "count_fraction",
+        "x_norm", "y_norm", "cos_heading", "sin_heading", "log10_std_x", "log10_std_y",
+        "log10_std_heading", "rho_xy", "rho_xheading", "rho_yheading", "heading_resultant",
+        "ess_fraction", "hist_entropy", "count_fraction",
     ]
     names += [f"hist_r{i}_c{j}" for i in range(hist_cells) for j in range(hist_cells)]
     names.append("hist_outside")
@@ -318,6 +327,12 @@ class ParticleFilter:
     over free space (global localization); call :meth:`init_gaussian` for
     position tracking. ``odometer`` accumulates the absolute translation
     reported by odometry (used by the detection lockout).
+
+    Recommended order per step: :meth:`resample_if_needed` (which also injects
+    random particles), :meth:`predict_odometry`, the measurement updates,
+    detection transfers, then read :meth:`belief`. Resampling first means the
+    reported belief is the weighted posterior in which freshly injected
+    particles already carry their (usually tiny) weights.
     """
 
     def __init__(
@@ -791,15 +806,14 @@ class ParticleFilter:
 
     def belief(self) -> ParticleBelief:
         """Mean, weighted covariance (heading wrapped about the mean), particles, weights."""
+        particles = self.particles.copy()
         mean = self.mean_pose()
         w = self._weights
-        d = self._state - mean[:, None]
+        d = particles.T - mean[:, None]
         d[2] = wrap_angle(d[2])
         cov = (d * w) @ d.T
         cov = 0.5 * (cov + cov.T)
-        return ParticleBelief(
-            mean=mean, cov=cov, particles=self._state.T.copy(), weights=w.copy()
-        )
+        return ParticleBelief(mean=mean, cov=cov, particles=particles, weights=w.copy())
 
     def particle_spread(self, true_pose: np.ndarray) -> float:
         """Weighted mean distance (m) of the particles from the true position (Fox et al.)."""
@@ -814,7 +828,6 @@ class ParticleFilter:
         hist_cells: int = 5,
         cell_size: float = 1.0,
         heading_bins: int = 8,
-        position_scale: float = 1.0,
     ) -> np.ndarray:
         """Fixed-size ``float32`` embedding of the belief; layout in :func:`belief_feature_names`.
 
@@ -825,8 +838,6 @@ class ParticleFilter:
         names = belief_feature_names(hist_cells, heading_bins)
         if not np.isfinite(cell_size) or cell_size <= 0:
             raise ValueError(f"cell_size must be positive, got {cell_size}")
-        if not np.isfinite(position_scale) or position_scale <= 0:
-            raise ValueError(f"position_scale must be positive, got {position_scale}")
         w = self._weights
         st = self._state
         mean = self.mean_pose()
@@ -858,11 +869,12 @@ class ParticleFilter:
         hb = np.floor((d[2] + np.pi) / (2 * np.pi) * heading_bins).astype(np.intp)
         hhist = np.bincount(np.clip(hb, 0, heading_bins - 1), weights=w, minlength=heading_bins)
         count_frac = self.n_particles / self.config.n_max if self.config.adaptive else 1.0
+        xmin, ymin, xmax, ymax = self.grid.bounds
+        log_std = np.clip(np.log10(np.maximum([std[0], std[1], circ_std], 1e-12)), -3.0, 2.0)
         feats = np.concatenate([
-            [mean[0] / position_scale, mean[1] / position_scale, c, s,
-             std[0] / position_scale, std[1] / position_scale, min(circ_std / np.pi, 1.0),
-             corr[0, 1], corr[0, 2], corr[1, 2], resultant, self.ess / self.n_particles,
-             entropy, min(count_frac, 1.0)],
+            [(mean[0] - xmin) / (xmax - xmin) * 2 - 1, (mean[1] - ymin) / (ymax - ymin) * 2 - 1,
+             c, s, *log_std, *np.clip([corr[0, 1], corr[0, 2], corr[1, 2]], -1.0, 1.0), resultant,
+             self.ess / self.n_particles, entropy, min(count_frac, 1.0)],
             hist, [outside], hhist,
         ]).astype(np.float32)
         assert feats.size == len(names)

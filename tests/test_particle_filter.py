@@ -1,0 +1,387 @@
+"""Tests of the occupancy grid and the Monte Carlo localization particle filter."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from estimators.geometry import wrap_angle
+from estimators.occupancy import OccupancyGrid
+from estimators.particle_filter import (
+    MCLConfig,
+    MotionNoise,
+    ParticleFilter,
+    belief_feature_names,
+    kld_sample_bound,
+    low_variance_indices,
+)
+
+RES = 0.1
+MAX_RANGE = 8.0
+BEAMS = np.linspace(-np.pi, np.pi, 30, endpoint=False)
+WAYPOINTS = np.array(
+    [[1, 1], [4, 1.5], [5.5, 1.6], [7.5, 2.5], [9, 2.5], [9, 5], [8, 5.3], [5.5, 4.5], [3, 4.5],
+     [1, 4.5], [1, 3]]
+)
+
+
+def room(res: float = RES) -> OccupancyGrid:
+    """A 10 m x 6 m walled room with boxes placed without any symmetry."""
+    nx, ny = int(round(10.0 / res)), int(round(6.0 / res))
+    occ = np.zeros((ny, nx), dtype=bool)
+    occ[0, :] = occ[-1, :] = occ[:, 0] = occ[:, -1] = True
+    boxes = [(2.0, 2.0, 3.0, 2.6), (6.5, 3.2, 7.0, 4.2), (4.5, 0.0, 4.8, 1.2), (8.0, 1.0, 9.0, 1.5),
+             (3.5, 5.4, 4.5, 6.0), (5.8, 2.8, 6.1, 3.1), (9.5, 5.5, 10.0, 6.0)]
+    for x0, y0, x1, y1 in boxes:
+        rows = slice(int(round(y0 / res)), int(round(y1 / res)))
+        occ[rows, int(round(x0 / res)):int(round(x1 / res))] = True
+    return OccupancyGrid(occ, res, (0.0, 0.0))
+
+
+class Robot:
+    """A simulated robot following the waypoint loop, with noisy odometry and laser."""
+
+    def __init__(self, grid: OccupancyGrid, seed: int, pose=(1.0, 1.0, 0.0), wp: int = 0):
+        self.grid = grid
+        self.rng = np.random.default_rng(seed)
+        self.pose = np.array(pose, dtype=float)
+        self.wp = wp
+
+    def step(self, dt: float = 0.2) -> tuple[float, float, float, np.ndarray]:
+        tgt = WAYPOINTS[self.wp % len(WAYPOINTS)]
+        d = tgt - self.pose[:2]
+        if np.hypot(*d) < 0.3:
+            self.wp += 1
+            d = WAYPOINTS[self.wp % len(WAYPOINTS)] - self.pose[:2]
+        err = wrap_angle(np.arctan2(d[1], d[0]) - self.pose[2])
+        w = float(np.clip(2 * err, -1.5, 1.5))
+        v = 0.5 if abs(err) < 0.5 else 0.1
+        th, dth = self.pose[2], w * dt
+        self.pose = self.pose + [v * dt * np.cos(th + dth / 2), v * dt * np.sin(th + dth / 2), dth]
+        self.pose[2] = wrap_angle(self.pose[2])
+        vm = v * (1 + 0.05 * self.rng.standard_normal())
+        wm = w + 0.05 * self.rng.standard_normal()
+        z = self.grid.simulate_scan(self.pose, BEAMS, MAX_RANGE)
+        z = np.clip(z + 0.03 * self.rng.standard_normal(z.size), 0.0, MAX_RANGE)
+        return vm, wm, dt, z
+
+
+def run(pf: ParticleFilter, robot: Robot, steps: int, beam: bool = False) -> list[float]:
+    spread = []
+    for _ in range(steps):
+        pf.resample_if_needed()
+        v, w, dt, z = robot.step()
+        pf.predict_odometry(v, w, dt)
+        if beam:
+            pf.update_beam(z, BEAMS, MAX_RANGE, cone_half_width=np.deg2rad(5))
+        else:
+            pf.update_likelihood_field(z, BEAMS, MAX_RANGE)
+        spread.append(pf.particle_spread(robot.pose))
+    return spread
+
+
+# ------------------------------------------------------------------ occupancy grid
+def test_grid_conversions_and_free_space():
+    g = room()
+    assert g.bounds == (0.0, 0.0, 10.0, 6.0)
+    cells = g.world_to_cell(np.array([[0.05, 0.05], [9.99, 5.99], [-0.01, 1.0]]))
+    np.testing.assert_array_equal(cells, [[0, 0], [99, 59], [-1, 10]])
+    np.testing.assert_allclose(g.cell_to_world(np.array([3, 4])), [0.35, 0.45])
+    np.testing.assert_array_equal(
+        g.is_free(np.array([[1.0, 1.0], [2.5, 2.3], [0.05, 3.0], [11.0, 3.0]])),
+        [True, False, False, False],
+    )
+    pts = g.sample_free(5000, np.random.default_rng(0))
+    assert g.is_free(pts).all()
+    # uniform over free space: the share left of x = 4.5 matches its free-area share
+    free = ~g.occupied
+    share = free[:, :45].sum() / free.sum()
+    assert abs(np.mean(pts[:, 0] < 4.5) - share) < 4 * np.sqrt(share * (1 - share) / 5000)
+
+
+def test_distance_field_is_metric_edt():
+    occ = np.zeros((20, 30), dtype=bool)
+    occ[10, 15] = True
+    g = OccupancyGrid(occ, 0.5, (-1.0, 2.0))
+    d = g.distance_field()
+    assert d[10, 15] == 0.0
+    assert d[10, 18] == pytest.approx(1.5)
+    assert d[13, 19] == pytest.approx(2.5)
+    padded = g.distance_field(pad_cells=4)
+    assert padded.shape == (28, 38)
+    np.testing.assert_allclose(padded[4:-4, 4:-4], d)
+
+
+def test_ray_casting_matches_brute_force_marching():
+    g = room()
+    rng = np.random.default_rng(1)
+    origins = g.sample_free(200, rng)
+    angles = rng.uniform(-np.pi, np.pi, 200)
+    ranges = g.cast_rays(origins, angles, MAX_RANGE)
+    ts = np.arange(0.0, MAX_RANGE, 0.002)
+    for o, a, r in zip(origins, angles, ranges, strict=True):
+        pts = o + ts[:, None] * np.array([np.cos(a), np.sin(a)])
+        blocked = ~g.is_free(pts)
+        truth = ts[np.argmax(blocked)] if blocked.any() else MAX_RANGE
+        assert truth - 0.005 <= r <= truth + 0.005
+    # known geometry: from (1, 1) looking +x the box at x = 4.5 (y in [0, 1.2]) is 3.5 m away
+    r = g.simulate_scan(np.array([1.0, 1.0, 0.0]), np.array([0.0, np.pi / 2]), MAX_RANGE)
+    assert r[0] == pytest.approx(3.5, abs=0.6 * RES)
+    assert r[1] == pytest.approx(4.9, abs=0.6 * RES)
+
+
+def test_grid_rejects_bad_input():
+    with pytest.raises(ValueError, match="resolution"):
+        OccupancyGrid(np.zeros((3, 3), bool), 0.0)
+    with pytest.raises(ValueError, match="bool"):
+        OccupancyGrid(np.zeros((3, 3)), 0.1)
+    with pytest.raises(ValueError, match="max_range"):
+        room().cast_rays(np.zeros(2), 0.0, float("nan"))
+
+
+# ------------------------------------------------------------------ resampling primitives
+def test_low_variance_resampling_counts_are_within_one_of_expected():
+    rng = np.random.default_rng(2)
+    w = rng.random(500) ** 4
+    w /= w.sum()
+    for n in (100, 500, 2000):
+        idx = low_variance_indices(w, n, rng)
+        assert idx.size == n and np.all(np.diff(idx) >= 0)
+        counts = np.bincount(idx, minlength=w.size)
+        assert np.all(np.abs(counts - n * w) < 1.0 + 1e-9)
+    with pytest.raises(ValueError, match="sum"):
+        low_variance_indices(np.zeros(4), 4, rng)
+    with pytest.raises(ValueError, match="sum"):
+        low_variance_indices(np.array([0.5, np.nan]), 4, rng)
+
+
+def test_kld_bound_matches_chi_square_quantile():
+    eps, delta = 0.05, 0.01
+    k = np.array([2, 5, 20, 100, 1000])
+    exact = chi2.ppf(1 - delta, k - 1) / (2 * eps)
+    np.testing.assert_allclose(kld_sample_bound(k, eps, delta), exact, rtol=0.02)
+    assert kld_sample_bound(np.array([1]), eps, delta)[0] == 1
+
+
+# ------------------------------------------------------------------ motion model
+def test_noise_free_motion_follows_the_arc_and_reverses():
+    g = room()
+    cfg = MCLConfig(n_particles=5, motion=MotionNoise(0, 0, 0, 0, 0, 0))
+    pf = ParticleFilter(g, np.random.default_rng(0), cfg)
+    start = np.array([[2.0, 3.0, 0.5]] * 5)
+    pf.set_particles(start)
+    v, w, dt = 0.4, 0.8, 1.5
+    pf.predict_odometry(v, w, dt)
+    th = 0.5 + w * dt
+    expected = [2.0 + v / w * (np.sin(th) - np.sin(0.5)), 3.0 - v / w * (np.cos(th) - np.cos(0.5))]
+    np.testing.assert_allclose(pf.particles[:, :2], [expected] * 5, atol=1e-5)
+    np.testing.assert_allclose(pf.particles[:, 2], wrap_angle(th), atol=1e-5)
+    pf.predict_delta((-1.0, 0.0, 0.0))  # straight back, no half-turn
+    np.testing.assert_allclose(pf.particles[:, 2], wrap_angle(th), atol=1e-5)
+    assert pf.odometer == pytest.approx(v * dt * np.sinc(w * dt / 2 / np.pi) + 1.0, rel=1e-6)
+
+
+def test_motion_noise_grows_with_translation_and_rotation():
+    g = room()
+    noise = MotionNoise(min_xy=0.0, min_heading=0.0)
+    pf = ParticleFilter(g, np.random.default_rng(3), MCLConfig(n_particles=4000, motion=noise))
+
+    def spread_after(delta):
+        pf.set_particles(np.tile([5.0, 3.0, 0.0], (4000, 1)))
+        pf.predict_delta(delta)
+        p = pf.particles
+        return np.std(p[:, 0]), np.std(wrap_angle(p[:, 2]))
+
+    sx_short, _ = spread_after((0.1, 0.0, 0.0))
+    sx_long, _ = spread_after((1.0, 0.0, 0.0))
+    _, sh_small = spread_after((0.0, 0.0, 0.1))
+    _, sh_big = spread_after((0.0, 0.0, 1.5))
+    assert sx_long == pytest.approx(noise.trans_trans * 1.0, rel=0.1)
+    assert sx_short == pytest.approx(noise.trans_trans * 0.1, rel=0.1)
+    assert sh_big == pytest.approx(noise.rot_rot * 1.5, rel=0.1)
+    assert sh_small == pytest.approx(noise.rot_rot * 0.1, rel=0.1)
+
+
+# ------------------------------------------------------------------ localization behaviour
+def test_global_localization_converges_in_asymmetric_map():
+    g = room()
+    for seed in (0, 1, 2):
+        pf = ParticleFilter(g, np.random.default_rng(seed), MCLConfig(n_particles=2000))
+        robot = Robot(g, seed + 10)
+        assert pf.particle_spread(robot.pose) > 2.0  # starts lost
+        spread = run(pf, robot, steps=40)
+        # bounded time: localized after 25 steps (5 s, ~2 m of driving) and staying so
+        assert max(spread[25:]) < 0.5, spread
+        est = pf.belief().mean
+        assert np.hypot(*(est[:2] - robot.pose[:2])) < 0.2
+        assert abs(wrap_angle(est[2] - robot.pose[2])) < 0.1
+
+
+@pytest.mark.parametrize("random_fraction", [0.03, 0.0])
+def test_kidnapped_robot_is_recovered(random_fraction):
+    # 0.0: only the augmented-MCL slow/fast averages can trigger injection
+    g = room()
+    cfg = MCLConfig(n_particles=2000, random_fraction=random_fraction)
+    pf = ParticleFilter(g, np.random.default_rng(5), cfg)
+    robot = Robot(g, 6)
+    spread = run(pf, robot, steps=40)
+    assert spread[-1] < 0.3
+    robot.pose = np.array([8.5, 4.0, 2.0])  # teleport, odometry does not notice
+    robot.wp = 6
+    assert pf.particle_spread(robot.pose) > 2.0
+    spread = run(pf, robot, steps=40)
+    assert max(spread[-10:]) < 0.5, spread
+
+
+def test_kidnap_triggers_injection_only_after_the_likelihood_drops():
+    g = room()
+    cfg = MCLConfig(n_particles=2000, random_fraction=0.0)
+    pf = ParticleFilter(g, np.random.default_rng(7), cfg)
+    robot = Robot(g, 8)
+    run(pf, robot, steps=40)
+    assert pf.inject_probability == 0.0  # tracking well: fast average >= slow average
+    robot.pose = np.array([8.5, 4.0, 2.0])
+    robot.wp = 6
+    injected = []
+    for _ in range(5):
+        run(pf, robot, steps=1)
+        injected.append(pf.inject_probability)
+    assert max(injected) > 0.1
+
+
+def test_adaptive_particle_count_shrinks_when_focused():
+    g = room()
+    cfg = MCLConfig(adaptive=True, n_particles=5000, n_min=200, n_max=5000)
+    pf = ParticleFilter(g, np.random.default_rng(9), cfg)
+    robot = Robot(g, 10)
+    run(pf, robot, steps=1)
+    assert pf.n_particles > 2000  # globally uncertain: many bins occupied
+    spread = run(pf, robot, steps=30)
+    assert spread[-1] < 0.5
+    assert 200 <= pf.n_particles < 600
+
+
+def test_beam_model_tracks_with_wide_cones():
+    g = room()
+    beams = np.linspace(-np.pi, np.pi, 12, endpoint=False)
+    cfg = MCLConfig(n_particles=500)
+    pf = ParticleFilter(g, np.random.default_rng(11), cfg)
+    robot = Robot(g, 12)
+    pf.init_gaussian(robot.pose + [0.5, -0.4, 0.2], np.diag([0.5, 0.5, 0.3]) ** 2)
+    assert pf.particle_spread(robot.pose) > 0.6
+    err = []
+    for _ in range(25):
+        v, w, dt, _ = robot.step()
+        pf.predict_odometry(v, w, dt)
+        z = np.min(
+            [g.simulate_scan(robot.pose, beams + off, MAX_RANGE) for off in (-0.09, 0.0, 0.09)],
+            axis=0,
+        )
+        pf.update_beam(z + 0.05 * robot.rng.standard_normal(z.size), beams, MAX_RANGE,
+                       cone_half_width=0.09)
+        pf.resample_if_needed()
+        err.append(pf.particle_spread(robot.pose))
+    assert max(err[-5:]) < 0.3, err
+
+
+def test_beam_model_prefers_the_true_pose_and_scores_max_range_readings():
+    g = room()
+    pf = ParticleFilter(g, np.random.default_rng(13), MCLConfig(n_particles=3))
+    true = np.array([5.0, 2.5, 0.3])
+    pf.set_particles(np.array([true, true + [0.5, 0.0, 0.0], true + [0.0, 0.0, 0.4]]))
+    z = g.simulate_scan(true, BEAMS, MAX_RANGE)
+    z[0] = MAX_RANGE  # a max-range reading must not produce zero or NaN weights
+    pf.update_beam(z, BEAMS, MAX_RANGE)
+    w = pf.weights
+    assert np.all(np.isfinite(w)) and w[0] > 0.9 and w.sum() == pytest.approx(1.0)
+
+
+def test_same_seed_same_particles():
+    g = room()
+    runs = []
+    for _ in range(2):
+        pf = ParticleFilter(g, np.random.default_rng(21), MCLConfig(n_particles=500))
+        run(pf, Robot(g, 22), steps=5)
+        runs.append((pf.particles.copy(), pf.weights.copy()))
+    np.testing.assert_array_equal(runs[0][0], runs[1][0])
+    np.testing.assert_array_equal(runs[0][1], runs[1][1])
+
+
+# ------------------------------------------------------------------ belief outputs
+def test_belief_uses_circular_mean_and_wrapped_covariance():
+    g = room()
+    pf = ParticleFilter(g, np.random.default_rng(0), MCLConfig(n_particles=1000))
+    rng = np.random.default_rng(1)
+    parts = np.column_stack([
+        rng.normal(3.0, 0.2, 1000), rng.normal(4.0, 0.1, 1000),
+        wrap_angle(np.pi + rng.normal(0.0, 0.05, 1000)),
+    ])
+    pf.set_particles(parts)
+    b = pf.belief()
+    assert abs(wrap_angle(b.mean[2] - np.pi)) < 0.01
+    np.testing.assert_allclose(np.sqrt(np.diag(b.cov)), [0.2, 0.1, 0.05], rtol=0.1)
+    assert b.particles.shape == (1000, 3) and b.weights.sum() == pytest.approx(1.0)
+    assert pf.particle_spread(np.array([3.0, 4.0, 0.0])) == pytest.approx(
+        np.mean(np.hypot(parts[:, 0] - 3, parts[:, 1] - 4))
+    )
+
+
+def test_belief_features_fixed_size_and_informative():
+    g = room()
+    names = belief_feature_names()
+    pf = ParticleFilter(g, np.random.default_rng(0), MCLConfig(n_particles=3000))
+    lost = pf.belief_features()
+    pf.init_gaussian(np.array([5.0, 3.0, 0.0]), np.diag([0.1, 0.1, 0.05]) ** 2, n=700)
+    focused = pf.belief_features()
+    for f in (lost, focused):
+        assert f.shape == (len(names),) and f.dtype == np.float32 and np.all(np.isfinite(f))
+        ix = {n: i for i, n in enumerate(names)}
+        hist = f[ix["hist_r0_c0"]:ix["hist_outside"] + 1]
+        heads = f[ix["heading_hist_0"]:]
+        assert hist.sum() == pytest.approx(1.0, abs=1e-5)
+        assert heads.sum() == pytest.approx(1.0, abs=1e-5)
+    ix = {n: i for i, n in enumerate(names)}
+    assert focused[ix["log10_std_x"]] < lost[ix["log10_std_x"]] - 1.0
+    assert focused[ix["hist_entropy"]] < lost[ix["hist_entropy"]]
+    assert focused[ix["hist_outside"]] < 0.01 < lost[ix["hist_outside"]]
+    assert focused[ix["heading_resultant"]] > 0.99 > 0.1 > lost[ix["heading_resultant"]]
+    # centre cell of the egocentric grid holds most of the focused mass
+    assert focused[ix["hist_r2_c2"]] > 0.9
+    assert focused[ix["x_norm"]] == pytest.approx(0.0, abs=0.02)
+    assert len(pf.belief_features(hist_cells=3, heading_bins=4)) == len(belief_feature_names(3, 4))
+
+
+def test_bad_inputs_raise_value_errors():
+    g = room()
+    pf = ParticleFilter(g, np.random.default_rng(0), MCLConfig(n_particles=50))
+    with pytest.raises(ValueError, match="dt"):
+        pf.predict_odometry(0.1, 0.0, -1.0)
+    with pytest.raises(ValueError, match="finite"):
+        pf.predict_odometry(float("nan"), 0.0, 0.1)
+    with pytest.raises(ValueError, match="NaN"):
+        pf.update_likelihood_field(np.array([1.0, np.nan]), np.zeros(2), 5.0)
+    with pytest.raises(ValueError, match="match"):
+        pf.update_likelihood_field(np.ones(3), np.zeros(2), 5.0)
+    with pytest.raises(ValueError, match="max_range"):
+        pf.update_beam(np.ones(2), np.zeros(2), 0.0)
+    with pytest.raises(ValueError, match="factors"):
+        pf.apply_weight_factors(np.full(50, np.inf))
+    with pytest.raises(ValueError, match="n_min"):
+        MCLConfig(n_min=10, n_max=5)
+
+
+def test_weights_stay_finite_under_hopeless_scans_and_out_of_map_particles():
+    g = room()
+    pf = ParticleFilter(g, np.random.default_rng(0), MCLConfig(n_particles=200))
+    parts = np.column_stack([np.linspace(-50, 60, 200), np.linspace(-40, 40, 200), np.zeros(200)])
+    pf.set_particles(parts)
+    for _ in range(50):  # each update multiplies in ~1e-30; weights must never underflow to NaN
+        pf.update_likelihood_field(np.full(30, 0.01), BEAMS, MAX_RANGE)
+    assert np.all(np.isfinite(pf.weights)) and pf.weights.sum() == pytest.approx(1.0)
+    inside = g.is_free(parts[:, :2])
+    assert pf.weights[inside].sum() > 0.99  # particles off the map are penalized
+    pf.update_likelihood_field(np.full(30, np.inf), BEAMS, MAX_RANGE)  # all max range: no beams
+    assert np.all(np.isfinite(pf.weights))
+    pf.resample()
+    assert pf.n_particles == 200
