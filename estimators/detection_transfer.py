@@ -126,7 +126,11 @@ def detection_from_measurement(
     cov = np.asarray(cov, dtype=float)
     if z.shape != (3,) or cov.shape != (3, 3):
         raise ValueError(f"z must be (3,) and cov (3, 3), got {z.shape} and {cov.shape}")
-    std = np.sqrt(np.diag(cov))
+    var = np.diag(cov)
+    if not np.all(np.isfinite(var)) or np.any(var <= 0):
+        raise ValueError(f"detection variances (range_std, bearing_std, orientation_std "
+                         f"squared) must be finite and > 0, got {var.tolist()}")
+    std = np.sqrt(var)
     return RobotDetection(
         observer=observer, target=target, range=float(z[0]), bearing=float(z[1]),
         range_std=float(std[0]), bearing_std=float(std[1]), orientation=float(z[2]),
