@@ -25,6 +25,7 @@ diagonal.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -144,11 +145,12 @@ class OdometryTrack:
         tau = t - self.times[k]
         row = self._cum[k] + tau * self._rate[k]
         th0 = self._cum[k, _TH]
-        half = 0.5 * self._w[k] * tau
-        step = self._v[k] * tau * np.sinc(half / np.pi)
-        mid = th0 + half
-        row[_X] = self._cum[k, _X] + step * np.cos(mid)
-        row[_Y] = self._cum[k, _Y] + step * np.sin(mid)
+        half = 0.5 * float(self._w[k]) * tau
+        sinc = 1.0 - half * half / 6.0 if abs(half) < 1e-4 else math.sin(half) / half
+        step = float(self._v[k]) * tau * sinc
+        mid = float(th0) + half
+        row[_X] = self._cum[k, _X] + step * math.cos(mid)
+        row[_Y] = self._cum[k, _Y] + step * math.sin(mid)
         return row
 
     @staticmethod
@@ -161,8 +163,8 @@ class OdometryTrack:
         Jacobian of the motion w.r.t. ``pose_a`` is
         ``[[1, 0, -delta_y], [0, 1, delta_x], [0, 0, 1]]``.
         """
-        d = cb - ca
-        xb, yb = cb[_X], cb[_Y]
+        d = (cb - ca).tolist()
+        xb, yb = float(cb[_X]), float(cb[_Y])
         s0 = d[_S0]
         sx, sy = d[_SX], d[_SY]
         qxx = yb * yb * s0 - 2.0 * yb * sy + d[_SYY] + d[_CC]
@@ -170,8 +172,8 @@ class OdometryTrack:
         qxy = -(xb * yb * s0 - yb * sx - xb * sy + d[_SXY]) + d[_CS]
         qxt = -(yb * s0 - sy)
         qyt = xb * s0 - sx
-        rot = heading_a - ca[_TH]
-        c, s = np.cos(rot), np.sin(rot)
+        rot = float(heading_a - ca[_TH])
+        c, s = math.cos(rot), math.sin(rot)
         dx = c * d[_X] - s * d[_Y]
         dy = s * d[_X] + c * d[_Y]
         m = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
@@ -252,7 +254,7 @@ class TeamEKF:
         delta, q = OdometryTrack.motion(self._table[i], cb, self.x[a + 2])
         f = np.array([[1.0, 0.0, -delta[1]], [0.0, 1.0, delta[0]], [0.0, 0.0, 1.0]])
         self.x[a : a + 3] += delta
-        self.x[a + 2] = wrap_angle(self.x[a + 2])
+        self.x[a + 2] = (self.x[a + 2] + math.pi) % (2.0 * math.pi) - math.pi
         rows = self.P[a : a + 3, :]
         rows = f @ rows
         self.P[a : a + 3, :] = rows
@@ -274,25 +276,28 @@ class TeamEKF:
     def _apply(
         self, idx: np.ndarray, h: np.ndarray, nu: np.ndarray, r: np.ndarray, who: int
     ) -> bool:
-        """Gated Joseph-form update with the Jacobian ``h`` over state indices ``idx``."""
-        p_cols = self.P[:, idx]  # (3n, m)
-        s = h @ p_cols[idx, :] @ h.T + r
-        try:
-            s_inv = np.linalg.inv(s)
-        except np.linalg.LinAlgError:
+        """Gated Joseph-form update with the Jacobian ``h`` over state indices ``idx``.
+
+        With ``B = H P`` (nonzero columns of ``H`` only) and ``S = H P H^T + R``,
+        the Joseph form ``(I - K H) P (I - K H)^T + K R K^T`` expands to
+        ``P - K B - B^T K^T + K S K^T``: rank-2 terms, no ``3n x 3n`` products.
+        """
+        b = h @ self.P[idx, :]  # (2, 3n)
+        s = b[:, idx] @ h.T + r
+        det = s[0, 0] * s[1, 1] - s[0, 1] * s[1, 0]
+        if not (np.isfinite(det) and det > 0.0):
             self.rejected[who] += 1
             return False
+        s_inv = np.array([[s[1, 1], -s[0, 1]], [-s[1, 0], s[0, 0]]]) / det
         d2 = float(nu @ s_inv @ nu)
         if not np.isfinite(d2) or d2 > self.gate:
             self.rejected[who] += 1
             return False
-        k = p_cols @ h.T @ s_inv  # (3n, 2)
+        k = b.T @ s_inv  # (3n, 2) = P H^T S^-1
         self.x += k @ nu
         self.x[2::3] = wrap_angle(self.x[2::3])
-        a = -k @ h  # (3n, m): columns idx of (I - K H) minus identity
-        imkh = np.eye(len(self.x))
-        imkh[:, idx] += a
-        p = imkh @ self.P @ imkh.T + k @ r @ k.T
+        kb = k @ b
+        p = self.P - kb - kb.T + k @ s @ k.T
         self.P = 0.5 * (p + p.T)
         self.accepted[who] += 1
         return True

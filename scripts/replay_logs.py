@@ -21,11 +21,17 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
 
-from estimators.log_replay import (
+# The matrices here are tiny (<= ~200 x 200): BLAS worker threads only add overhead and,
+# on a shared machine, can slow the pose-graph solver down several times. Set before numpy.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+from estimators.log_replay import (  # noqa: E402
     DEFAULT_NOISE_PATH,
     ESTIMATORS,
     evaluate,
@@ -34,7 +40,7 @@ from estimators.log_replay import (
     replay,
     save_noise_parameters,
 )
-from estimators.mrclam import load_mrclam
+from estimators.mrclam import load_mrclam  # noqa: E402
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -64,6 +70,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--fit-start", type=float, default=0.0, help="fit span start [s after start]")
     p.add_argument("--fit-end", type=float, default=None, help="fit span end [default: log end]")
     p.add_argument("--fit-global-only", action="store_true", help="fit no per-robot calibration")
+    p.add_argument(
+        "--no-tune",
+        action="store_true",
+        help="with --fit: skip the consistency tuning replays (raw white-noise statistics)",
+    )
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     return p.parse_args(argv)
 
@@ -124,7 +135,11 @@ def main(argv: list[str] | None = None) -> int:
         end = None if args.fit_end is None else t0 + args.fit_end
         wall = time.perf_counter()
         params = fit_noise_parameters(
-            dataset, t0 + args.fit_start, end, per_robot=not args.fit_global_only
+            dataset,
+            t0 + args.fit_start,
+            end,
+            per_robot=not args.fit_global_only,
+            tune=not args.no_tune,
         )
         save_noise_parameters(params, args.params)
         print(f"fitted in {time.perf_counter() - wall:.1f} s: {params.fitted_on}")

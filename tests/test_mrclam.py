@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import subprocess
 import sys
 from pathlib import Path
 
@@ -280,6 +282,32 @@ def test_ekf_team_beats_dead_reckoning_on_excerpt(dataset, params) -> None:
     assert all(r["evaluated_times"] == 100 for r in team["per_robot"])
 
 
+def test_mle_runs_on_excerpt_and_beats_dead_reckoning(dataset, params, tmp_path: Path) -> None:
+    # through the CLI in a subprocess: it pins BLAS to one thread before numpy loads, which
+    # keeps the pose-graph solver fast on a shared machine
+    out = tmp_path / "mle.json"
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    cmd = [
+        sys.executable,
+        str(ROOT / "scripts" / "replay_logs.py"),
+        str(EXCERPT),
+        "--estimator",
+        "mle",
+        "--duration",
+        "15",
+        "--json",
+        str(out),
+        "--no-progress",
+    ]
+    subprocess.run(cmd, check=True, env=env, capture_output=True, timeout=120)
+    mle = json.loads(out.read_text())
+    dr = evaluate(replay(dataset, "dead_reckoning", params, duration=15.0))
+    assert mle["estimator"] == "mle"
+    assert mle["accepted_measurements"] > 100
+    assert mle["mean_position_error_m"] < 0.1
+    assert mle["final_position_error_m"] < dr["final_position_error_m"]
+
+
 def test_no_landmarks_uses_only_robot_measurements(dataset, params) -> None:
     res = replay(dataset, "ekf_team", params, duration=60.0, use_landmarks=False)
     m = evaluate(res)
@@ -363,3 +391,38 @@ def test_cli_writes_the_documented_json(tmp_path: Path) -> None:
         assert key in m
     assert len(m["per_robot"]) == 5
     assert {"final_position_error_m", "nees_95_fraction"} <= set(m["per_robot"][0])
+
+
+def test_cli_fit_writes_a_parameter_file_the_replay_reads(tmp_path: Path) -> None:
+    sys.path.insert(0, str(ROOT / "scripts"))
+    try:
+        import replay_logs
+    finally:
+        sys.path.pop(0)
+    pfile = tmp_path / "fit.json"
+    args = [str(EXCERPT), "--fit", "--fit-start", "0", "--fit-end", "60", "--no-tune"]
+    assert replay_logs.main(args + ["--params", str(pfile)]) == 0
+    fitted = load_noise_parameters(pfile)
+    assert "t=[" in fitted.fitted_on and "not tuned" in fitted.fitted_on
+    assert replay_logs.main(args) == 2  # --fit without --params
+    out = tmp_path / "m.json"
+    rc = replay_logs.main(
+        [
+            str(EXCERPT),
+            "--estimator",
+            "ekf",
+            "--duration",
+            "20",
+            "--start-offset",
+            "60",
+            "--params",
+            str(pfile),
+            "--json",
+            str(out),
+            "--no-progress",
+        ]
+    )
+    assert rc == 0
+    m = json.loads(out.read_text())
+    assert m["params"] == str(pfile) and m["start_offset_s"] == 60.0
+    assert all(r["evaluated_times"] == 20 for r in m["per_robot"])
