@@ -1,0 +1,297 @@
+"""Run policies on scenarios and summarize what happened (used by ``scripts/evaluate.py``).
+
+* :func:`make_policy` turns ``"fsm"``, ``"random"``, ``"seek"`` or the path of
+  a saved stable-baselines3 model (``.zip``) into a policy object;
+* :func:`run_episodes` runs it for N seeded episodes and returns one record
+  per episode (scalar figures plus time series and the final maps for plots);
+* :func:`summarize` reduces the records to mean and standard deviation.
+
+Figures per episode (:data:`FIGURES`): ``localization_error_m`` (team
+localization error: mean over robots and steps of the true position error of
+each live robot's belief), ``coverage`` (fraction of the drivable area in the
+team map at the end), ``map_rmse_m`` (team map vs true height field at the
+end), ``collisions`` (new contacts summed over robots and steps; a contact
+between two robots counts for both), ``tip_overs`` (robots that tipped over).
+"""
+
+from __future__ import annotations
+
+import ast
+import json
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import coop_loc_env
+from policies.baselines import Policy, RandomPolicy, SeekTeammatePolicy
+from policies.fsm import FSMPolicy
+
+FIGURES = ("localization_error_m", "coverage", "map_rmse_m", "collisions", "tip_overs")
+POLICY_NAMES = ("fsm", "random", "seek")
+
+
+class SB3Policy:
+    """A saved stable-baselines3 model shared by every agent (parameter sharing).
+
+    Each live agent's observation is fed to the same network; actions are
+    deterministic and clipped to ``[-1, 1]``.
+
+    Args:
+        path: the ``.zip`` written by ``model.save``.
+        algo: ``"PPO"``, ``"SAC"``, ``"TD3"`` or ``"A2C"``; detected from the
+            file when ``None``.
+    """
+
+    def __init__(self, path: str | Path, algo: str | None = None) -> None:
+        path = Path(path)
+        if not path.is_file():
+            raise ValueError(f"policy file {str(path)!r} does not exist")
+        import stable_baselines3 as sb3
+
+        algo = (algo or detect_sb3_algo(path)).upper()
+        if not hasattr(sb3, algo):
+            raise ValueError(f"unknown stable-baselines3 algorithm {algo!r} for {str(path)!r}")
+        self.algo = algo
+        self.model = getattr(sb3, algo).load(str(path), device="cpu")
+        self.name = path.stem
+        self.env = None
+
+    def reset(self, env, seed: int | None = None) -> None:
+        """Bind to ``env``; checks the observation size matches the model's."""
+        expected = self.model.observation_space.shape
+        got = env.observation_space(env.possible_agents[0]).shape
+        if expected != got:
+            raise ValueError(
+                f"model {self.name!r} expects observations of shape {expected}, the env "
+                f"gives {got}: use the same scenario/config overrides as in training"
+            )
+        self.env = env
+
+    def act(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """One batched forward pass over the live agents."""
+        agents = list(self.env.agents)
+        if not agents:
+            return {}
+        batch = np.stack([obs[a] for a in agents])
+        actions, _ = self.model.predict(batch, deterministic=True)
+        actions = np.clip(np.asarray(actions, dtype=np.float32).reshape(len(agents), -1), -1, 1)
+        return dict(zip(agents, actions, strict=True))
+
+
+def detect_sb3_algo(path: str | Path) -> str:
+    """The algorithm a stable-baselines3 ``.zip`` was saved from (``"PPO"`` when unsure)."""
+    try:
+        with zipfile.ZipFile(path) as zf:
+            data = zf.read("data").decode("utf-8", errors="replace")
+    except (zipfile.BadZipFile, KeyError, OSError) as err:
+        raise ValueError(f"{str(path)!r} is not a stable-baselines3 model zip: {err}") from err
+    for algo in ("sac", "td3", "a2c", "ppo"):
+        if f"stable_baselines3.{algo}." in data:
+            return algo.upper()
+    return "PPO"
+
+
+def make_policy(spec: str) -> Policy:
+    """A policy from a name (``fsm``, ``random``, ``seek``) or a saved SB3 ``.zip`` path."""
+    if spec == "fsm":
+        return FSMPolicy()
+    if spec == "random":
+        return RandomPolicy()
+    if spec == "seek":
+        return SeekTeammatePolicy()
+    if str(spec).endswith(".zip") or Path(spec).is_file():
+        return SB3Policy(spec)
+    raise ValueError(
+        f"unknown policy {spec!r}: use one of {POLICY_NAMES} or the path of a saved "
+        f"stable-baselines3 model (.zip)"
+    )
+
+
+def parse_overrides(pairs: list[str] | None) -> dict[str, Any]:
+    """``["KEY=VALUE", ...]`` to a dict; values parse as Python literals, else stay strings."""
+    out: dict[str, Any] = {}
+    for pair in pairs or []:
+        key, sep, raw = pair.partition("=")
+        key = key.strip()
+        if not sep or not key:
+            raise ValueError(f"--set expects KEY=VALUE, got {pair!r}")
+        try:
+            out[key] = ast.literal_eval(raw)
+        except (ValueError, SyntaxError):
+            out[key] = raw
+    return out
+
+
+def run_episode(env, policy: Policy, seed: int, on_step=None) -> dict[str, Any]:
+    """Run one episode of ``policy`` on ``env``; returns its figures and series.
+
+    ``on_step(env, infos)`` is called after every step (e.g. a progress bar).
+    """
+    obs, infos = env.reset(seed=seed)
+    policy.reset(env, seed=seed)
+    n = env.config.n_robots
+    errors: list[np.ndarray] = []
+    stds: list[np.ndarray] = []
+    collisions = 0
+    team_return = 0.0
+    states: dict[str, int] = {}
+    tipped: set[str] = set()
+    while env.agents:
+        obs, rewards, _term, _trunc, infos = env.step(policy.act(obs))
+        err = np.full(n, np.nan)
+        std = np.full(n, np.nan)
+        for agent, info in infos.items():
+            i = env.agent_name_mapping[agent]
+            err[i] = info["position_error"]
+            cov = info["pose_cov"]
+            std[i] = np.sqrt(0.5 * (cov[0, 0] + cov[1, 1]))
+            collisions += int(info["collisions"])
+            if info["tipped_over"]:
+                tipped.add(agent)
+        errors.append(err)
+        stds.append(std)
+        team_return += float(sum(rewards.values()))
+        if hasattr(policy, "states"):
+            for s in policy.states().values():
+                states[s] = states.get(s, 0) + 1
+        if on_step is not None:
+            on_step(env, infos)
+    last = next(iter(infos.values()))
+    err_arr = np.array(errors)
+    return {
+        "seed": int(seed),
+        "steps": len(errors),
+        "localization_error_m": float(np.nanmean(err_arr)),
+        "coverage": float(last["coverage"]),
+        "map_rmse_m": float(last["map_rmse"]),
+        "collisions": int(collisions),
+        "tip_overs": len(tipped),
+        "team_return": team_return,
+        "state_steps": states,
+        "series": {
+            "time_s": (np.arange(len(errors)) + 1) * env.config.dt,
+            "position_error_m": err_arr,
+            "position_std_m": np.array(stds),
+        },
+        "maps": {
+            "estimated": env.terrain_map.elevation,
+            "true": env.mapper.true_height,
+            "objects": np.array(env.terrain_map.objects, dtype=float).reshape(-1, 3),
+            "extent": (0.0, env.config.world_size[0], 0.0, env.config.world_size[1]),
+        },
+    }
+
+
+def run_episodes(
+    scenario: str,
+    policy: Policy | str,
+    n_episodes: int,
+    seed: int = 0,
+    overrides: dict[str, Any] | None = None,
+    progress: bool = True,
+) -> list[dict[str, Any]]:
+    """Run ``policy`` on ``scenario`` for ``n_episodes`` (episode ``k`` seeded ``seed + k``).
+
+    Args:
+        scenario: registered scenario name.
+        policy: a policy object or a spec for :func:`make_policy`.
+        n_episodes: number of episodes (>= 1).
+        seed: seed of the first episode.
+        overrides: config overrides for the scenario (e.g. ``{"max_cycles": 200}``).
+        progress: show a tqdm bar over all steps.
+
+    Returns:
+        One record per episode: the :data:`FIGURES`, ``seed``, ``steps``,
+        ``team_return``, ``state_steps`` (robot-steps per FSM state, when the
+        policy reports states), ``series`` (per-step arrays) and ``maps``
+        (final estimated and true height grids, indexed ``[x, y]``).
+    """
+    if isinstance(n_episodes, bool) or not isinstance(n_episodes, int) or n_episodes < 1:
+        raise ValueError(f"n_episodes must be a positive integer, got {n_episodes!r}")
+    if isinstance(policy, str):
+        policy = make_policy(policy)
+    env = coop_loc_env.parallel_env(scenario, **(overrides or {}))
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=n_episodes * env.config.max_cycles, unit="step", desc=scenario)
+    episodes = []
+    try:
+        for k in range(n_episodes):
+            ep = run_episode(env, policy, seed + k, (lambda e, i: bar.update()) if bar else None)
+            episodes.append(ep)
+            if bar is not None:
+                bar.update(env.config.max_cycles - ep["steps"])  # early termination
+                err, cov = ep["localization_error_m"], ep["coverage"]
+                bar.set_postfix(err=f"{err:.2f}", cov=f"{cov:.3f}")
+    finally:
+        if bar is not None:
+            bar.close()
+        env.close()
+    return episodes
+
+
+def summarize(episodes: list[dict[str, Any]]) -> dict[str, dict[str, float]]:
+    """Mean and (population) standard deviation over episodes of each of :data:`FIGURES`."""
+    if not episodes:
+        raise ValueError("summarize needs at least one episode, got []")
+    out = {}
+    for key in FIGURES:
+        vals = np.array([ep[key] for ep in episodes], dtype=float)
+        out[key] = {"mean": float(np.mean(vals)), "std": float(np.std(vals))}
+    return out
+
+
+def episode_figures(ep: dict[str, Any]) -> dict[str, Any]:
+    """The JSON-serializable part of an episode record (no series or maps)."""
+    return {k: v for k, v in ep.items() if k not in ("series", "maps")}
+
+
+def report(scenario: str, policy: str, episodes: list[dict[str, Any]]) -> dict[str, Any]:
+    """The evaluation report: ``{"scenario", "policy", "episodes", "summary"}``."""
+    return {
+        "scenario": scenario,
+        "policy": policy,
+        "episodes": [episode_figures(ep) for ep in episodes],
+        "summary": summarize(episodes),
+    }
+
+
+def write_json(data: dict[str, Any], path: str | Path) -> None:
+    """Write ``data`` as JSON (NaN written as ``null``), creating parent folders."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+
+    def clean(x):
+        if isinstance(x, dict):
+            return {k: clean(v) for k, v in x.items()}
+        if isinstance(x, (list, tuple)):
+            return [clean(v) for v in x]
+        if isinstance(x, (float, np.floating)):
+            return float(x) if np.isfinite(x) else None
+        if isinstance(x, np.integer):
+            return int(x)
+        return x
+
+    path.write_text(json.dumps(clean(data), indent=2, allow_nan=False) + "\n")
+
+
+def format_table(summary: dict[str, dict[str, float]], n_episodes: int) -> str:
+    """A plain-text table of ``mean +/- std`` per figure."""
+    labels = {
+        "localization_error_m": "team localization error (m)",
+        "coverage": "coverage (fraction)",
+        "map_rmse_m": "map RMSE (m)",
+        "collisions": "collisions",
+        "tip_overs": "tip-overs",
+    }
+    width = max(len(v) for v in labels.values())
+    lines = [f"{'figure':<{width}}  mean +/- std over {n_episodes} episode(s)"]
+    lines.append("-" * (width + 34))
+    for key in FIGURES:
+        s = summary[key]
+        lines.append(f"{labels[key]:<{width}}  {s['mean']:.4f} +/- {s['std']:.4f}")
+    return "\n".join(lines)
