@@ -1,0 +1,112 @@
+"""scripts/evaluate.py end to end, and the runner library under it."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from policies.runner import (
+    FIGURES,
+    SB3Policy,
+    detect_sb3_algo,
+    make_policy,
+    parse_overrides,
+    run_episodes,
+    summarize,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _evaluate_main():
+    spec = importlib.util.spec_from_file_location("evaluate", ROOT / "scripts" / "evaluate.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod.main
+
+
+def test_evaluate_writes_valid_json_and_plots(tmp_path, capsys):
+    out = tmp_path / "eval.json"
+    rc = _evaluate_main()(
+        ["--scenario", "outdoor_terrain", "--policy", "fsm", "--episodes", "2", "--max-cycles",
+         "40", "--seed", "5", "--json", str(out), "--plot-dir", str(tmp_path), "--set",
+         "n_robots=2", "--no-progress"]
+    )
+    assert rc == 0
+    data = json.loads(out.read_text())
+    assert data["scenario"] == "outdoor_terrain" and data["policy"] == "fsm"
+    assert [ep["seed"] for ep in data["episodes"]] == [5, 6]
+    assert all(ep["steps"] == 40 for ep in data["episodes"])
+    assert set(data["summary"]) == set(FIGURES)
+    for key in FIGURES:
+        vals = [ep[key] for ep in data["episodes"]]
+        assert data["summary"][key]["mean"] == pytest.approx(np.mean(vals))
+        assert data["summary"][key]["std"] == pytest.approx(np.std(vals))
+    assert 0 < data["summary"]["coverage"]["mean"] < 1
+    assert data["summary"]["localization_error_m"]["mean"] > 0
+    assert sum(data["episodes"][0]["state_steps"].values()) == 2 * 40
+    pngs = sorted(p.name for p in tmp_path.glob("*.png"))
+    assert pngs == ["outdoor_terrain_fsm_error.png", "outdoor_terrain_fsm_terrain.png"]
+    table = capsys.readouterr().out
+    assert "team localization error (m)" in table and "+/-" in table
+
+
+def test_evaluate_rejects_bad_input(capsys):
+    main = _evaluate_main()
+    assert main(["--policy", "nonsense", "--episodes", "1", "--no-progress"]) == 2
+    assert "unknown policy 'nonsense'" in capsys.readouterr().err
+    assert main(["--set", "n_robots=0", "--episodes", "1", "--no-progress"]) == 2
+    assert "n_robots" in capsys.readouterr().err
+    assert main(["--set", "nokey", "--no-progress"]) == 2
+
+
+def test_run_episodes_figures_match_series():
+    eps = run_episodes("outdoor_terrain", "random", 1, seed=1,
+                       overrides={"max_cycles": 25, "n_robots": 2}, progress=False)
+    ep = eps[0]
+    err = ep["series"]["position_error_m"]
+    assert err.shape == (25, 2)
+    assert ep["localization_error_m"] == pytest.approx(np.nanmean(err))
+    assert ep["maps"]["estimated"].shape == ep["maps"]["true"].shape
+    assert summarize(eps)["coverage"]["std"] == 0.0
+    with pytest.raises(ValueError, match="n_episodes"):
+        run_episodes("outdoor_terrain", "random", 0)
+
+
+def test_parse_overrides():
+    assert parse_overrides(["n_robots=4", "estimator=ekf", "world_size=(20.0, 20.0)"]) == {
+        "n_robots": 4, "estimator": "ekf", "world_size": (20.0, 20.0)}
+    with pytest.raises(ValueError, match="KEY=VALUE"):
+        parse_overrides(["n_robots"])
+
+
+def test_saved_sb3_model_is_a_policy(tmp_path):
+    import gymnasium
+    from stable_baselines3 import PPO
+
+    import coop_loc_env
+
+    env = coop_loc_env.parallel_env(n_robots=2, max_cycles=10)
+
+    class Single(gymnasium.Env):
+        observation_space = env.observation_space("robot_0")
+        action_space = env.action_space("robot_0")
+
+    path = tmp_path / "ppo_model.zip"
+    PPO("MlpPolicy", Single(), n_steps=8, batch_size=8, device="cpu").save(path)
+    assert detect_sb3_algo(path) == "PPO"
+    policy = make_policy(str(path))
+    assert isinstance(policy, SB3Policy)
+    eps = run_episodes("outdoor_terrain", policy, 1, overrides={"max_cycles": 10, "n_robots": 2},
+                       progress=False)
+    assert eps[0]["steps"] == 10
+    with pytest.raises(ValueError, match="shape"):
+        run_episodes("outdoor_terrain", policy, 1, overrides={"max_cycles": 5, "n_robots": 2,
+                                                             "laser_obs_bins": 8},
+                      progress=False)
+    with pytest.raises(ValueError, match="does not exist"):
+        make_policy(str(tmp_path / "missing.zip"))
