@@ -374,13 +374,15 @@ def evaluate(result: ReplayResult) -> dict:
     ``position_rmse_m``, ``mean_heading_error_deg`` (absolute), ``final_position_error_m``
     (last valid grid time), ``nees_95_fraction`` (fraction of times the true
     position lies inside the 95 % ellipse of the position covariance),
-    ``rejected_measurements`` (gated out). Top-level values are the means over
-    robots (``rejected_measurements`` the total); ``pooled_position_rmse_m``
-    is the RMSE over all robots' errors together.
+    ``rejected_measurements`` (gated out). Top-level values pool all robots'
+    grid times (so ``position_rmse_m`` is the RMSE over every robot and time,
+    the convention of the dataset README's reference figures), except
+    ``final_position_error_m`` (mean over robots), the counts (totals) and
+    ``mean_robot_position_rmse_m`` (mean of the per-robot RMSEs).
     """
     gate95 = float(chi2.ppf(0.95, 2))
     per_robot = []
-    pooled_sq = []
+    pooled: dict[str, list[np.ndarray]] = {"err": [], "herr": [], "inside": []}
     for i, rid in enumerate(result.robot_ids):
         ok = result.valid[i]
         if not ok.any():
@@ -389,8 +391,10 @@ def evaluate(result: ReplayResult) -> dict:
         err = np.hypot(d[:, 0], d[:, 1])
         herr = np.abs(wrap_angle(result.estimate[i, ok, 2] - result.truth[i, ok, 2]))
         c = result.cov[i, ok, :2, :2]
-        nees = np.einsum("ti,tij,tj->t", d, np.linalg.inv(c), d)
-        pooled_sq.append(err**2)
+        inside = np.einsum("ti,tij,tj->t", d, np.linalg.inv(c), d) <= gate95
+        pooled["err"].append(err)
+        pooled["herr"].append(herr)
+        pooled["inside"].append(inside)
         per_robot.append(
             {
                 "robot": int(rid),
@@ -398,7 +402,7 @@ def evaluate(result: ReplayResult) -> dict:
                 "position_rmse_m": float(np.sqrt(np.mean(err**2))),
                 "mean_heading_error_deg": float(np.degrees(herr.mean())),
                 "final_position_error_m": float(err[-1]),
-                "nees_95_fraction": float(np.mean(nees <= gate95)),
+                "nees_95_fraction": float(np.mean(inside)),
                 "rejected_measurements": int(result.rejected[i]),
                 "accepted_measurements": int(result.accepted[i]),
                 "evaluated_times": int(ok.sum()),
@@ -406,20 +410,19 @@ def evaluate(result: ReplayResult) -> dict:
         )
     if not per_robot:
         raise ValueError("no robot has ground truth on the evaluation grid")
-
-    def mean(key: str) -> float:
-        return float(np.mean([r[key] for r in per_robot]))
-
+    err = np.concatenate(pooled["err"])
+    herr = np.concatenate(pooled["herr"])
+    inside = np.concatenate(pooled["inside"])
     return {
         "estimator": result.estimator,
         "use_landmarks": bool(result.info.get("use_landmarks", True)),
         "duration_s": float(result.info.get("duration_s", np.nan)),
-        "mean_position_error_m": mean("mean_position_error_m"),
-        "position_rmse_m": mean("position_rmse_m"),
-        "pooled_position_rmse_m": float(np.sqrt(np.mean(np.concatenate(pooled_sq)))),
-        "mean_heading_error_deg": mean("mean_heading_error_deg"),
-        "final_position_error_m": mean("final_position_error_m"),
-        "nees_95_fraction": mean("nees_95_fraction"),
+        "mean_position_error_m": float(err.mean()),
+        "position_rmse_m": float(np.sqrt(np.mean(err**2))),
+        "mean_robot_position_rmse_m": float(np.mean([r["position_rmse_m"] for r in per_robot])),
+        "mean_heading_error_deg": float(np.degrees(herr.mean())),
+        "final_position_error_m": float(np.mean([r["final_position_error_m"] for r in per_robot])),
+        "nees_95_fraction": float(np.mean(inside)),
         "rejected_measurements": int(sum(r["rejected_measurements"] for r in per_robot)),
         "accepted_measurements": int(sum(r["accepted_measurements"] for r in per_robot)),
         "runtime_s": float(result.runtime_s),
