@@ -59,6 +59,7 @@ class _LFField(NamedTuple):
     shift: np.ndarray  # (2, 1) float32: world -> padded cell coordinates, added after scaling
     lo: np.ndarray  # (2, 1) float32: lowest allowed particle cell coordinates
     hi: np.ndarray  # (2, 1) float32: highest allowed particle cell coordinates
+    inv_res: float  # 1 / resolution
 
 
 @dataclass(frozen=True)
@@ -244,8 +245,10 @@ def _lvi(cum: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
     total = cum[-1]
     u = rng.random()
     # number of pointers strictly below each cumulative weight
-    below = np.ceil(cum * (n / total) - u)
-    np.clip(below, 0, n, out=below)
+    below = cum * (n / total)
+    below -= u
+    np.ceil(below, out=below)  # >= 0 since u < 1
+    np.minimum(below, n, out=below)
     below[-1] = n
     below_i = below.astype(np.intp)
     counts = np.empty_like(below_i)
@@ -353,6 +356,8 @@ class ParticleFilter:
         self.w_fast = 0.0
         self._unwrapped_steps = 0
         self._lf_cache: dict[float, _LFField] = {}
+        self._mats: dict[bytes, tuple] = {}  # reusable beam matrices by beam angles
+        self._a4 = np.empty((4, 0), dtype=np.float32)  # reusable [cos; sin; x; y] buffer
         self._state = np.zeros((3, 0))
         self._weights = np.zeros(0)
         self.init_uniform()
@@ -520,18 +525,23 @@ class ParticleFilter:
     def _scan_input(
         self, ranges: np.ndarray, angles: np.ndarray, max_range: float
     ) -> tuple[np.ndarray, np.ndarray, float]:
-        ranges = np.asarray(ranges, dtype=float).ravel()
-        angles = np.asarray(angles, dtype=float).ravel()
+        """Validated 1D ``ranges`` and ``angles`` (ranges may exceed ``max_range``)."""
+        ranges = np.asarray(ranges, dtype=float)
+        angles = np.asarray(angles, dtype=float)
+        if ranges.ndim != 1:
+            ranges = ranges.ravel()
+            angles = angles.ravel()
         if ranges.shape != angles.shape:
             raise ValueError(f"ranges {ranges.shape} and angles {angles.shape} must match")
         max_range = float(max_range)
         if not (math.isfinite(max_range) and max_range > 0):
             raise ValueError(f"max_range must be a positive finite number, got {max_range}")
-        if not (ranges >= 0).all():  # catches NaN too
-            raise ValueError(f"ranges must be >= 0 and not NaN, got {ranges}")
-        if not np.isfinite(angles).all():
-            raise ValueError(f"beam angles must be finite, got {angles}")
-        return np.minimum(ranges, max_range), angles, max_range
+        if ranges.size:
+            if not ranges.min() >= 0:  # NaN fails this too
+                raise ValueError(f"ranges must be >= 0 and not NaN, got {ranges}")
+            if not math.isfinite(angles.sum()):
+                raise ValueError(f"beam angles must be finite, got {angles}")
+        return ranges, angles, max_range
 
     def _lf_field(self, max_range: float) -> _LFField:
         """Tables gathered by the likelihood-field update for ``max_range`` (cached).
@@ -562,7 +572,9 @@ class ParticleFilter:
             shift = np.array([[pad - ox / res], [pad - oy / res]], dtype=np.float32)
             lo = np.full((2, 1), pad - 1.0, dtype=np.float32)
             hi = np.array([[nxp - pad + 1.0], [nyp - pad + 1.0]], dtype=np.float32)
-            self._lf_cache[key] = _LFField(table, pad, nxp, nyp, nxp * nyp, shift, lo, hi)
+            self._lf_cache[key] = _LFField(
+                table, pad, nxp, nyp, nxp * nyp, shift, lo, hi, 1.0 / res
+            )
         return self._lf_cache[key]
 
     def _position_penalty(self) -> np.ndarray:
@@ -586,28 +598,22 @@ class ParticleFilter:
         """
         ranges, angles, max_range = self._scan_input(ranges, angles, max_range)
         lf = self._lf_field(max_range)
-        inv = 1.0 / self.grid.resolution
         keep = ranges < max_range
-        r = ranges[keep] * inv
-        a = angles[keep]
-        nb = r.size
+        nb = int(np.count_nonzero(keep))
+        if nb < ranges.size:
+            ranges, angles = ranges[keep], angles[keep]
         nb1 = nb + 1
-        # rows 0..nb-1: endpoints; row nb: the particle itself (gathers the penalty)
-        bx = np.zeros(nb1)
-        by = np.zeros(nb1)
-        bx[:nb] = r * np.cos(a)
-        by[:nb] = r * np.sin(a)
-        # E = M @ [cos; sin; x; y] gives endpoint cell coordinates: rows ex then ey.
-        mat = np.zeros((2 * nb1, 4), dtype=np.float32)
-        mat[:nb1, 0] = bx
-        mat[:nb1, 1] = -by
-        mat[:nb1, 2] = 1.0
-        mat[nb1:, 0] = by
-        mat[nb1:, 1] = bx
-        mat[nb1:, 3] = 1.0
+        # E = M @ [cos; sin; x; y] gives endpoint cell coordinates: rows ex then ey;
+        # rows nb and 2 nb + 1 are the particle itself (they gather the penalty).
+        mat, unit, rr = self._beam_matrix(angles)
+        np.multiply(ranges, lf.inv_res, out=rr[:nb])
+        rr[nb1:-1] = rr[:nb]
+        np.multiply(unit, rr[:, None], out=mat[:, :2], casting="unsafe")
         st = self._state
         n = st.shape[1]
-        a4 = np.empty((4, n), dtype=np.float32)
+        a4 = self._a4
+        if a4.shape[1] != n:
+            a4 = self._a4 = np.empty((4, n), dtype=np.float32)
         h = st[2].astype(np.float32)
         np.cos(h, out=a4[0])
         np.sin(h, out=a4[1])
@@ -615,16 +621,44 @@ class ParticleFilter:
         # endpoint leaves the table (clamped particles sit outside the map and get
         # the penalty anyway).
         xy = a4[2:4]
-        np.multiply(st[:2], inv, out=xy, casting="unsafe")
+        np.multiply(st[:2], lf.inv_res, out=xy, casting="unsafe")
         xy += lf.shift
         np.maximum(xy, lf.lo, out=xy)
         np.minimum(xy, lf.hi, out=xy)
         cells = (mat @ a4).astype(np.int32)  # coordinates are >= 0: truncation is floor
-        flat = cells[nb1:] * np.int32(lf.nxp)
+        flat = cells[nb1:]
+        flat *= np.int32(lf.nxp)
         flat += cells[:nb1]
         flat[nb] += np.int32(lf.offset)
         loglik = np.take(lf.table, flat).sum(axis=0).astype(np.float64)
         return self._apply_loglik(loglik, nb * self.config.likelihood_exponent)
+
+    def _beam_matrix(self, angles: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Reusable buffers for the endpoint matrix of beams at robot-frame ``angles``.
+
+        Returns ``(mat, unit, rr)``: ``mat`` ``(2 nb + 2, 4)`` float32 with its
+        constant columns set; ``unit`` ``(2 nb + 2, 2)`` the unit-range rotation
+        columns ``[[cos, -sin], [0, 0], [sin, cos], [0, 0]]``; ``rr`` a
+        ``(2 nb + 2,)`` buffer for the ranges (zeros in the particle rows).
+        Cached by the angles' bytes (scanners repeat their beam angles).
+        """
+        key = angles.tobytes()
+        bufs = self._mats.get(key)
+        if bufs is None:
+            nb = angles.size
+            mat = np.zeros((2 * nb + 2, 4), dtype=np.float32)
+            mat[: nb + 1, 2] = 1.0
+            mat[nb + 1:, 3] = 1.0
+            unit = np.zeros((2 * nb + 2, 2))
+            unit[:nb, 0] = np.cos(angles)
+            unit[:nb, 1] = -np.sin(angles)
+            unit[nb + 1:-1, 0] = np.sin(angles)
+            unit[nb + 1:-1, 1] = np.cos(angles)
+            rr = np.zeros(2 * nb + 2)
+            if len(self._mats) > 64:  # bound the cache (varying max-range dropouts)
+                self._mats.clear()
+            bufs = self._mats[key] = (mat, unit, rr)
+        return bufs
 
     def expected_ranges(
         self, angles: np.ndarray, max_range: float, cone_half_width: float = 0.0
@@ -664,7 +698,7 @@ class ParticleFilter:
         if ranges.size == 0:
             return self._apply_loglik(self._position_penalty(), 0)
         zexp = self.expected_ranges(angles, max_range, cone_half_width)
-        z = ranges[None, :]
+        z = np.minimum(ranges, max_range)[None, :]
         is_max = z >= max_range
         sig = cfg.beam_sigma
         norm = ndtr((max_range - zexp) / sig) - ndtr(-zexp / sig)
