@@ -79,7 +79,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
-def _plot(result, metrics: dict, path: Path) -> None:
+def _plot(result, metrics: dict, path: Path, landmarks: dict | None = None) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -102,6 +102,9 @@ def _plot(result, metrics: dict, path: Path) -> None:
         d = result.estimate[i, ok, :2] - result.truth[i, ok, :2]
         err[ok] = np.hypot(d[:, 0], d[:, 1])
         ax1.plot(result.times - result.times[0], err, lw=0.8, label=f"robot {rid}")
+    if landmarks:
+        xy = np.array(list(landmarks.values()))
+        ax0.plot(xy[:, 0], xy[:, 1], "k^", ms=5, label="landmarks")
     ax0.set_aspect("equal")
     ax0.set_xlabel("x [m]")
     ax0.set_ylabel("y [m]")
@@ -192,7 +195,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         args.json.write_text(json.dumps(metrics, indent=2) + "\n")
     if args.plot:
-        _plot(result, metrics, args.plot)
+        _plot(result, metrics, args.plot, dataset.landmarks)
     return 0
 
 
