@@ -777,18 +777,22 @@ class ParticleFilter:
         A fraction :attr:`inject_probability` (in expectation) of the new set is
         drawn uniformly over free space; the rest by low-variance resampling.
         With ``config.adaptive`` the new size is chosen by KLD sampling between
-        ``n_min`` and ``n_max``; otherwise the size is kept.
+        ``n_min`` and ``n_max`` (:meth:`_kld_draw`); otherwise the size is kept.
         """
         cfg = self.config
         rng = self.rng
+        p_inj = self.inject_probability
         if cfg.adaptive:
-            n = self._kld_size()
+            state = self._kld_draw()
+            n = state.shape[1]
+            n_inj = int(rng.binomial(n, p_inj)) if p_inj > 0 else 0
+            if n_inj:
+                state = state[:, : n - n_inj]
         else:
             n = self._weights.size
-        p_inj = self.inject_probability
-        n_inj = int(rng.binomial(n, p_inj)) if p_inj > 0 else 0
-        idx = _lvi(np.cumsum(self._weights), n - n_inj, rng)
-        state = np.take(self._state, idx, axis=1)
+            n_inj = int(rng.binomial(n, p_inj)) if p_inj > 0 else 0
+            idx = _lvi(np.cumsum(self._weights), n - n_inj, rng)
+            state = np.take(self._state, idx, axis=1)
         if n_inj:
             state = np.concatenate([state, self._uniform_poses(n_inj)], axis=1)
         self._state = state
@@ -804,11 +808,16 @@ class ParticleFilter:
             return True
         return False
 
-    def _kld_size(self) -> int:
-        """KLD-sampling: size of the next set, from bins hit by a random-order resample."""
+    def _kld_draw(self) -> np.ndarray:
+        """KLD sampling (Fox 2003): a ``(3, n)`` resampled set, ``n_min <= n <= n_max``.
+
+        Draws ``n_max`` particles by low-variance resampling, shuffles them, and
+        keeps the shortest prefix whose size reaches the KLD bound for the
+        number of histogram bins (``kld_bin``) that prefix occupies.
+        """
         cfg = self.config
         n_max = cfg.n_max
-        idx = low_variance_indices(self._weights, n_max, self.rng)
+        idx = _lvi(np.cumsum(self._weights), n_max, self.rng)
         idx = idx[self.rng.permutation(n_max)]
         st = np.take(self._state, idx, axis=1)
         st[2] = wrap_angle(st[2])
@@ -822,11 +831,12 @@ class ParticleFilter:
         _, first = np.unique(key, return_index=True)
         is_new = np.zeros(n_max, dtype=bool)
         is_new[first] = True
-        k = np.cumsum(is_new)
+        k = np.cumsum(is_new)  # bins occupied by the first i + 1 particles
         need = np.maximum(kld_sample_bound(k, cfg.kld_epsilon, cfg.kld_delta), cfg.n_min)
         enough = np.flatnonzero(np.arange(1, n_max + 1) >= need)
         n = int(enough[0]) + 1 if enough.size else n_max
-        return int(np.clip(n, cfg.n_min, n_max))
+        n = int(np.clip(n, cfg.n_min, n_max))
+        return st[:, :n].copy()
 
     # --------------------------------------------------------------- output
     def mean_pose(self) -> np.ndarray:
