@@ -51,3 +51,4 @@ def make_config(scenario: str, **overrides: Any) -> ScenarioConfig:
 
 # Import the scenario modules so they register themselves.
 from coop_loc_env.scenarios import outdoor  # noqa: E402, F401
+from coop_loc_env.scenarios import madhavan  # noqa: E402, F401
