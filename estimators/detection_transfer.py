@@ -312,8 +312,10 @@ class DetectionTransfer:
         """Multiply ``pf``'s weights by the mixture factors; return the false-positive posterior."""
         p_fp = self.config.false_positive_prob
         parts = pf.particles if use_heading else pf.particles[:, :2]
-        factors, uniform = detection_weight_factors(tree, parts, p_fp)
-        expected_tree = float(np.dot(pf.weights, tree.pdf(parts)))
+        pdf = tree.pdf(parts)
+        uniform = 1.0 / tree.volume
+        factors = (1.0 - p_fp) * pdf + p_fp * uniform
+        expected_tree = float(np.dot(pf.weights, pdf))
         denom = (1.0 - p_fp) * expected_tree + p_fp * uniform
         posterior_fp = p_fp * uniform / denom if denom > 0 else 1.0
         pf.apply_weight_factors(factors)

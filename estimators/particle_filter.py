@@ -43,6 +43,7 @@ __all__ = [
     "ParticleBelief",
     "ParticleFilter",
     "belief_feature_names",
+    "compose_odometry",
     "kld_sample_bound",
     "low_variance_indices",
 ]
@@ -271,6 +272,30 @@ def kld_sample_bound(k: np.ndarray, epsilon: float, delta: float) -> np.ndarray:
     return np.where(k <= 1, 1.0, np.ceil(n))
 
 
+def compose_odometry(v: np.ndarray, w: np.ndarray, dt: float) -> np.ndarray:
+    """Relative motion ``(dx, dy, dheading)`` of a sequence of unicycle odometry readings.
+
+    ``v``, ``w`` ``(K,)`` are speeds and turn rates held for ``dt`` each; the
+    result is expressed in the robot frame at the start (exact arcs), ready for
+    :meth:`ParticleFilter.predict_delta`. One prediction per env step instead
+    of one per odometry sub-step keeps the sampling cost down.
+    """
+    v = np.atleast_1d(np.asarray(v, dtype=float))
+    w = np.atleast_1d(np.asarray(w, dtype=float))
+    if v.shape != w.shape or v.ndim != 1:
+        raise ValueError(f"v and w must be 1D of equal length, got {v.shape} and {w.shape}")
+    if not (np.all(np.isfinite(v)) and np.all(np.isfinite(w)) and math.isfinite(dt)) or dt < 0:
+        raise ValueError(f"odometry must be finite with dt >= 0, got v={v}, w={w}, dt={dt}")
+    dth = w * dt
+    start = np.concatenate([[0.0], np.cumsum(dth)[:-1]])
+    turning = np.abs(dth) > 1e-9
+    safe_w = np.where(turning, w, 1.0)
+    lx = np.where(turning, v / safe_w * np.sin(dth), v * dt)
+    ly = np.where(turning, v / safe_w * (1.0 - np.cos(dth)), 0.0)
+    c, s = np.cos(start), np.sin(start)
+    return np.array([np.sum(c * lx - s * ly), np.sum(s * lx + c * ly), float(np.sum(dth))])
+
+
 def belief_feature_names(hist_cells: int = 5, heading_bins: int = 8) -> list[str]:
     """Names of the entries of :meth:`ParticleFilter.belief_features`, in order.
 
@@ -365,7 +390,11 @@ class ParticleFilter:
     # ---------------------------------------------------------------- state
     @property
     def particles(self) -> np.ndarray:
-        """``(N, 3)`` particle poses, headings wrapped to ``[-pi, pi)`` (a read-only array)."""
+        """``(N, 3)`` particle poses, headings wrapped to ``[-pi, pi)``.
+
+        A read-only view of the filter's state: it changes as the filter runs,
+        so copy it to keep a snapshot.
+        """
         if self._unwrapped_steps:
             self._wrap_headings()
         view = self._state.T
@@ -471,6 +500,10 @@ class ParticleFilter:
         else:
             dx, dy = v * dt, 0.0
         self.predict_delta((dx, dy, dth))
+
+    def predict_odometry_sequence(self, v: np.ndarray, w: np.ndarray, dt: float) -> None:
+        """One prediction for several odometry sub-steps (see :func:`compose_odometry`)."""
+        self.predict_delta(compose_odometry(v, w, dt))
 
     def predict_delta(self, delta: np.ndarray | tuple[float, float, float]) -> None:
         """Move particles by a relative motion ``(dx, dy, dheading)`` in the previous robot frame.

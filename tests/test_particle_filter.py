@@ -13,6 +13,7 @@ from estimators.particle_filter import (
     MotionNoise,
     ParticleFilter,
     belief_feature_names,
+    compose_odometry,
     kld_sample_bound,
     low_variance_indices,
 )
@@ -180,6 +181,23 @@ def test_noise_free_motion_follows_the_arc_and_reverses():
     pf.predict_delta((-1.0, 0.0, 0.0))  # straight back, no half-turn
     np.testing.assert_allclose(pf.particles[:, 2], wrap_angle(th), atol=1e-5)
     assert pf.odometer == pytest.approx(v * dt * np.sinc(w * dt / 2 / np.pi) + 1.0, rel=1e-6)
+
+
+def test_composed_odometry_equals_sequential_predictions():
+    g = room()
+    noise_free = MCLConfig(n_particles=3, motion=MotionNoise(0, 0, 0, 0, 0, 0))
+    a = ParticleFilter(g, np.random.default_rng(0), noise_free)
+    b = ParticleFilter(g, np.random.default_rng(0), noise_free)
+    start = np.array([[2.0, 3.0, 0.5], [5.0, 1.0, -2.0], [7.0, 4.0, 3.0]])
+    a.set_particles(start)
+    b.set_particles(start)
+    v = np.array([0.3, 0.5, 0.5, -0.2, 0.0])
+    w = np.array([0.0, 0.4, -1.0, 0.3, 0.8])
+    for vi, wi in zip(v, w, strict=True):
+        a.predict_odometry(vi, wi, 0.1)
+    b.predict_odometry_sequence(v, w, 0.1)
+    np.testing.assert_allclose(a.particles, b.particles, atol=1e-5)
+    assert compose_odometry(np.array([1.0]), np.array([0.0]), 2.0) == pytest.approx([2, 0, 0])
 
 
 def test_motion_noise_grows_with_translation_and_rotation():
