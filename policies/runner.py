@@ -124,13 +124,18 @@ def parse_overrides(pairs: list[str] | None) -> dict[str, Any]:
     return out
 
 
-def run_episode(env, policy: Policy, seed: int, on_step=None) -> dict[str, Any]:
+def run_episode(
+    env, policy: Policy, seed: int, on_step=None, on_reset=None
+) -> dict[str, Any]:
     """Run one episode of ``policy`` on ``env``; returns its figures and series.
 
-    ``on_step(env, infos)`` is called after every step (e.g. a progress bar).
+    ``on_reset(env)`` is called after the reset and ``on_step(env, infos)``
+    after every step (e.g. a progress bar, a renderer).
     """
     obs, infos = env.reset(seed=seed)
     policy.reset(env, seed=seed)
+    if on_reset is not None:
+        on_reset(env)
     n = env.config.n_robots
     errors: list[np.ndarray] = []
     stds: list[np.ndarray] = []
@@ -295,3 +300,45 @@ def format_table(summary: dict[str, dict[str, float]], n_episodes: int) -> str:
         s = summary[key]
         lines.append(f"{labels[key]:<{width}}  {s['mean']:.4f} +/- {s['std']:.4f}")
     return "\n".join(lines)
+
+
+def record_frames(
+    scenario: str,
+    policy: Policy | str,
+    seed: int = 0,
+    overrides: dict[str, Any] | None = None,
+    every: int = 5,
+    progress: bool = True,
+) -> tuple[list[np.ndarray], dict[str, Any]]:
+    """Run one episode with ``rgb_array`` rendering; returns frames and the episode record.
+
+    A frame is taken after reset and then every ``every`` steps (and at the end).
+    """
+    if isinstance(every, bool) or not isinstance(every, int) or every < 1:
+        raise ValueError(f"every must be a positive integer, got {every!r}")
+    if isinstance(policy, str):
+        policy = make_policy(policy)
+    env = coop_loc_env.parallel_env(scenario, render_mode="rgb_array", **(overrides or {}))
+    frames: list[np.ndarray] = []
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=env.config.max_cycles, unit="step", desc=f"{scenario} (render)")
+
+    steps = [0]
+
+    def on_step(e, infos):
+        steps[0] += 1
+        if bar is not None:
+            bar.update()
+        if steps[0] % every == 0 or not e.agents:
+            frames.append(e.render())
+
+    try:
+        ep = run_episode(env, policy, seed, on_step, on_reset=lambda e: frames.append(e.render()))
+    finally:
+        if bar is not None:
+            bar.close()
+        env.close()
+    return frames, ep

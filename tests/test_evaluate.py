@@ -110,3 +110,20 @@ def test_saved_sb3_model_is_a_policy(tmp_path):
                       progress=False)
     with pytest.raises(ValueError, match="does not exist"):
         make_policy(str(tmp_path / "missing.zip"))
+
+
+def test_render_episode_saves_gif(tmp_path):
+    import imageio.v2 as imageio
+
+    spec = importlib.util.spec_from_file_location("render_episode",
+                                                  ROOT / "scripts" / "render_episode.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    out = tmp_path / "ep.gif"
+    assert mod.main(["--policy", "seek", "--max-cycles", "20", "--every", "10", "--out",
+                     str(out), "--set", "n_robots=2", "--no-progress"]) == 0
+    frames = imageio.mimread(out)
+    assert len(frames) == 3  # after reset, step 10, step 20
+    assert frames[0].ndim == 3 and frames[0].shape[2] in (3, 4)
+    assert not np.array_equal(frames[0], frames[-1])
+    assert mod.main(["--every", "0", "--no-progress"]) == 2
