@@ -61,6 +61,7 @@ class _LFField(NamedTuple):
     lo: np.ndarray  # (2, 1) float32: lowest allowed particle cell coordinates
     hi: np.ndarray  # (2, 1) float32: highest allowed particle cell coordinates
     inv_res: float  # 1 / resolution
+    reach: float  # ranges are clipped to this (no endpoint can leave the table)
 
 
 @dataclass(frozen=True)
@@ -580,7 +581,7 @@ class ParticleFilter:
         """Tables gathered by the likelihood-field update for ``max_range`` (cached).
 
         One flat ``float32`` array holds two grids of the same padded geometry
-        (a border of ``pad`` cells, ``pad >= max_range / resolution``, so every
+        (a border of ``pad`` cells, ``pad >= reach / resolution``, so every
         beam endpoint of a particle inside the map lands inside the grid):
         first the tempered per-beam log-likelihood
         ``exponent * log(z_hit N(d) + z_rand / max_range)``, then the position
@@ -591,7 +592,11 @@ class ParticleFilter:
         if key not in self._lf_cache:
             cfg = self.config
             res = self.grid.resolution
-            pad = int(np.ceil(max_range / res)) + 2
+            xmin, ymin, xmax, ymax = self.grid.bounds
+            # Beyond the map's diagonal plus lf_max_dist every endpoint scores the
+            # floor value, so longer ranges are clipped to ``reach`` (bounds the pad).
+            reach = min(max_range, math.hypot(xmax - xmin, ymax - ymin) + cfg.lf_max_dist)
+            pad = int(np.ceil(reach / res)) + 2
             dist = np.minimum(self.grid.distance_field(pad), cfg.lf_max_dist)
             lik = cfg.lf_z_hit * np.exp(-0.5 * (dist / cfg.lf_sigma) ** 2 - _LOG_SQRT_2PI) / (
                 cfg.lf_sigma
@@ -606,7 +611,7 @@ class ParticleFilter:
             lo = np.full((2, 1), pad - 1.0, dtype=np.float32)
             hi = np.array([[nxp - pad + 1.0], [nyp - pad + 1.0]], dtype=np.float32)
             self._lf_cache[key] = _LFField(
-                table, pad, nxp, nyp, nxp * nyp, shift, lo, hi, 1.0 / res
+                table, pad, nxp, nyp, nxp * nyp, shift, lo, hi, 1.0 / res, reach
             )
         return self._lf_cache[key]
 
@@ -635,6 +640,8 @@ class ParticleFilter:
         nb = int(np.count_nonzero(keep))
         if nb < ranges.size:
             ranges, angles = ranges[keep], angles[keep]
+        if max_range > lf.reach:
+            ranges = np.minimum(ranges, lf.reach)
         nb1 = nb + 1
         # E = M @ [cos; sin; x; y] gives endpoint cell coordinates: rows ex then ey;
         # rows nb and 2 nb + 1 are the particle itself (they gather the penalty).

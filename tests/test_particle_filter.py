@@ -303,6 +303,37 @@ def test_beam_model_tracks_with_wide_cones():
     assert max(err[-5:]) < 0.3, err
 
 
+def test_likelihood_field_matches_the_textbook_formula():
+    g = room()
+    cfg = MCLConfig(n_particles=400, lf_sigma=0.25, lf_z_hit=0.8, lf_z_rand=0.2)
+    pf = ParticleFilter(g, np.random.default_rng(4), cfg)
+    rng = np.random.default_rng(5)
+    parts = np.column_stack([g.sample_free(400, rng), rng.uniform(-np.pi, np.pi, 400)])
+    # in a wall, in a box, and just outside the map (particles farther out are clamped to
+    # one cell outside the map, where they get the penalty)
+    parts[:5, :2] = [[0.05, 3.0], [2.5, 2.3], [-0.05, 1.0], [10.08, 5.5], [4.0, 6.05]]
+    pf.set_particles(parts)
+    max_range = 30.0  # longer than the map's diagonal: long readings get clipped internally
+    z = np.concatenate([rng.uniform(0.2, 6.0, 27), [25.0, 29.0, 30.0]])
+    pf.update_likelihood_field(z, BEAMS, max_range)
+    # reference: world endpoints, EDT of a generously padded map, clipped at lf_max_dist
+    pad = 400
+    dist = np.minimum(g.distance_field(pad), cfg.lf_max_dist)
+    keep = z < max_range
+    ang = parts[:, 2:3] + BEAMS[keep]
+    ex = parts[:, 0:1] + z[keep] * np.cos(ang)
+    ey = parts[:, 1:2] + z[keep] * np.sin(ang)
+    ix = np.floor(ex / RES).astype(int) + pad
+    iy = np.floor(ey / RES).astype(int) + pad
+    d = dist[iy, ix]
+    lik = cfg.lf_z_hit * np.exp(-0.5 * (d / cfg.lf_sigma) ** 2) / (
+        cfg.lf_sigma * np.sqrt(2 * np.pi)) + cfg.lf_z_rand / max_range
+    loglik = np.log(lik).sum(axis=1) + np.where(g.is_free(parts[:, :2]), 0.0, cfg.occupied_loglik)
+    expected = np.exp(loglik - loglik.max())
+    expected /= expected.sum()
+    np.testing.assert_allclose(pf.weights, expected, rtol=1e-3, atol=1e-9)
+
+
 def test_beam_model_prefers_the_true_pose_and_scores_max_range_readings():
     g = room()
     pf = ParticleFilter(g, np.random.default_rng(13), MCLConfig(n_particles=3))
