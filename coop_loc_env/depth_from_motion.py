@@ -118,6 +118,11 @@ class DepthFromMotion:
             for kind, ident, _bearing, _rng in camera[i]:
                 seen[i, ident if kind == "ooi" else self.n_ooi + ident] = True
         rows = frames_robots
+        if not seen[rows].any():  # nothing in view: every track of these robots ends
+            self.frames[rows] = 0
+            self.baseline[rows] = 0.0
+            self.last_pose[rows] = poses[rows]
+            return out
         # Tracks that continue: accumulate the baseline since the previous frame.
         move = poses[rows, :2] - self.last_pose[rows, :2]  # (r, 2)
         los = targets[None, :, :] - poses[rows, None, :2]  # (r, T, 2)
