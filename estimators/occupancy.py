@@ -112,17 +112,19 @@ class OccupancyGrid:
         """``n`` points ``(n, 2)`` drawn uniformly over the free space."""
         if n < 0:
             raise ValueError(f"n must be >= 0, got {n}")
-        free = self._free_flat_indices
-        if free.size == 0:
+        corners = self._free_corners
+        if corners.shape[0] == 0:
             raise ValueError("the grid has no free cell to sample from")
-        nx = self.shape[1]
-        pick = free[rng.integers(0, free.size, size=n)]
-        cells = np.stack([pick % nx, pick // nx], axis=-1).astype(float)
-        return (cells + rng.random((n, 2))) * self.resolution + np.asarray(self.origin)
+        out = rng.random((n, 2))
+        out *= self.resolution
+        out += corners[rng.integers(0, corners.shape[0], size=n)]
+        return out
 
     @cached_property
-    def _free_flat_indices(self) -> np.ndarray:
-        return np.flatnonzero(~self.occupied.ravel())
+    def _free_corners(self) -> np.ndarray:
+        """World coordinates ``(n_free, 2)`` of the lower-left corners of the free cells."""
+        iy, ix = np.nonzero(~self.occupied)
+        return np.column_stack([ix, iy]) * self.resolution + np.asarray(self.origin)
 
     # ------------------------------------------------------------ distance field
     def distance_field(self, pad_cells: int = 0) -> np.ndarray:

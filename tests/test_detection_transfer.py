@@ -151,11 +151,13 @@ def test_false_positive_against_a_lost_target_keeps_a_valid_particle_set():
     g = room()
     m, n = localized(g, POSE_M, 1), lost(g, 2)
     fake = detection(pose_n=np.array([7.0, 1.5, -2.0]))
-    DetectionTransfer().apply(fake, m, n, np.random.default_rng(3))
+    res = DetectionTransfer().apply(fake, m, n, np.random.default_rng(3))
     w = n.weights
     assert np.all(np.isfinite(w)) and np.all(w > 0) and w.sum() == pytest.approx(1.0)
-    # the uniform part of the mixture keeps every particle alive
-    assert w.min() > 0.05 * (1.0 / n.n_particles) * 0.5
+    # the uniform part of the mixture keeps every particle alive: each keeps at least
+    # its prior weight times the posterior probability that the detection was false
+    assert 0.01 < res.false_positive_posterior < 0.5
+    assert w.min() >= res.false_positive_posterior / n.n_particles * (1 - 1e-9)
     n.resample()
     assert n.n_particles == 2000 and np.all(np.isfinite(n.particles))
 
