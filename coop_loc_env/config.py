@@ -193,6 +193,7 @@ class ScenarioConfig:
     cooperative_rounds_per_step: int = 1
     # --- estimators
     gate_prob: float = 0.99
+    ekf_process_noise_scale: float = 1.0
     init_pos_std: float = 0.5
     init_heading_std: float = 0.1
     n_particles: int = 1000
@@ -284,6 +285,7 @@ class ScenarioConfig:
         for key in ("gps_multipath_prob", "detection_prob", "false_positive_prob"):
             _number(self, key, lower=0.0, strict=False, upper=1.0)
         _number(self, "gate_prob", lower=0.0, strict=True, upper=1.0)
+        _number(self, "ekf_process_noise_scale", lower=0.0, strict=True)
         if self.tip_over_slope_deg >= 90:
             raise ValueError(f"tip_over_slope_deg must be < 90, got {self.tip_over_slope_deg!r}")
         if self.estimator not in ESTIMATORS:

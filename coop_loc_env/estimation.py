@@ -119,9 +119,11 @@ class EKFBackend:
         odo = readings.odometry[:, g]  # (substeps, k, 2)
         v = np.where(act, odo[..., 0], 0.0)
         w = np.where(act, odo[..., 1], 0.0)
-        # Encoder noise plus the wheel slip the robot's maker specifies.
-        var_v = cfg.odom_v_std**2 + (cfg.slip_std * v) ** 2
-        var_w = cfg.odom_w_std**2 + (cfg.slip_std * w) ** 2
+        # Encoder noise plus the wheel slip the robot's maker specifies, inflated by
+        # ``ekf_process_noise_scale`` to cover what the model leaves out.
+        scale = cfg.ekf_process_noise_scale
+        var_v = scale * (cfg.odom_v_std**2 + (cfg.slip_std * v) ** 2)
+        var_w = scale * (cfg.odom_w_std**2 + (cfg.slip_std * w) ** 2)
         ekf.predict_sequence(v, w, dt_sub, var_v, var_w)
         stats = {"accepted": 0, "rejected": 0, "cooperative": 0}
         sel = np.nonzero(readings.gps_mask[g])[0]

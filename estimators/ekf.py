@@ -340,15 +340,12 @@ class PoseEKF:
         jac = np.concatenate([ja, jb], axis=2)  # (k, m, 6)
         pa, pb = self.cov[ia], self.cov[ib]
         p = np.zeros((k, 6, 6))
+        p[:, :3, :3] = pa
+        p[:, 3:, 3:] = pb
         if fusion == "ci":
-            ta = np.trace(pa, axis1=1, axis2=2)
-            tb = np.trace(pb, axis1=1, axis2=2)
-            w = np.clip(tb / (ta + tb), 1e-3, 1 - 1e-3)[:, None, None]
-            p[:, :3, :3] = pa / w
-            p[:, 3:, 3:] = pb / (1 - w)
-        else:
-            p[:, :3, :3] = pa
-            p[:, 3:, 3:] = pb
+            w = _best_ci_weight(pa, pb, jac, r)[:, None, None]
+            p[:, :3, :3] /= w
+            p[:, 3:, 3:] /= 1 - w
         nu = z - h
         first_angle = 2 if model == "cartesian" else 1
         for j, d in enumerate(dims):
@@ -410,6 +407,34 @@ def relative_measurement(
     ja[:, 2, 2] = -1.0
     jb[:, 2, 2] = 1.0
     return h, ja, jb
+
+
+_CI_WEIGHTS = np.linspace(0.05, 0.95, 19)
+
+
+def _best_ci_weight(pa: np.ndarray, pb: np.ndarray, jac: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """Covariance-intersection weight per pair (grid search).
+
+    Minimizes the summed trace of the two robots' covariances after the update,
+    counting a robot whose inflated posterior would exceed its prior at its prior
+    (the update leaves such a robot unchanged).
+    """
+    w = _CI_WEIGHTS[:, None, None, None]
+    k = len(pa)
+    p = np.zeros((len(_CI_WEIGHTS), k, 6, 6))
+    p[:, :, :3, :3] = pa[None] / w
+    p[:, :, 3:, 3:] = pb[None] / (1 - w)
+    ph_t = p @ np.swapaxes(jac, 1, 2)[None]
+    s = jac[None] @ ph_t + r[None]
+    # Diagonal blocks of P - P H^T S^-1 H P: trace(P_ii) - sum over the block's rows.
+    reduction = np.einsum("wkij,wkij->wki", ph_t, ph_t @ np.linalg.inv(s))
+    diag = np.diagonal(p, axis1=2, axis2=3)
+    post_a = (diag[..., :3] - reduction[..., :3]).sum(-1)
+    post_b = (diag[..., 3:] - reduction[..., 3:]).sum(-1)
+    ta = np.trace(pa, axis1=1, axis2=2)[None]
+    tb = np.trace(pb, axis1=1, axis2=2)[None]
+    cost = np.minimum(post_a, ta) + np.minimum(post_b, tb)
+    return _CI_WEIGHTS[np.argmin(cost, axis=0)]
 
 
 def _rounds(idx_a: np.ndarray, idx_b: np.ndarray, n: int) -> list[np.ndarray]:

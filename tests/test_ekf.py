@@ -1,0 +1,177 @@
+"""EKF: consistency in the loop, gating, cooperative updates, numerics."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+import coop_loc_env
+from estimators.ekf import PoseEKF, chi2_threshold, relative_measurement
+from estimators.geometry import relative_pose, wrap_angle
+
+
+def _nees(info: dict) -> float:
+    e = info["est_pose"] - info["true_pose"]
+    e[2] = wrap_angle(e[2])
+    return float(e @ np.linalg.solve(info["pose_cov"], e))
+
+
+def test_filter_is_consistent_with_gps_over_a_long_run():
+    """Mean NEES lies in the 95 % chi-square band (3 dof), Monte Carlo over runs and robots.
+
+    Each of 40 independent episodes (5 robots, 20 s of odometry, DGPS and compass)
+    contributes its robots' final NEES, so the 200 samples are independent and
+    the band ``chi2(3N) / N`` is exact. The robots circle 8 m apart so that no
+    collision (unmodelled wheel slip) occurs; cooperative updates and multipath
+    outliers (which the gate handles, tested below) are off.
+    """
+    starts = tuple((8.0 + 6.0 * i, 20.0 + (-4.0) ** (i % 2), 0.0) for i in range(5))
+    kw = dict(n_robots=5, steep_patches=0, n_random_trees=0, n_random_rocks=0,
+              start_poses=starts, max_cycles=200, cooperative_updates=False,
+              gps_multipath_prob=0.0)
+    samples = []
+    for seed in range(40):
+        env = coop_loc_env.parallel_env(**kw)
+        env.reset(seed=seed)
+        rng = np.random.default_rng(seed)
+        turn = rng.choice([-1.0, 1.0], size=5) * rng.uniform(0.25, 0.5, size=5)
+        contacts = 0
+        while env.agents:
+            _, _, _, _, infos = env.step(
+                {a: np.array([0.4, turn[i]], np.float32) for i, a in enumerate(env.agents)}
+            )
+            contacts += sum(i["collisions"] for i in infos.values())
+        assert contacts == 0
+        samples += [_nees(i) for i in infos.values()]
+    n = len(samples)
+    lo, hi = chi2.ppf(0.025, 3 * n) / n, chi2.ppf(0.975, 3 * n) / n
+    assert lo <= np.mean(samples) <= hi, (np.mean(samples), lo, hi)
+
+
+def test_gate_rejects_injected_outliers_and_accepts_inliers():
+    rng = np.random.default_rng(0)
+    ekf = PoseEKF(np.zeros((200, 3)), np.diag([0.04, 0.04, 0.01]))
+    r = np.repeat(np.eye(2)[None] * 0.09, 200, axis=0)
+    inlier = rng.multivariate_normal([0, 0], np.eye(2) * 0.13, size=200)
+    ok = ekf.update_position(np.arange(200), inlier, r)
+    # 99 % gate: about 1 % of genuine measurements rejected.
+    assert 0.95 <= ok.mean() <= 1.0
+    before = ekf.mean.copy()
+    outliers = np.tile([8.0, -6.0], (200, 1))
+    ok = ekf.update_position(np.arange(200), outliers, r)
+    assert not ok.any()
+    np.testing.assert_array_equal(ekf.mean, before)
+
+
+def test_chi2_threshold_matches_scipy_and_rejects_bad_probability():
+    assert chi2_threshold(0.99, 2) == pytest.approx(chi2.ppf(0.99, 2))
+    with pytest.raises(ValueError, match="1.5"):
+        chi2_threshold(1.5, 2)
+
+
+def test_cooperative_update_shrinks_covariance_of_robot_without_gps():
+    ekf = PoseEKF(
+        np.array([[0.0, 0.0, 0.0], [3.0, 1.0, 0.5]]),
+        np.stack([np.diag([0.01, 0.01, 0.001]), np.diag([4.0, 4.0, 0.3])]),
+    )
+    truth = np.array([[0.0, 0.0, 0.0], [3.5, 0.5, 0.4]])
+    rng = np.random.default_rng(1)
+    errors = [np.hypot(*(ekf.mean[1, :2] - truth[1, :2]))]
+    r = np.diag([0.05**2, 0.02**2, 0.05**2])[None]
+    for _ in range(5):
+        # Robot 1 drives 1 s on odometry alone (no GPS): its covariance grows ...
+        ekf.predict_sequence(np.zeros((10, 2)), np.zeros((10, 2)), 0.1, [0.0, 0.5], [0.0, 0.05])
+        before = np.trace(ekf.cov[1])
+        z = relative_pose(truth[0], truth[1]) + rng.normal(0, [0.05, 0.02, 0.05])
+        ok = ekf.update_relative([0], [1], z[None], r)
+        assert ok.all()
+        # ... and shrinks at every cooperative update.
+        assert np.trace(ekf.cov[1]) < before
+        errors.append(np.hypot(*(ekf.mean[1, :2] - truth[1, :2])))
+    assert errors[-1] < 0.2 < errors[0]
+    # The well-localized observer is not made worse.
+    assert np.trace(ekf.cov[0]) <= np.trace(np.diag([0.01, 0.01, 0.001])) + 10 * 0.011
+
+
+def test_cartesian_model_matches_paper_equation_3():
+    """H = [I, -I] (the paper's naive joint update) moves both robots to the measured gap."""
+    ekf = PoseEKF(np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]), np.eye(3) * 0.5)
+    z = np.array([[-1.2, 0.0, 0.0]])  # x_a - x_b
+    ok = ekf.update_relative([0], [1], z, np.eye(3)[None] * 0.01, model="cartesian",
+                             fusion="naive", gate_prob=1.0)
+    assert ok.all()
+    assert ekf.mean[1, 0] - ekf.mean[0, 0] == pytest.approx(1.2, abs=0.05)
+    assert ekf.mean[0, 0] < 0 < ekf.mean[1, 0] - 1.0
+
+
+def test_ci_fusion_never_inflates_a_covariance():
+    """With unknown correlation a relative fix between equals cannot sharpen either marginal."""
+    rng = np.random.default_rng(2)
+    for _ in range(20):
+        a = rng.normal(size=(2, 3, 3))
+        cov = a @ np.swapaxes(a, 1, 2) + 0.1 * np.eye(3)
+        ekf = PoseEKF(rng.normal(size=(2, 3)) * 3, cov)
+        before = np.trace(ekf.cov, axis1=1, axis2=2)
+        z = relative_pose(*ekf.mean) + rng.normal(0, 0.1, 3)
+        ekf.update_relative([0], [1], z[None], np.eye(3)[None] * 0.01, gate_prob=1.0)
+        assert np.all(np.trace(ekf.cov, axis1=1, axis2=2) <= before + 1e-12)
+
+
+def test_relative_measurement_jacobian_matches_finite_differences():
+    rng = np.random.default_rng(3)
+    xa = rng.normal(size=(5, 3))
+    xb = xa + rng.normal(size=(5, 3)) * 2
+    h, ja, jb = relative_measurement(xa, xb)
+    eps = 1e-6
+    for j in range(3):
+        d = np.zeros(3)
+        d[j] = eps
+        num_a = (relative_measurement(xa + d, xb)[0] - relative_measurement(xa - d, xb)[0])
+        num_b = (relative_measurement(xa, xb + d)[0] - relative_measurement(xa, xb - d)[0])
+        np.testing.assert_allclose(wrap_angle(num_a) / (2 * eps), ja[:, :, j], atol=1e-5)
+        np.testing.assert_allclose(wrap_angle(num_b) / (2 * eps), jb[:, :, j], atol=1e-5)
+    np.testing.assert_allclose(h, relative_pose(xa, xb), atol=1e-12)
+
+
+def test_covariances_stay_symmetric_positive_definite():
+    rng = np.random.default_rng(4)
+    ekf = PoseEKF(np.zeros((4, 3)), np.eye(3) * 1e-6)
+    for _ in range(300):
+        ekf.predict_sequence(rng.normal(1, 0.1, (5, 4)), rng.normal(0, 1, (5, 4)), 0.02,
+                             0.0025, 0.0025)
+        ekf.update_position(np.arange(4), rng.normal(0, 1e-3, (4, 2)),
+                            np.repeat(np.eye(2)[None] * 1e-8, 4, 0), gate_prob=1.0)
+        ekf.update_heading(np.arange(4), rng.normal(0, 1e-3, 4), np.full(4, 1e-10),
+                           gate_prob=1.0)
+        ekf.update_relative([0, 2], [1, 3], np.abs(rng.normal(1, 0.1, (2, 3))),
+                            np.repeat(np.eye(3)[None] * 1e-8, 2, 0), gate_prob=1.0)
+    np.testing.assert_allclose(ekf.cov, np.swapaxes(ekf.cov, 1, 2), atol=0)
+    assert np.all(np.linalg.eigvalsh(ekf.cov) > 0)
+
+
+def test_predict_sequence_equals_sequential_predictions():
+    rng = np.random.default_rng(5)
+    a = rng.normal(size=(3, 3, 3))
+    cov = a @ np.swapaxes(a, 1, 2) + np.eye(3)
+    mean = rng.normal(size=(3, 3))
+    one, many = PoseEKF(mean, cov), PoseEKF(mean, cov)
+    v, w = rng.normal(size=(7, 3)), rng.normal(size=(7, 3))
+    qv, qw = rng.random((7, 3)), rng.random((7, 3))
+    for k in range(7):
+        one.predict(v[k], w[k], 0.05, qv[k], qw[k])
+    many.predict_sequence(v, w, 0.05, qv, qw)
+    np.testing.assert_allclose(one.mean, many.mean, atol=1e-12)
+    np.testing.assert_allclose(one.cov, many.cov, atol=1e-12)
+
+
+def test_bad_inputs_raise():
+    with pytest.raises(ValueError, match="NaN"):
+        PoseEKF(np.array([[0.0, np.nan, 0.0]]), np.eye(3))
+    with pytest.raises(ValueError, match="shape"):
+        PoseEKF(np.zeros((2, 3)), np.eye(2))
+    ekf = PoseEKF(np.zeros((2, 3)), np.eye(3))
+    with pytest.raises(ValueError, match="itself"):
+        ekf.update_relative([0], [0], np.ones((1, 3)), np.eye(3)[None])
+    with pytest.raises(ValueError, match="NaN"):
+        ekf.update_position([0], np.array([[np.nan, 0.0]]), np.eye(2)[None])
