@@ -5,14 +5,21 @@ observations (range, bearing, orientation of one robot seen by another, any
 subset of the three) into the pose graph of :mod:`estimators.pose_graph`:
 
 * **Nodes** are keyframes: each robot gets a new node once it has integrated
-  ``motion_window`` seconds of odometry (10 s in Howard et al.). The odometry in
-  between is integrated (Euler, the process model of Madhavan et al.'s Eq. 1)
-  with its covariance; closing a window adds a motion factor.
-* **Robot observations** taken between keyframes are attached to the two
-  robots' latest nodes through the odometry integrated since them (known pose
-  offsets). With ``inflate_offsets`` the offsets' covariance is propagated into
-  the observation's covariance. A measured range below ``min_range`` makes the
-  bearing meaningless, so the bearing component is dropped for that observation.
+  ``motion_window`` seconds of odometry (10 s in Howard et al.), and also when
+  an observation involving it arrives at least ``keyframe_interval`` seconds
+  after its last node, so that a robot observation joins the two robots' poses
+  *at the time it was taken* (the paper's graph). The odometry in between is
+  integrated (Euler, the process model of Madhavan et al.'s Eq. 1) with its
+  covariance; closing a window adds a motion factor.
+* **Robot observations** closer in time to the keyframes than
+  ``keyframe_interval`` are attached to the two robots' latest nodes through the
+  odometry integrated since them (known pose offsets). With ``inflate_offsets``
+  the offsets' covariance is propagated into the observation's covariance (their
+  correlation with the next motion factor is ignored: slightly over-confident,
+  which is why short offsets are preferred). At most one observation per ordered
+  pair per ``observation_interval`` seconds is used, bounding the factor count.
+  A measured range below ``min_range`` makes the bearing meaningless, so the
+  bearing component is dropped for that observation.
 * **Gauge**: the first node of the ``anchor`` robot is fixed at its initial pose;
   every other robot's first node gets a Gaussian prior (``initial_std``; by
   default very weak, so that a robot never seen by a teammate still has a
@@ -44,7 +51,6 @@ from estimators.pose_graph import (
     compose,
     marginal_covariances,
     marginalize,
-    observation_residual,
     optimize,
 )
 from estimators.relative_metrics import relative_pose_matrix
@@ -134,6 +140,14 @@ class TeamMLE:
         of the same ordered pair; more frequent ones are ignored.
     min_range:
         Measured ranges below this (m) have their bearing dropped (undefined).
+    keyframe_interval:
+        An accepted observation starts fresh keyframes for both robots when they have
+        integrated at least this much odometry (s) since their last one, so the
+        observation joins nodes at its own time (exact model); shorter offsets are
+        handled by attaching to the latest nodes. ``None``: keyframes only every
+        ``motion_window``.
+    tolerance:
+        Relative cost decrease at which a step's optimization stops.
     motion_floor_std:
         Std devs (m, rad) added to every motion factor so a robot that did not move
         (or moved straight) still has a positive-definite motion covariance.
@@ -154,8 +168,10 @@ class TeamMLE:
         window: int | None = 10,
         keep_history: bool = False,
         max_iterations: int = 10,
-        observation_interval: float = 0.0,
+        observation_interval: float = 1.0,
         min_range: float = 1e-2,
+        keyframe_interval: float | None = 1.0,
+        tolerance: float = 1e-6,
         motion_floor_std: tuple[float, float] = (1e-3, 1e-3),
         inflate_offsets: bool = True,
     ) -> None:
@@ -174,6 +190,12 @@ class TeamMLE:
             raise ValueError(f"observation_interval must be >= 0, got {observation_interval!r}")
         if not min_range >= 0:
             raise ValueError(f"min_range must be >= 0, got {min_range!r}")
+        if keyframe_interval is not None and not keyframe_interval >= 0:
+            raise ValueError(f"keyframe_interval must be >= 0 or None, got {keyframe_interval!r}")
+        if not tolerance > 0:
+            raise ValueError(f"tolerance must be > 0, got {tolerance!r}")
+        self.keyframe_interval = None if keyframe_interval is None else float(keyframe_interval)
+        self.tolerance = float(tolerance)
         self.odometry_std = self._check_std2(odometry_std, "odometry_std", allow_zero=True)
         floor = self._check_std2(motion_floor_std, "motion_floor_std", allow_zero=False)
         self._floor_cov = np.diag([floor[0] ** 2, floor[0] ** 2, floor[1] ** 2])
@@ -302,13 +324,18 @@ class TeamMLE:
         if sd.shape != (k,) or not np.all(np.isfinite(sd)) or np.any(sd <= 0):
             raise ValueError(f"std must be {k} positive numbers, got {std!r}")
         last = self._last_seen.get((a, b))
-        if last is not None and self._clock[a] - last < self.observation_interval:
+        if last is not None and self._clock[a] - last < self.observation_interval - 1e-9:
             return False
         if "r" in components and "b" in components and meas[components.index("r")] < self.min_range:
             keep = [i for i, ch in enumerate(components) if ch != "b"]
             components = "".join(components[i] for i in keep)
             meas, sd = meas[keep], sd[keep]
         self._last_seen[(a, b)] = self._clock[a]
+        if self.keyframe_interval is not None:
+            for robot in (a, b):
+                acc = self._odom[robot]
+                if acc.duration > 0 and acc.duration >= self.keyframe_interval:
+                    self._close_window(robot)
         cov = np.diag(sd**2)
         off_a, off_b = self._odom[a], self._odom[b]
         if self.inflate_offsets:
@@ -323,13 +350,17 @@ class TeamMLE:
         return True
 
     def _offset_covariance(self, a: int, b: int, components: str) -> np.ndarray:
-        """Covariance the un-modelled odometry since the keyframes adds to a measurement."""
+        """Covariance the odometry since the two keyframes adds to a measurement (first order)."""
         oa, ob = self._odom[a], self._odom[b]
-        xa = compose(self.graph.poses[self._last[a]], oa.delta)
-        xb = compose(self.graph.poses[self._last[b]], ob.delta)
-        _, ga, gb = observation_residual(xa[None], xb[None], np.zeros((1, 3)))
-        ja = ga[0] @ _pose_jacobians(self.graph.poses[self._last[a]], oa.delta)[1]
-        jb = gb[0] @ _pose_jacobians(self.graph.poses[self._last[b]], ob.delta)[1]
+        ka, kb = self.graph.poses[self._last[a]], self.graph.poses[self._last[b]]
+        xa, xb = compose(ka, oa.delta), compose(kb, ob.delta)
+        dx, dy = xb[0] - xa[0], xb[1] - xa[1]
+        r = max(float(np.hypot(dx, dy)), self.min_range, 1e-9)
+        g_b = np.array([[dx / r, dy / r, 0.0], [-dy / r**2, dx / r**2, 0.0], [0.0, 0.0, 1.0]])
+        g_a = -g_b
+        g_a[1, 2] = -1.0
+        ja = g_a @ _pose_jacobians(ka, oa.delta)[1]
+        jb = g_b @ _pose_jacobians(kb, ob.delta)[1]
         full = ja @ oa.cov @ ja.T + jb @ ob.cov @ jb.T
         idx = [COMPONENTS.index(ch) for ch in components]
         return full[np.ix_(idx, idx)]
@@ -342,7 +373,9 @@ class TeamMLE:
         """
         if not self._dirty:
             return None
-        self.last_result = optimize(self.graph, max_iterations=self.max_iterations)
+        self.last_result = optimize(
+            self.graph, max_iterations=self.max_iterations, rel_tol=self.tolerance
+        )
         self._dirty = False
         self._cov_cache = None
         if self.window is not None:

@@ -40,6 +40,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
@@ -51,6 +52,16 @@ COMPONENTS = "rbo"
 
 DEFAULT_MIN_RANGE = 1e-6
 """Floor on the range used in observation derivatives (metres)."""
+
+DENSE_MAX_VARIABLES = 450
+"""Problems with at most this many variables use dense Cholesky, larger ones sparse LU..."""
+
+DENSE_FILL_MAX_VARIABLES = 3000
+"""...unless ``H`` is more than 5 % full and has at most this many variables."""
+
+
+def _cat(parts: list[np.ndarray], dtype: type) -> np.ndarray:
+    return np.concatenate(parts) if parts else np.zeros(0, dtype)
 
 
 class _Columns:
@@ -118,7 +129,7 @@ def sqrt_information(cov: np.ndarray, name: str = "cov") -> np.ndarray:
     cov = np.asarray(cov, dtype=float)
     if cov.ndim != 2 or cov.shape[0] != cov.shape[1] or not np.all(np.isfinite(cov)):
         raise ValueError(f"{name} must be a finite square matrix, got {cov!r}")
-    if not np.allclose(cov, cov.T, rtol=1e-9, atol=1e-12):
+    if np.abs(cov - cov.T).max(initial=0.0) > 1e-9 * np.abs(cov).max(initial=0.0) + 1e-15:
         raise ValueError(f"{name} must be symmetric, got {cov!r}")
     try:
         lower = np.linalg.cholesky(cov)
@@ -429,6 +440,17 @@ class PoseGraph:
             raise ValueError(f"std must be 3 positive numbers, got {std!r}")
         self.add_prior([node], _check_pose(pose, "pose"), np.diag(1.0 / std))
 
+    def factor_tables(self) -> dict[str, tuple[np.ndarray, ...]]:
+        """Copies of the factor arrays: ``"between"``: ``(ij, mu, W)`` and ``"observation"``:
+        ``(ij, mu, W, offsets)``, with ``W`` the 3x3 square-root information of each residual
+        (zero rows for unmeasured components; motion ``W`` in the tangent space of ``mu``).
+        """
+        b, o = self._between, self._obs
+        return {
+            "between": (b["ij"].copy(), b["mu"].copy(), b["W"].copy()),
+            "observation": (o["ij"].copy(), o["mu"].copy(), o["W"].copy(), o["off"].copy()),
+        }
+
     @property
     def n_residuals(self) -> int:
         """Number of scalar measurements (residual rows that carry information)."""
@@ -442,62 +464,97 @@ class PoseGraph:
         index[free] = np.arange(np.count_nonzero(free))
         return index
 
-    def _structure(self) -> dict:
-        """Sparsity pattern of the whitened Jacobian (cached until the graph changes)."""
-        if self._cache_version == self._version:
-            return self._cache
-        var = self.variable_index()
-        n_var = 3 * int(var.max(initial=-1) + 1)
-        rows, cols = [], []
-        row0 = 0
-        for table in (self._between, self._obs):
-            m = table.n
-            ij = table["ij"]
-            r = row0 + 3 * np.arange(m)[:, None, None] + np.arange(3)[None, :, None]
-            for end in (0, 1):
-                c = 3 * var[ij[:, end]][:, None, None] + np.arange(3)[None, None, :]
-                c = np.where(var[ij[:, end]][:, None, None] < 0, -1, c)
-                rows.append(np.broadcast_to(r, (m, 3, 3)).ravel())
-                cols.append(np.broadcast_to(c, (m, 3, 3)).ravel())
-            row0 += 3 * m
-        for prior in self.priors:
-            q, nc = prior.A.shape
-            c = np.repeat(3 * var[prior.nodes], 3) + np.tile(np.arange(3), len(prior.nodes))
-            c = np.where(np.repeat(var[prior.nodes], 3) < 0, -1, c)
-            rows.append(np.repeat(row0 + np.arange(q), nc))
-            cols.append(np.tile(c, q))
-            row0 += q
-        rows_a = np.concatenate(rows) if rows else np.zeros(0, int)
-        cols_a = np.concatenate(cols) if cols else np.zeros(0, int)
-        keep = cols_a >= 0
-        order = sp.csr_matrix(
-            (np.arange(1, keep.sum() + 1, dtype=float), (rows_a[keep], cols_a[keep])),
-            shape=(row0, n_var),
-        )
-        order.sort_indices()
-        self._cache = {
-            "var": var,
-            "n_var": n_var,
-            "n_rows": row0,
-            "keep": keep,
-            "indices": order.indices.copy(),
-            "indptr": order.indptr.copy(),
-            "perm": order.data.astype(int) - 1,
-        }
-        self._cache_version = self._version
-        return self._cache
+    def _structure(self, part: str = "base") -> dict:
+        """Index patterns for the current graph, built lazily and cached until it changes.
+
+        ``part`` is ``"base"`` (variable index, normal-equation keys), ``"sparse"`` (CSC
+        pattern of ``H``) or ``"jacobian"`` (CSR pattern of ``J``).
+        """
+        if self._cache_version != self._version:
+            self._cache = {}
+            self._cache_version = self._version
+        st = self._cache
+        if "var" not in st:
+            var = self.variable_index()
+            n = 3 * int(var.max(initial=-1) + 1)
+            h_keys, h_valid, g_cols, g_valid = [], [], [], []
+            for nodes, _ in self._group_shapes():
+                m, k = nodes.shape
+                cols = (3 * var[nodes][:, :, None] + np.arange(3)).reshape(m, 3 * k)
+                ok = np.repeat(var[nodes] >= 0, 3, axis=1)
+                pair_ok = ok[:, :, None] & ok[:, None, :]
+                h_valid.append(pair_ok.ravel())
+                h_keys.append((cols[:, None, :] * n + cols[:, :, None])[pair_ok])
+                g_valid.append(ok.ravel())
+                g_cols.append(cols[ok])
+            st.update(
+                var=var,
+                n_var=n,
+                h_valid=_cat(h_valid, bool),
+                h_keys=_cat(h_keys, np.int64),
+                g_valid=_cat(g_valid, bool),
+                g_cols=_cat(g_cols, np.int64),
+                diag_keys=np.arange(n) * (n + 1),
+            )
+        if part == "sparse" and "h_indptr" not in st:
+            n = st["n_var"]
+            keys = np.concatenate([st["h_keys"], st["diag_keys"]])
+            uniq, inverse = np.unique(keys, return_inverse=True)
+            st.update(
+                h_inverse=inverse[: len(st["h_keys"])],
+                h_indices=uniq % max(n, 1),
+                h_indptr=np.searchsorted(uniq // max(n, 1), np.arange(n + 1)),
+                h_diag=np.searchsorted(uniq, st["diag_keys"]),
+                h_nnz=len(uniq),
+            )
+        if part == "jacobian" and "j_perm" not in st:
+            var, n = st["var"], st["n_var"]
+            j_rows, j_cols = [], []
+            row0 = 0
+            for nodes, dim in self._group_shapes():
+                m, k = nodes.shape
+                cols = (3 * var[nodes][:, :, None] + np.arange(3)).reshape(m, 3 * k)
+                ok = np.repeat(var[nodes] >= 0, 3, axis=1)
+                rows = row0 + dim * np.arange(m)[:, None, None] + np.arange(dim)[None, :, None]
+                j_rows.append(np.broadcast_to(rows, (m, dim, 3 * k)).ravel())
+                j_cols.append(np.where(ok, cols, -1)[:, None, :].repeat(dim, 1).ravel())
+                row0 += m * dim
+            rows_a, cols_a = _cat(j_rows, np.int64), _cat(j_cols, np.int64)
+            keep = cols_a >= 0
+            order = sp.csr_matrix(
+                (np.arange(1, keep.sum() + 1, dtype=float), (rows_a[keep], cols_a[keep])),
+                shape=(row0, n),
+            )
+            order.sort_indices()
+            st.update(
+                n_rows=row0,
+                j_keep=keep,
+                j_indices=order.indices.copy(),
+                j_indptr=order.indptr.copy(),
+                j_perm=order.data.astype(np.int64) - 1,
+            )
+        return st
 
     # ------------------------------------------------------------ evaluation
-    def _terms(self, poses: np.ndarray, jacobian: bool):
-        """Whitened residual blocks (and Jacobian blocks) of all factors at ``poses``."""
-        res, jac = [], []
+    def _group_shapes(self) -> list[tuple[np.ndarray, int]]:
+        """Node ids ``(m, k)`` and residual size of each factor group, in evaluation order."""
+        out = []
+        if self._between.n:
+            out.append((self._between["ij"], 3))
+        if self._obs.n:
+            out.append((self._obs["ij"], 3))
+        out += [(p.nodes[None, :], len(p.b)) for p in self.priors]
+        return out
+
+    def _terms(self, poses: np.ndarray, jacobian: bool) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Whitened residuals ``(m, d)`` and Jacobians ``(m, d, 3k)`` of each factor group."""
+        out = []
         if self._between.n:
             ij = self._between["ij"]
             e, ji, jj = between_residual(poses[ij[:, 0]], poses[ij[:, 1]], self._between["mu"])
             w = self._between["W"]
-            res.append(np.einsum("mij,mj->mi", w, e).ravel())
-            if jacobian:
-                jac += [(w @ ji).ravel(), (w @ jj).ravel()]
+            jac = w @ np.concatenate([ji, jj], axis=2) if jacobian else None
+            out.append((np.einsum("mij,mj->mi", w, e), jac))
         if self._obs.n:
             ij, off = self._obs["ij"], self._obs["off"]
             e, ja, jb = observation_residual(
@@ -505,21 +562,18 @@ class PoseGraph:
                 self.min_range,
             )
             w = self._obs["W"]
-            res.append(np.einsum("mij,mj->mi", w, e).ravel())
-            if jacobian:
-                jac += [(w @ ja).ravel(), (w @ jb).ravel()]
+            jac = w @ np.concatenate([ja, jb], axis=2) if jacobian else None
+            out.append((np.einsum("mij,mj->mi", w, e), jac))
         for prior in self.priors:
             d = poses[prior.nodes] - prior.x0
             d[:, 2] = wrap_angle(d[:, 2])
-            res.append(prior.A @ d.ravel() + prior.b)
-            if jacobian:
-                jac.append(prior.A.ravel())
-        r = np.concatenate(res) if res else np.zeros(0)
-        return r, jac
+            out.append(((prior.A @ d.ravel() + prior.b)[None], prior.A[None] if jacobian else None))
+        return out
 
     def residuals(self, poses: np.ndarray | None = None) -> np.ndarray:
         """Whitened residual vector at ``poses`` (default: the current estimates)."""
-        return self._terms(self.poses if poses is None else poses, jacobian=False)[0]
+        terms = self._terms(self.poses if poses is None else poses, jacobian=False)
+        return np.concatenate([r.ravel() for r, _ in terms]) if terms else np.zeros(0)
 
     def cost(self, poses: np.ndarray | None = None) -> float:
         """``U(X) = 0.5 * sum of squared whitened residuals``."""
@@ -528,15 +582,44 @@ class PoseGraph:
 
     def linearize(self, poses: np.ndarray | None = None) -> tuple[np.ndarray, sp.csr_matrix]:
         """Whitened residuals and analytic sparse Jacobian w.r.t. the free node variables."""
-        st = self._structure()
-        r, blocks = self._terms(self.poses if poses is None else poses, jacobian=True)
-        # Block order in _terms matches _structure: per table, end 0 then end 1.
-        data = np.concatenate(blocks) if blocks else np.zeros(0)
-        data = data[st["keep"]][st["perm"]]
+        st = self._structure("jacobian")
+        terms = self._terms(self.poses if poses is None else poses, jacobian=True)
+        r = np.concatenate([t[0].ravel() for t in terms]) if terms else np.zeros(0)
+        data = np.concatenate([t[1].ravel() for t in terms]) if terms else np.zeros(0)
+        data = data[st["j_keep"]][st["j_perm"]]
         jac = sp.csr_matrix(
-            (data, st["indices"], st["indptr"]), shape=(st["n_rows"], st["n_var"])
+            (data, st["j_indices"], st["j_indptr"]), shape=(st["n_rows"], st["n_var"])
         )
         return r, jac
+
+    def normal_equations(
+        self, poses: np.ndarray | None = None, dense: bool | None = None
+    ) -> tuple[np.ndarray | sp.csc_matrix, np.ndarray, float]:
+        """Gauss-Newton information ``H = J^T J``, gradient ``g = J^T r`` and cost ``U``.
+
+        Assembled block by block from the factors (no explicit ``J``). ``H`` is a dense
+        array when ``dense`` (default: small or well-filled problems, see
+        :data:`DENSE_MAX_VARIABLES`), else a ``scipy.sparse.csc_matrix``.
+        """
+        st = self._structure()
+        n = st["n_var"]
+        terms = self._terms(self.poses if poses is None else poses, jacobian=True)
+        cost = 0.5 * sum(float(np.sum(r * r)) for r, _ in terms)
+        hv = [np.einsum("mdi,mdj->mij", jac, jac).ravel() for _, jac in terms]
+        gv = [np.einsum("mdi,md->mi", jac, r).ravel() for r, jac in terms]
+        h_vals = np.concatenate(hv)[st["h_valid"]] if hv else np.zeros(0)
+        g_vals = np.concatenate(gv)[st["g_valid"]] if gv else np.zeros(0)
+        g = np.bincount(st["g_cols"], g_vals, minlength=n)
+        if dense is None:
+            fill = len(st["h_keys"]) / max(n * n, 1)  # upper bound on the density of H
+            dense = n <= DENSE_MAX_VARIABLES or (n <= DENSE_FILL_MAX_VARIABLES and fill > 0.05)
+        if dense:
+            h = np.bincount(st["h_keys"], h_vals, minlength=n * n).reshape(n, n)
+        else:
+            st = self._structure("sparse")
+            data = np.bincount(st["h_inverse"], h_vals, minlength=st["h_nnz"])
+            h = sp.csc_matrix((data, st["h_indices"], st["h_indptr"]), shape=(n, n))
+        return h, g, cost
 
     def retract(self, delta: np.ndarray) -> np.ndarray:
         """Poses after adding ``delta`` (length ``3 * n_free``) to the free nodes (a copy)."""
@@ -554,8 +637,36 @@ def _ensure_gauge(graph: PoseGraph) -> None:
         graph.set_fixed(first)
 
 
-def _factorize(h: sp.spmatrix):
-    return spla.splu(sp.csc_matrix(h), permc_spec="MMD_AT_PLUS_A")
+class _Factor:
+    """Cholesky (dense) or LU (sparse) factorization of a symmetric positive matrix."""
+
+    def __init__(self, h: np.ndarray | sp.csc_matrix) -> None:
+        self.dense = isinstance(h, np.ndarray)
+        try:
+            if self.dense:
+                self._f = sla.cho_factor(h, lower=False, check_finite=False)
+            else:
+                self._f = spla.splu(h, permc_spec="MMD_AT_PLUS_A")
+        except (np.linalg.LinAlgError, RuntimeError) as exc:
+            raise np.linalg.LinAlgError(str(exc)) from None
+
+    def solve(self, rhs: np.ndarray) -> np.ndarray:
+        if self.dense:
+            return sla.cho_solve(self._f, rhs, check_finite=False)
+        return self._f.solve(rhs)
+
+
+def _add_diagonal(
+    h: np.ndarray | sp.csc_matrix, values: np.ndarray, diag_slots: np.ndarray | None
+) -> np.ndarray | sp.csc_matrix:
+    """``h + diag(values)`` (a copy; sparse ``h`` keeps its pattern, diagonal included)."""
+    if isinstance(h, np.ndarray):
+        out = h.copy()
+        out[np.diag_indices_from(out)] += values
+        return out
+    out = h.copy()
+    out.data[diag_slots] += values
+    return out
 
 
 def optimize(
@@ -564,11 +675,15 @@ def optimize(
     rel_tol: float = 1e-12,
     step_tol: float = 1e-10,
     initial_lambda: float = 1e-6,
+    dense: bool | None = None,
 ) -> SolveResult:
-    """Minimize ``U(X)`` in place by Levenberg-Marquardt on sparse normal equations.
+    """Minimize ``U(X)`` in place by Levenberg-Marquardt on the normal equations.
 
+    Each iteration assembles ``H = J^T J`` and ``g = J^T r`` from the analytic
+    factor Jacobians and solves ``(H + lambda diag(H)) delta = -g`` (dense Cholesky
+    for small problems, sparse LU otherwise; see :meth:`PoseGraph.normal_equations`).
     Stops when the relative cost decrease falls below ``rel_tol``, the largest step
-    component below ``step_tol``, or after ``max_iterations`` Jacobian evaluations.
+    component below ``step_tol``, or after ``max_iterations`` linearizations.
     If the graph has no fixed node and no prior, its first active node is fixed.
     """
     if max_iterations < 0:
@@ -576,23 +691,23 @@ def optimize(
     if not np.any(graph.active):
         raise ValueError("the graph has no active node")
     _ensure_gauge(graph)
-    r, jac = graph.linearize()
-    cost = initial = 0.5 * float(r @ r)
+    h, g, cost = graph.normal_equations(dense=dense)
+    diag_slots = None if isinstance(h, np.ndarray) else graph._structure("sparse")["h_diag"]
+    initial = cost
     history = [cost]
     lam = initial_lambda
-    converged = jac.shape[1] == 0
+    n_var = len(g)
+    converged = n_var == 0
     it = 0
     while not converged and it < max_iterations:
         it += 1
-        h = (jac.T @ jac).tocsc()
-        g = jac.T @ r
         diag = h.diagonal()
         damp = np.maximum(diag, 1e-9 * max(diag.max(initial=0.0), 1.0))
         improved = False
         while lam < 1e12:
             try:
-                delta = -_factorize(h + sp.diags(lam * damp)).solve(g)
-            except RuntimeError:  # singular: raise damping
+                delta = -_Factor(_add_diagonal(h, lam * damp, diag_slots)).solve(g)
+            except np.linalg.LinAlgError:  # numerically singular: raise damping
                 lam *= 10.0
                 continue
             trial = graph.retract(delta)
@@ -606,22 +721,19 @@ def optimize(
             break
         graph.poses[:] = trial
         decrease = cost - new_cost
-        cost = new_cost
-        history.append(cost)
+        history.append(new_cost)
         lam = max(lam / 10.0, 1e-12)
-        if decrease <= rel_tol * max(cost, 1e-300) or np.max(np.abs(delta)) < step_tol:
+        if decrease <= rel_tol * max(new_cost, 1e-300) or np.max(np.abs(delta)) < step_tol:
+            cost = new_cost
             converged = True
             break
-        r, jac = graph.linearize()
-    return SolveResult(
-        initial, cost, it, converged, graph.n_residuals, jac.shape[1], history
-    )
+        h, g, cost = graph.normal_equations(dense=dense)
+    return SolveResult(initial, cost, it, converged, graph.n_residuals, n_var, history)
 
 
 def information_matrix(graph: PoseGraph) -> sp.csc_matrix:
     """Gauss-Newton information ``J^T J`` of the free variables at the current estimate."""
-    _, jac = graph.linearize()
-    return (jac.T @ jac).tocsc()
+    return sp.csc_matrix(graph.normal_equations()[0])
 
 
 def marginal_covariances(graph: PoseGraph, nodes: np.ndarray) -> np.ndarray:
@@ -636,19 +748,22 @@ def marginal_covariances(graph: PoseGraph, nodes: np.ndarray) -> np.ndarray:
     free = np.flatnonzero(var[nodes] >= 0)
     if len(free) == 0:
         return out
-    h = information_matrix(graph)
+    h = graph.normal_equations()[0]
     cols = (3 * var[nodes[free]][:, None] + np.arange(3)).ravel()
     rhs = np.zeros((h.shape[0], len(cols)))
     rhs[cols, np.arange(len(cols))] = 1.0
+    scale = max(float(np.abs(h.diagonal()).max()), 1e-300)
     try:
-        sol = _factorize(h).solve(rhs)
-    except RuntimeError as exc:
+        sol = _Factor(h).solve(rhs)
+    except np.linalg.LinAlgError as exc:
         raise ValueError(f"information matrix is singular (gauge not fixed?): {exc}") from None
-    if not np.all(np.isfinite(sol)):
-        raise ValueError("information matrix is singular (gauge not fixed?)")
     block = sol[cols].reshape(len(free), 3, len(free), 3)
     out[free] = block[np.arange(len(free)), :, np.arange(len(free)), :]
-    return 0.5 * (out + out.transpose(0, 2, 1))
+    out = 0.5 * (out + out.transpose(0, 2, 1))
+    eig = np.linalg.eigvalsh(out[free])
+    if not np.all(np.isfinite(out)) or np.any(eig <= 0) or np.any(eig.max(1) * scale > 1e14):
+        raise ValueError("information matrix is singular (gauge not fixed?)")
+    return out
 
 
 def marginalize(graph: PoseGraph, nodes: np.ndarray, rel_eig_tol: float = 1e-12) -> None:
@@ -693,14 +808,12 @@ def marginalize(graph: PoseGraph, nodes: np.ndarray, rel_eig_tol: float = 1e-12)
             sub.priors.append(LinearPrior(np.array([local[int(n)] for n in p.nodes]), p.x0, p.A,
                                           p.b))
     sub._version += 1
-    r, jac = sub.linearize()
+    h, g, _ = sub.normal_equations(dense=True)
     var = sub.variable_index()
     is_drop = dropped[touched]
     d_cols = (3 * var[is_drop & (var >= 0)][:, None] + np.arange(3)).ravel()
     keep_nodes = touched[~is_drop & (var >= 0)]
     k_cols = (3 * var[~is_drop & (var >= 0)][:, None] + np.arange(3)).ravel()
-    h = (jac.T @ jac).toarray()
-    g = jac.T @ r
     h_kk = h[np.ix_(k_cols, k_cols)]
     g_k = g[k_cols]
     if len(d_cols):

@@ -28,7 +28,10 @@ def relative_pose_matrix(poses: np.ndarray) -> np.ndarray:
     orientation of ``b`` seen from ``a``; the diagonal is zero).
     """
     poses = np.asarray(poses, dtype=float)
-    return relative_pose(poses[..., :, None, :], poses[..., None, :, :])
+    rel = relative_pose(poses[..., :, None, :], poses[..., None, :, :])
+    n = poses.shape[-2]
+    rel[..., np.arange(n), np.arange(n), :] = 0.0  # bearing to oneself is undefined: 0
+    return rel
 
 
 def _check(estimated: np.ndarray, true: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,178 @@
+"""Tests of the online sliding-window team MLE (TeamMLE) and odometry integration."""
+
+import numpy as np
+import pytest
+
+from estimators.geometry import wrap_angle
+from estimators.mle_online import (
+    OdometryIntegrator,
+    TeamMLE,
+    TeamStream,
+    feed_stream,
+    integrate_odometry,
+    simulate_team_stream,
+)
+from estimators.relative_metrics import relative_errors
+
+
+@pytest.fixture(scope="module")
+def stream() -> TeamStream:
+    return simulate_team_stream(6, 600, np.random.default_rng(0), p_observe=0.05)
+
+
+def _run(stream: TeamStream, components: str = "rbo", drop_obs: bool = False, **kwargs) -> TeamMLE:
+    kwargs.setdefault("initial_poses", stream.truth[0])
+    kwargs.setdefault("initial_std", [0.3, 0.3, 0.1])
+    kwargs.setdefault("motion_window", 3.0)
+    est = TeamMLE(stream.truth.shape[1], **kwargs)
+    if drop_obs:
+        stream = TeamStream(stream.dt, stream.truth, stream.odometry,
+                            [[] for _ in stream.observations])
+    for _ in feed_stream(est, stream, components=components):
+        pass
+    return est
+
+
+def test_integrator_matches_arc_and_grows_covariance():
+    v, w, n, dt = 0.5, 0.2, 1000, 0.01  # 10 s on an arc of radius 2.5 m
+    delta, cov = integrate_odometry(np.full(n, v), np.full(n, w), dt, 0.05, 0.02)
+    th = w * n * dt
+    expected = [v / w * np.sin(th), v / w * (1 - np.cos(th)), th]
+    np.testing.assert_allclose(delta, expected, atol=5e-3)
+    assert np.all(np.linalg.eigvalsh(cov) > 0)
+    assert cov[2, 2] == pytest.approx(n * (dt * 0.02) ** 2)
+    acc = OdometryIntegrator.zero()
+    acc.add(1.0, 0.0, 1.0, 0.1, 0.0)
+    np.testing.assert_allclose(acc.delta, [1.0, 0.0, 0.0])
+    assert acc.cov[0, 0] == pytest.approx(0.01) and acc.cov[1, 1] == 0.0
+
+
+def test_sliding_window_stays_close_to_full_batch(stream):
+    windowed = _run(stream, window=3, keep_history=True)
+    batch = _run(stream, window=None)
+    assert windowed.n_active_nodes < 0.3 * batch.n_active_nodes
+    truth = stream.truth[-1]
+    err_w = relative_errors(windowed.poses(), truth)
+    err_b = relative_errors(batch.poses(), truth)
+    gap = np.abs(windowed.poses() - batch.poses())
+    gap[:, 2] = wrap_angle(gap[:, 2])
+    assert gap[:, :2].max() < 0.05 and np.abs(gap[:, 2]).max() < 0.01
+    np.testing.assert_allclose(err_w, err_b, rtol=0.1, atol=0.01)
+    # the offline re-solve of the recorded history agrees with the online full batch
+    np.testing.assert_allclose(windowed.solve_batch(), batch.poses(), atol=1e-4)
+    # marginal covariances of the window are close to those of the full graph
+    np.testing.assert_allclose(windowed.covariances(), batch.covariances(), rtol=0.2, atol=1e-4)
+
+
+def test_window_bounds_graph_size_on_long_runs():
+    stream = simulate_team_stream(4, 900, np.random.default_rng(1), p_observe=0.1)
+    est = TeamMLE(4, initial_poses=stream.truth[0], motion_window=2.0, window=3)
+    sizes = []
+    for k in feed_stream(est, stream):
+        if k % 50 == 49:
+            sizes.append((est.n_active_nodes, est.graph.n_observations, est.graph.n_between))
+    sizes = np.array(sizes)
+    assert sizes[:, 0].max() <= 4 * 4  # window + the newest keyframe per robot
+    assert sizes[-1, 2] <= 4 * 4
+    assert sizes[3:, 1].max() <= 1.5 * sizes[3:, 1].mean() + 10  # no growth with time
+    assert est.graph.n_nodes > 4 * 20  # many keyframes were created and dropped
+
+
+@pytest.mark.parametrize("components", ["rbo", "rb"])
+def test_observations_beat_odometry_alone(stream, components):
+    """Start poses known only roughly: sightings of teammates fix the relative poses."""
+    rng = np.random.default_rng(9)
+    start = stream.truth[0] + rng.normal(0.0, [0.5, 0.5, 0.3], (6, 3))
+    start[0] = stream.truth[0, 0]  # the anchor
+    kw = {"initial_poses": start, "initial_std": [0.5, 0.5, 0.3], "window": 4}
+    truth = stream.truth[-1]
+    err_odo = relative_errors(_run(stream, drop_obs=True, **kw).poses(), truth)
+    est = _run(stream, components=components, **kw)
+    err = relative_errors(est.poses(), truth)
+    assert err[0] < 0.3 * err_odo[0]
+    assert err[1] < 0.5 * err_odo[1]
+    assert err[2] < 0.5 * err_odo[2]
+    assert np.all(np.isfinite(est.covariances()))
+    rel = est.relative_poses()
+    assert rel.shape == (6, 6, 3)
+    np.testing.assert_array_equal(rel[[0, 1], [0, 1]], 0.0)
+
+
+def test_covariance_is_consistent_with_errors():
+    """Average NEES of the latest poses over seeds stays near its expected value 3."""
+    nees = []
+    for seed in range(4):
+        stream = simulate_team_stream(5, 300, np.random.default_rng(seed), p_observe=0.1)
+        est = _run(stream, window=5)
+        err = est.poses() - stream.truth[-1]
+        err[:, 2] = wrap_angle(err[:, 2])
+        cov = est.covariances()
+        nees.extend(np.einsum("ki,kij,kj->k", err[1:], np.linalg.inv(cov[1:]), err[1:]))
+    assert 1.0 < np.mean(nees) < 6.0
+
+
+def test_stationary_robots_and_zero_range_give_no_nan():
+    est = TeamMLE(3, initial_poses=np.zeros((3, 3)), motion_window=1.0, window=2)
+    for k in range(60):
+        est.add_odometry(0, 0.0, 0.0, 0.1)  # never moves
+        est.add_odometry(1, 0.0, 0.0, 0.1)  # never moves, on top of robot 0
+        est.add_odometry(2, 0.3, 0.1, 0.1)
+        if k % 10 == 0:
+            assert est.add_observation(0, 1, [0.0, 0.3, 0.0], [0.05, 0.05, 0.05])
+            est.add_observation(2, 0, [1.0, 0.0], [0.1, 0.05], components="rb")
+        est.step()
+        assert np.all(np.isfinite(est.poses()))
+    cov = est.covariances()
+    assert np.all(np.isfinite(cov)) and np.all(np.linalg.eigvalsh(cov[1:]) > 0)
+    np.testing.assert_allclose(est.poses()[0], 0.0, atol=0.05)  # anchored, did not move
+    np.testing.assert_allclose(est.poses()[1, :2], 0.0, atol=0.05)
+
+
+def test_observation_rate_limit_and_keyframes():
+    est = TeamMLE(2, observation_interval=1.0, keyframe_interval=0.5, motion_window=10.0)
+    est.add_odometry(0, 0.1, 0.0, 0.1)
+    assert est.add_observation(0, 1, [1.0, 0.0, 0.0], [0.1, 0.1, 0.1])
+    assert not est.add_observation(0, 1, [1.0, 0.0, 0.0], [0.1, 0.1, 0.1])
+    assert est.add_observation(1, 0, [1.0, np.pi, 0.0], [0.1, 0.1, 0.1])  # other direction
+    assert est.graph.n_nodes == 2  # 0.1 s < keyframe_interval: attached with offsets
+    for _ in range(10):
+        est.add_odometry(0, 0.1, 0.0, 0.1)
+    assert est.add_observation(0, 1, [1.0, 0.0, 0.0], [0.1, 0.1, 0.1])
+    assert est.graph.n_nodes == 3  # robot 0 got a keyframe at the observation
+    assert est.step() is not None
+    assert est.step() is None  # nothing new
+
+
+@pytest.mark.parametrize(
+    "call",
+    [
+        lambda e: e.add_odometry(3, 0.1, 0.0, 0.1),
+        lambda e: e.add_odometry(0, np.nan, 0.0, 0.1),
+        lambda e: e.add_odometry(0, 0.1, 0.0, -0.1),
+        lambda e: e.add_observation(0, 0, [1.0, 0.0, 0.0], [0.1, 0.1, 0.1]),
+        lambda e: e.add_observation(0, 1, [1.0, 0.0], [0.1, 0.1, 0.1]),
+        lambda e: e.add_observation(0, 1, [1.0, 0.0], [0.1, 0.1], components="rz"),
+        lambda e: e.add_observation(0, 1, [1.0, 0.0], [0.1, -0.1], components="rb"),
+        lambda e: e.solve_batch(),
+    ],
+)
+def test_bad_input_raises_value_error(call):
+    with pytest.raises(ValueError):
+        call(TeamMLE(2))
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {"n_robots": 0},
+        {"n_robots": 2, "anchor": 5},
+        {"n_robots": 2, "window": 0},
+        {"n_robots": 2, "initial_poses": np.zeros((3, 3))},
+        {"n_robots": 2, "initial_std": [0.1, 0.0, 0.1]},
+        {"n_robots": 2, "odometry_std": (0.1, -1.0)},
+        {"n_robots": 2, "motion_window": 0.0},
+    ],
+)
+def test_bad_config_raises_value_error(kwargs):
+    with pytest.raises(ValueError):
+        TeamMLE(**kwargs)
