@@ -58,6 +58,88 @@ class OccupancyGrid:
         object.__setattr__(self, "resolution", res)
         object.__setattr__(self, "origin", origin)
 
+    # ------------------------------------------------------------- construction
+    @classmethod
+    def from_shapes(
+        cls,
+        size: tuple[float, float],
+        resolution: float,
+        origin: tuple[float, float] = (0.0, 0.0),
+        circles: list[tuple[tuple[float, float], float]] = (),
+        segments: list[tuple[tuple[float, float], tuple[float, float], float]] = (),
+        polygons: list[np.ndarray] = (),
+        border: bool = True,
+    ) -> OccupancyGrid:
+        """Rasterize simple shapes into a grid covering ``size = (width, height)`` m.
+
+        ``circles``: ``(center, radius)``; ``segments``: ``(a, b, half_width)``
+        (thin walls: a cell is occupied when its centre is within
+        ``max(half_width, resolution / sqrt(2))`` of the segment, so a wall
+        never leaks between diagonal cells); ``polygons``: ``(V, 2)`` vertex
+        arrays, filled (even-odd rule). ``border`` marks the outermost ring of
+        cells (the world's boundary walls). A cell is occupied when its centre
+        is inside a shape.
+        """
+        width, height = (float(v) for v in size)
+        res = float(resolution)
+        if not (width > 0 and height > 0 and np.isfinite(width) and np.isfinite(height)):
+            raise ValueError(f"size must be two positive finite numbers, got {size}")
+        if not (np.isfinite(res) and res > 0):
+            raise ValueError(f"resolution must be a positive finite number, got {resolution}")
+        nx, ny = int(np.ceil(width / res - 1e-9)), int(np.ceil(height / res - 1e-9))
+        occ = np.zeros((ny, nx), dtype=bool)
+        ox, oy = float(origin[0]), float(origin[1])
+        xs = ox + (np.arange(nx) + 0.5) * res
+        ys = oy + (np.arange(ny) + 0.5) * res
+
+        def window(lo: np.ndarray, hi: np.ndarray) -> tuple[slice, slice]:
+            i0 = int(np.clip(np.floor((lo[0] - ox) / res), 0, nx))
+            i1 = int(np.clip(np.ceil((hi[0] - ox) / res) + 1, 0, nx))
+            j0 = int(np.clip(np.floor((lo[1] - oy) / res), 0, ny))
+            j1 = int(np.clip(np.ceil((hi[1] - oy) / res) + 1, 0, ny))
+            return slice(j0, j1), slice(i0, i1)
+
+        for center, radius in circles:
+            c = np.asarray(center, dtype=float)
+            if not (np.all(np.isfinite(c)) and radius > 0):
+                raise ValueError(f"circle needs a finite center and radius > 0, got {center}, "
+                                 f"{radius}")
+            sy, sx = window(c - radius, c + radius)
+            gx, gy = np.meshgrid(xs[sx], ys[sy])
+            occ[sy, sx] |= (gx - c[0]) ** 2 + (gy - c[1]) ** 2 <= radius**2
+        for a, b, half_width in segments:
+            a = np.asarray(a, dtype=float)
+            b = np.asarray(b, dtype=float)
+            if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b)) and half_width >= 0):
+                raise ValueError(f"segment needs finite ends and half_width >= 0, got {a}, {b}, "
+                                 f"{half_width}")
+            reach = max(float(half_width), res / np.sqrt(2.0))
+            sy, sx = window(np.minimum(a, b) - reach, np.maximum(a, b) + reach)
+            gx, gy = np.meshgrid(xs[sx], ys[sy])
+            d = b - a
+            length2 = float(d @ d)
+            t = 0.0 if length2 == 0 else np.clip(((gx - a[0]) * d[0] + (gy - a[1]) * d[1])
+                                                 / length2, 0.0, 1.0)
+            occ[sy, sx] |= (gx - a[0] - t * d[0]) ** 2 + (gy - a[1] - t * d[1]) ** 2 <= reach**2
+        for verts in polygons:
+            v = np.asarray(verts, dtype=float)
+            if v.ndim != 2 or v.shape[0] < 3 or v.shape[1] != 2 or not np.all(np.isfinite(v)):
+                raise ValueError(f"polygon needs (V >= 3, 2) finite vertices, got shape {v.shape}")
+            sy, sx = window(v.min(axis=0), v.max(axis=0))
+            gx, gy = np.meshgrid(xs[sx], ys[sy])
+            inside = np.zeros(gx.shape, dtype=bool)
+            for (x0, y0), (x1, y1) in zip(v, np.roll(v, -1, axis=0), strict=True):
+                if y0 == y1:
+                    continue
+                crosses = (y0 > gy) != (y1 > gy)
+                x_at = x0 + (gy - y0) * (x1 - x0) / (y1 - y0)
+                inside ^= crosses & (gx < x_at)
+            occ[sy, sx] |= inside
+        if border:
+            occ[0, :] = occ[-1, :] = True
+            occ[:, 0] = occ[:, -1] = True
+        return cls(occ, res, (ox, oy))
+
     # ------------------------------------------------------------------ geometry
     @property
     def shape(self) -> tuple[int, int]:

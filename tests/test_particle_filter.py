@@ -132,6 +132,34 @@ def test_ray_casting_matches_brute_force_marching():
     assert r[1] == pytest.approx(4.9, abs=0.6 * RES)
 
 
+def test_rasterized_shapes_match_their_geometry():
+    hexagon = np.array([[5 + 2 * np.cos(a), 3 + 2 * np.sin(a)] for a in np.arange(6) * np.pi / 3])
+    g = OccupancyGrid.from_shapes(
+        (10.0, 6.0), 0.05, circles=[((2.0, 2.0), 0.5)],
+        segments=[((7.0, 1.0), (9.0, 1.0), 0.0)], polygons=[hexagon],
+    )
+    assert g.shape == (120, 200) and g.bounds == (0.0, 0.0, 10.0, 6.0)
+    pts = np.array([[2.0, 2.0], [2.4, 2.0], [2.0, 2.6], [7.5, 1.0], [7.5, 1.1], [5.0, 3.0],
+                    [6.7, 3.0], [5.0, 4.8], [0.01, 3.0], [5.0, 5.99]])
+    np.testing.assert_array_equal(
+        g.is_free(pts), [False, False, True, False, True, False, False, True, False, False]
+    )
+    # filled areas: disk pi r^2 and hexagon (3 sqrt(3) / 2) R^2, up to cell discretization
+    inner = g.occupied[1:-1, 1:-1]
+    cell = 0.05**2
+    hex_area = 1.5 * np.sqrt(3) * 4
+    thin_wall = 2.0 * 0.05 * 2  # two rows of cells
+    expected = np.pi * 0.25 + hex_area + thin_wall
+    assert inner.sum() * cell == pytest.approx(expected, rel=0.02)
+    # a thin diagonal wall blocks every ray that crosses it
+    wall = OccupancyGrid.from_shapes((4.0, 4.0), 0.1, segments=[((0.5, 0.5), (3.5, 3.5), 0.0)])
+    rng = np.random.default_rng(0)
+    below = np.column_stack([rng.uniform(1.5, 3.4, 200), rng.uniform(0.2, 1.0, 200)])
+    r = wall.cast_rays(below, np.full(200, 3 * np.pi / 4 - 0.3), 10.0)
+    ends = below + r[:, None] * np.array([np.cos(3 * np.pi / 4 - 0.3), np.sin(3 * np.pi / 4 - 0.3)])
+    assert np.all(ends[:, 1] - ends[:, 0] < 0.2)  # stopped at (or just past) the diagonal
+
+
 def test_grid_rejects_bad_input():
     with pytest.raises(ValueError, match="resolution"):
         OccupancyGrid(np.zeros((3, 3), bool), 0.0)
