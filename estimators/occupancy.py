@@ -12,6 +12,7 @@ a wall) and as "not free" by :meth:`OccupancyGrid.is_free`.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -208,6 +209,16 @@ class OccupancyGrid:
         iy, ix = np.nonzero(~self.occupied)
         return np.column_stack([ix, iy]) * self.resolution + np.asarray(self.origin)
 
+    def memo(self, key: object, factory: Callable[[], object]) -> object:
+        """Return the table cached on this grid under ``key``, building it with ``factory``.
+
+        Lets every estimator that shares this map share its derived tables
+        (e.g. likelihood fields) instead of each holding a copy.
+        """
+        if key not in self._cache:
+            self._cache[key] = factory()
+        return self._cache[key]
+
     # ------------------------------------------------------------ distance field
     def distance_field(self, pad_cells: int = 0) -> np.ndarray:
         """Distance in metres from each cell centre to the nearest occupied cell centre.
@@ -216,19 +227,22 @@ class OccupancyGrid:
         adds a border of free (unknown) cells around the map, so the result has
         shape ``(ny + 2 * pad, nx + 2 * pad)`` and cell ``(pad, pad)`` is the map's
         cell ``(0, 0)``. A map with no occupied cell gives ``inf`` everywhere.
+        The unpadded field is cached on the grid.
         """
         if pad_cells < 0:
             raise ValueError(f"pad_cells must be >= 0, got {pad_cells}")
         key = ("dist", int(pad_cells))
-        if key not in self._cache:
-            occ = np.pad(self.occupied, pad_cells, constant_values=False)
-            if not occ.any():
-                dist = np.full(occ.shape, np.inf)
-            else:
-                dist = ndimage.distance_transform_edt(~occ) * self.resolution
-            dist.setflags(write=False)
+        if key in self._cache:
+            return self._cache[key]
+        occ = np.pad(self.occupied, pad_cells, constant_values=False)
+        if not occ.any():
+            dist = np.full(occ.shape, np.inf)
+        else:
+            dist = ndimage.distance_transform_edt(~occ) * self.resolution
+        dist.setflags(write=False)
+        if pad_cells == 0:  # padded fields are one-off inputs to bigger tables
             self._cache[key] = dist
-        return self._cache[key]
+        return dist
 
     @cached_property
     def _clearance_cells(self) -> np.ndarray:

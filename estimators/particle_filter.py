@@ -589,8 +589,15 @@ class ParticleFilter:
         outside cells).
         """
         key = float(max_range)
-        if key not in self._lf_cache:
-            cfg = self.config
+        lf = self._lf_cache.get(key)
+        if lf is not None:
+            return lf
+        cfg = self.config
+        # Shared through the grid: all robots using this map and model share one table.
+        shared_key = ("lf", key, cfg.lf_sigma, cfg.lf_z_hit, cfg.lf_z_rand, cfg.lf_max_dist,
+                      cfg.likelihood_exponent, cfg.occupied_loglik)
+
+        def build() -> _LFField:
             res = self.grid.resolution
             xmin, ymin, xmax, ymax = self.grid.bounds
             # Beyond the map's diagonal plus lf_max_dist every endpoint scores the
@@ -610,10 +617,11 @@ class ParticleFilter:
             shift = np.array([[pad - ox / res], [pad - oy / res]], dtype=np.float32)
             lo = np.full((2, 1), pad - 1.0, dtype=np.float32)
             hi = np.array([[nxp - pad + 1.0], [nyp - pad + 1.0]], dtype=np.float32)
-            self._lf_cache[key] = _LFField(
-                table, pad, nxp, nyp, nxp * nyp, shift, lo, hi, 1.0 / res, reach
-            )
-        return self._lf_cache[key]
+            return _LFField(table, pad, nxp, nyp, nxp * nyp, shift, lo, hi, 1.0 / res, reach)
+
+        lf = self.grid.memo(shared_key, build)
+        self._lf_cache[key] = lf
+        return lf
 
     def _position_penalty(self) -> np.ndarray:
         """``occupied_loglik`` for particles in occupied cells or outside the map, else 0."""

@@ -362,6 +362,15 @@ def test_likelihood_field_matches_the_textbook_formula():
     np.testing.assert_allclose(pf.weights, expected, rtol=1e-3, atol=1e-9)
 
 
+def test_filters_on_one_map_share_the_likelihood_table():
+    g = room()
+    a = ParticleFilter(g, np.random.default_rng(0), MCLConfig(n_particles=10))
+    b = ParticleFilter(g, np.random.default_rng(1), MCLConfig(n_particles=10))
+    c = ParticleFilter(g, np.random.default_rng(1), MCLConfig(n_particles=10, lf_sigma=0.5))
+    assert a._lf_field(MAX_RANGE) is b._lf_field(MAX_RANGE)
+    assert c._lf_field(MAX_RANGE) is not a._lf_field(MAX_RANGE)
+
+
 def test_beam_model_prefers_the_true_pose_and_scores_max_range_readings():
     g = room()
     pf = ParticleFilter(g, np.random.default_rng(13), MCLConfig(n_particles=3))
