@@ -28,9 +28,11 @@ Fail-safe modes, checked before every state's own logic:
   state; the robot turns toward the freer side until the front is clear, drives
   ``clear_distance`` m and resumes what it was doing.
 
-When no object is left to visit, Scan picks an exploration waypoint in the
-freest laser direction that keeps away from hazards and the world edge, and
-drives there in ElevGradient (a segment ``P1 -> P2`` without an object).
+Objects a teammate has already marked on the team map (within
+``same_object_radius``) are skipped. When no object is left to visit, Scan
+picks an exploration waypoint in the freest laser direction that keeps away
+from hazards and the world edge, and drives there in ElevGradient (a segment
+``P1 -> P2`` without an object).
 
 The machine sees only a :class:`~policies.view.RobotView`: its belief, its
 latched pitch/roll and range bins, and its camera records. Its current state
@@ -95,6 +97,7 @@ class FSMParams:
     hazard_radius: float = 2.0
     explore_distance: float = 6.0
     edge_margin: float = 2.0
+    same_object_radius: float = 1.5
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming a bad parameter."""
@@ -207,6 +210,13 @@ class TraversalFSM:
         # A path that leads away from a nearby hazard is fine; one that closes in is not.
         return bool(((closest < self.params.hazard_radius) & (closest < from_start - 0.2)).any())
 
+    def _marked_by_team(self, view: RobotView, xy: np.ndarray) -> bool:
+        """Whether a teammate already marked an object near ``xy`` on the team map."""
+        if len(view.team_objects) == 0:
+            return False
+        d = np.hypot(*(view.team_objects - xy).T)
+        return bool((d < self.params.same_object_radius).any())
+
     def _goal_xy(self) -> np.ndarray | None:
         if self.target is not None and self.target in self.objects:
             return self.objects[self.target].xy
@@ -296,6 +306,7 @@ class TraversalFSM:
             for oid, c in sorted(self._scan_clarity.items(), key=lambda kv: -kv[1])
             if oid not in self.visited
             and oid not in self.unreachable
+            and not self._marked_by_team(view, self.objects[oid].xy)
             and not self._path_hits_hazard(view.est_pose[:2], self.objects[oid].xy)
         ]
         if candidates:

@@ -32,6 +32,7 @@ class RobotView:
         camera: this step's camera records (empty when the camera took no frame).
         camera_frame: whether the camera took a frame this step.
         teammates: estimated poses ``(n, 3)`` the team shares (row ``index`` is self).
+        team_objects: ``(k, 2)`` objects of interest the team has marked on its map.
         world_size: ``(W, H)`` of the mapped area.
         dt: env step (s).
     """
@@ -49,6 +50,7 @@ class RobotView:
     camera: list[CameraRecord]
     camera_frame: bool
     teammates: np.ndarray
+    team_objects: np.ndarray
     world_size: tuple[float, float]
     dt: float
 
@@ -112,6 +114,7 @@ class ViewBuilder:
             camera=env.camera_readings(agent),
             camera_frame=bool(readings is not None and readings.camera_mask[i]),
             teammates=env.estimated_poses,
+            team_objects=np.array([o[:2] for o in env.terrain_map.objects]).reshape(-1, 2),
             world_size=tuple(env.config.world_size),
             dt=env.config.dt,
         )

@@ -137,3 +137,53 @@ def test_random_policy_is_seeded():
     x, y = a.act(obs), b.act(obs)
     assert all(np.array_equal(x[k], y[k]) for k in x)
     assert all(np.all(np.abs(v) <= 1) for v in x.values())
+
+
+def _view(heading=0.0, camera=(), front=15.0, team_objects=(), pitch=0.0, incl_new=False):
+    from coop_loc_env.depth_from_motion import CameraRecord
+    from policies.view import RobotView
+
+    lo = np.linspace(-np.pi / 2, np.pi / 2, 17)[:-1]
+    hi = lo + np.pi / 16
+    ranges = np.full(16, 15.0)
+    ranges[7:9] = front
+    return RobotView(
+        index=0, est_pose=np.array([5.0, 5.0, heading]), pose_cov=np.eye(3) * 0.01,
+        pitch=pitch, roll=0.0, incl_new=incl_new, ranges=ranges, bin_lo=lo, bin_hi=hi,
+        max_range=15.0, camera=[CameraRecord("ooi", 0, *c) for c in camera],
+        camera_frame=True, teammates=np.zeros((1, 3)),
+        team_objects=np.array(team_objects, dtype=float).reshape(-1, 2),
+        world_size=(30.0, 30.0), dt=0.1,
+    )
+
+
+def _full_scan(fsm, **kw):
+    heading = 0.0
+    for _ in range(200):
+        a = fsm.act(_view(heading=heading, camera=[(0.0, 4.0, 1.0, 1)], **kw))
+        heading = float(np.angle(np.exp(1j * (heading + a[1] * 0.1))))
+        if fsm.state != State.SCAN:
+            return
+
+
+def test_scan_locks_on_unless_a_teammate_marked_the_object():
+    from policies.fsm import TraversalFSM
+
+    fsm = TraversalFSM()
+    _full_scan(fsm)
+    assert fsm.state == State.LOCK_ON and fsm.target == 0
+    fsm = TraversalFSM()
+    _full_scan(fsm, team_objects=[(9.2, 5.1)])  # object 0 lies at (9, 5)
+    assert fsm.state == State.ELEV_GRADIENT and fsm.target is None and fsm.waypoint is not None
+
+
+def test_obstacle_ahead_interrupts_driving_and_steep_reading_wins():
+    from policies.fsm import TraversalFSM
+
+    fsm = TraversalFSM()
+    fsm.state, fsm.waypoint = State.ELEV_GRADIENT, np.array([20.0, 5.0])
+    a = fsm.act(_view(front=0.8))
+    assert fsm.state == State.OBJECT_AVOID and a[0] == 0.0 and abs(a[1]) > 0
+    a = fsm.act(_view(front=0.8, pitch=np.deg2rad(20.0), incl_new=True))
+    assert fsm.state == State.BOUNDARY and a[0] < 0  # uphill ahead: reverse
+    assert len(fsm.hazards) == 1 and fsm.hazards[0][0] > 5.0  # hazard placed uphill (ahead)
