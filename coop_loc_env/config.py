@@ -204,6 +204,7 @@ class ScenarioConfig:
     # --- team terrain map (coop_loc_env.mapping)
     map_resolution: float = 0.5
     map_footprint_radius: float = 0.5
+    map_fusion_weights: str = "paper"  # "paper" (satellite-count weights) or "kalman"
     # --- reward weights
     reward_localization_weight: float = 1.0
     reward_heading_weight: float = 0.0
@@ -256,6 +257,10 @@ class ScenarioConfig:
             _int_at_least(self, key, 0)
         _int_at_least(self, "steep_patches", 0)
         _int_at_least(self, "cooperative_rounds_per_step", 1)
+        if self.map_fusion_weights not in ("paper", "kalman"):
+            raise ValueError(
+                f"map_fusion_weights must be 'paper' or 'kalman', got {self.map_fusion_weights!r}"
+            )
         if self.cooperative_fusion not in ("ci", "naive"):
             raise ValueError(
                 f"cooperative_fusion must be 'ci' or 'naive', got {self.cooperative_fusion!r}"

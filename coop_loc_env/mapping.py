@@ -9,6 +9,10 @@ feeds it what each robot knows, once per env step:
 * the signed distance it drove since the previous step, from its odometry;
 * its DGPS altitude and satellite count on steps with a fix (NaN / 0 otherwise).
 
+The two elevation sources are blended with the paper's satellite-count weights
+(``map_fusion_weights="paper"``) or the variance-optimal Kalman gain
+(``"kalman"``, several times smaller map RMSE with the default noise).
+
 The map frame is the true height field's frame: the DGPS base station's
 altitude ``gps_base_altitude`` maps to elevation 0 (``datum = 0``), so
 :meth:`TeamMapper.map_rmse` compares the map with the height field directly.
@@ -56,6 +60,7 @@ class TeamMapper:
             # TerrainMap specifies it at REF_NOS satellites (variance ~ 1 / NOS).
             gps_alt_std=cfg.gps_altitude_std * np.sqrt(cfg.gps_reference_satellites / REF_NOS),
             footprint_radius=cfg.map_footprint_radius,
+            weights=cfg.map_fusion_weights,
         )
         xc, yc = self.map.cell_centers()
         centers = np.stack([xc.ravel(), yc.ravel()], axis=1)

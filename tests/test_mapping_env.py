@@ -87,6 +87,8 @@ def test_map_patch_obs_off_by_default_and_validated():
         coop_loc_env.parallel_env(map_patch_obs=-1)
     with pytest.raises(ValueError, match="map_resolution"):
         coop_loc_env.parallel_env(map_resolution=0.0)
+    with pytest.raises(ValueError, match="map_fusion_weights"):
+        coop_loc_env.parallel_env(map_fusion_weights="best")
     with pytest.raises(ValueError, match="camera_flow_std_px"):
         coop_loc_env.parallel_env(camera_flow_std_px=-1.0)
 
@@ -149,3 +151,12 @@ def test_depth_from_motion_track_restarts_when_object_leaves_view():
     assert again and again[0].frames < 12
     assert again[0].range_std > tracked.range_std
     assert env.last_readings.camera[0][0][3] == pytest.approx(again[0].range)
+
+
+def test_kalman_fusion_weights_give_a_better_map():
+    rmse = {}
+    for weights in ("paper", "kalman"):
+        env = coop_loc_env.parallel_env(n_robots=2, max_cycles=100, map_fusion_weights=weights)
+        env.reset(seed=4)
+        rmse[weights] = _drive(env, 100)[-1]["robot_0"]["map_rmse"]
+    assert rmse["kalman"] < 0.7 * rmse["paper"]
