@@ -127,7 +127,8 @@ class TeamMLE:
     odometry_std:
         Default std devs of forward speed (m/s) and turn rate (rad/s) readings.
     motion_window:
-        Seconds of odometry integrated into one motion factor (keyframe interval).
+        Longest odometry span (s) integrated into one motion factor: a robot gets a
+        new keyframe at least this often (10 s in Howard et al.).
     window:
         Keyframes kept per robot before older ones are marginalized; ``None`` for
         full batch (nothing marginalized).
@@ -148,6 +149,10 @@ class TeamMLE:
         ``motion_window``.
     tolerance:
         Relative cost decrease at which a step's optimization stops.
+    solve_interval:
+        Minimum team time (s, the largest robot odometry clock) between two
+        optimizations in :meth:`step` unless a keyframe was added; in between, new
+        observations wait and poses follow odometry. ``0``: solve whenever data arrived.
     motion_floor_std:
         Std devs (m, rad) added to every motion factor so a robot that did not move
         (or moved straight) still has a positive-definite motion covariance.
@@ -172,6 +177,7 @@ class TeamMLE:
         min_range: float = 1e-2,
         keyframe_interval: float | None = 1.0,
         tolerance: float = 1e-6,
+        solve_interval: float = 0.0,
         motion_floor_std: tuple[float, float] = (1e-3, 1e-3),
         inflate_offsets: bool = True,
     ) -> None:
@@ -194,6 +200,9 @@ class TeamMLE:
             raise ValueError(f"keyframe_interval must be >= 0 or None, got {keyframe_interval!r}")
         if not tolerance > 0:
             raise ValueError(f"tolerance must be > 0, got {tolerance!r}")
+        if not solve_interval >= 0:
+            raise ValueError(f"solve_interval must be >= 0, got {solve_interval!r}")
+        self.solve_interval = float(solve_interval)
         self.keyframe_interval = None if keyframe_interval is None else float(keyframe_interval)
         self.tolerance = float(tolerance)
         self.odometry_std = self._check_std2(odometry_std, "odometry_std", allow_zero=True)
@@ -231,7 +240,9 @@ class TeamMLE:
                 for g in self._graphs():
                     g.add_pose_prior(node, poses[r], std[r])
         self._dirty = True
-        self._cov_cache: np.ndarray | None = None
+        self._new_keyframe = True
+        self._solved_at = -np.inf
+        self._node_cov: np.ndarray | None = None
         self.last_result: SolveResult | None = None
 
     # ------------------------------------------------------------- helpers
@@ -280,7 +291,6 @@ class TeamMLE:
         acc = self._odom[robot]
         acc.add(float(v), float(w), float(dt), sv, sw)
         self._clock[robot] += dt
-        self._cov_cache = None
         if acc.duration >= self.motion_window - 1e-9:
             self._close_window(robot)
 
@@ -292,6 +302,7 @@ class TeamMLE:
             g.add_between(prev, node, acc.delta, acc.cov + self._floor_cov)
         self._odom[robot] = OdometryIntegrator.zero()
         self._dirty = True
+        self._new_keyframe = True
 
     def add_observation(
         self,
@@ -334,7 +345,7 @@ class TeamMLE:
         if self.keyframe_interval is not None:
             for robot in (a, b):
                 acc = self._odom[robot]
-                if acc.duration > 0 and acc.duration >= self.keyframe_interval:
+                if acc.duration > 0 and acc.duration >= self.keyframe_interval - 1e-9:
                     self._close_window(robot)
         cov = np.diag(sd**2)
         off_a, off_b = self._odom[a], self._odom[b]
@@ -346,7 +357,6 @@ class TeamMLE:
                 offset_a=off_a.delta, offset_b=off_b.delta,
             )
         self._dirty = True
-        self._cov_cache = None
         return True
 
     def _offset_covariance(self, a: int, b: int, components: str) -> np.ndarray:
@@ -369,15 +379,20 @@ class TeamMLE:
     def step(self) -> SolveResult | None:
         """Re-optimize the window (if anything was added) and marginalize old keyframes.
 
-        Returns the solver's result, or ``None`` when there was nothing new.
+        Returns the solver's result, or ``None`` when nothing new was added (or
+        ``solve_interval`` has not elapsed and no keyframe was created).
         """
-        if not self._dirty:
+        now = float(self._clock.max())
+        if not self._dirty or (
+            not self._new_keyframe and now - self._solved_at < self.solve_interval - 1e-9
+        ):
             return None
         self.last_result = optimize(
             self.graph, max_iterations=self.max_iterations, rel_tol=self.tolerance
         )
-        self._dirty = False
-        self._cov_cache = None
+        self._dirty = self._new_keyframe = False
+        self._solved_at = now
+        self._node_cov = None
         if self.window is not None:
             drop = []
             for nodes in self._nodes:
@@ -411,18 +426,26 @@ class TeamMLE:
     def covariances(self) -> np.ndarray:
         """3x3 marginal covariance of every robot's latest pose, ``(N, 3, 3)``.
 
-        Keyframe marginals come from the window's information matrix; the odometry
-        since the keyframe adds its own covariance (first-order propagation).
+        Keyframe marginals come from the window's information matrix (recomputed
+        after each optimization); the odometry since the keyframe adds its own
+        covariance (first-order propagation).
         """
-        if self._cov_cache is None:
-            node_cov = marginal_covariances(self.graph, self._last)
-            out = np.empty_like(node_cov)
-            for r in range(self.n_robots):
-                acc = self._odom[r]
-                jx, ju = _pose_jacobians(self.graph.poses[self._last[r]], acc.delta)
-                out[r] = jx @ node_cov[r] @ jx.T + ju @ acc.cov @ ju.T
-            self._cov_cache = 0.5 * (out + out.transpose(0, 2, 1))
-        return self._cov_cache.copy()
+        if self._node_cov is None or len(self._node_cov) != self.n_robots or self._dirty:
+            self._node_cov = marginal_covariances(self.graph, self._last)
+        out = np.empty((self.n_robots, 3, 3))
+        for r in range(self.n_robots):
+            acc = self._odom[r]
+            jx, ju = _pose_jacobians(self.graph.poses[self._last[r]], acc.delta)
+            out[r] = jx @ self._node_cov[r] @ jx.T + ju @ acc.cov @ ju.T
+        return 0.5 * (out + out.transpose(0, 2, 1))
+
+    def belief(self, robot: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """``(mean, covariance)`` of one robot's latest pose, or of all robots if ``None``."""
+        means, covs = self.poses(), self.covariances()
+        if robot is None:
+            return means, covs
+        robot = self._check_robot(robot, "robot")
+        return means[robot], covs[robot]
 
     def relative_poses(self) -> np.ndarray:
         """Estimated range, bearing, orientation of robot ``b`` seen from ``a``: ``(N, N, 3)``."""

@@ -605,7 +605,7 @@ class PoseGraph:
         n = st["n_var"]
         terms = self._terms(self.poses if poses is None else poses, jacobian=True)
         cost = 0.5 * sum(float(np.sum(r * r)) for r, _ in terms)
-        hv = [np.einsum("mdi,mdj->mij", jac, jac).ravel() for _, jac in terms]
+        hv = [(jac.transpose(0, 2, 1) @ jac).ravel() for _, jac in terms]
         gv = [np.einsum("mdi,md->mi", jac, r).ravel() for r, jac in terms]
         h_vals = np.concatenate(hv)[st["h_valid"]] if hv else np.zeros(0)
         g_vals = np.concatenate(gv)[st["g_valid"]] if gv else np.zeros(0)

@@ -176,3 +176,17 @@ def test_bad_input_raises_value_error(call):
 def test_bad_config_raises_value_error(kwargs):
     with pytest.raises(ValueError):
         TeamMLE(**kwargs)
+
+
+def test_solve_interval_defers_optimization_until_due():
+    est = TeamMLE(2, solve_interval=1.0, motion_window=5.0, observation_interval=0.0)
+    assert est.step() is not None  # initial keyframes
+    solved = []
+    for k in range(20):
+        est.add_odometry(0, 0.1, 0.0, 0.1)
+        est.add_odometry(1, 0.1, 0.0, 0.1)
+        est.add_observation(0, 1, [1.0, 0.0, 0.0], [0.1, 0.1, 0.1])
+        solved.append(est.step() is not None)
+    # solves only when 1 s has passed (t = 1 s and 2 s, also keyframe times here)
+    assert solved == [k in (9, 19) for k in range(20)]
+    assert est.graph.n_observations == 20  # waiting observations were all kept
