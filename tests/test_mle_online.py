@@ -182,7 +182,7 @@ def test_solve_interval_defers_optimization_until_due():
     est = TeamMLE(2, solve_interval=1.0, motion_window=5.0, observation_interval=0.0)
     assert est.step() is not None  # initial keyframes
     solved = []
-    for k in range(20):
+    for _ in range(20):
         est.add_odometry(0, 0.1, 0.0, 0.1)
         est.add_odometry(1, 0.1, 0.0, 0.1)
         est.add_observation(0, 1, [1.0, 0.0, 0.0], [0.1, 0.1, 0.1])
