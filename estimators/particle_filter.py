@@ -256,7 +256,7 @@ def _lvi(cum: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
     counts = np.empty_like(below_i)
     counts[0] = below_i[0]
     np.subtract(below_i[1:], below_i[:-1], out=counts[1:])
-    return np.repeat(np.arange(cum.size), counts)
+    return np.arange(cum.size).repeat(counts)
 
 
 def kld_sample_bound(k: np.ndarray, epsilon: float, delta: float) -> np.ndarray:
@@ -488,16 +488,16 @@ class ParticleFilter:
     # --------------------------------------------------------------- motion
     def predict_odometry(self, v: float, w: float, dt: float) -> None:
         """Move particles by a unicycle odometry reading: speed ``v``, turn rate ``w``, ``dt``."""
-        vals = (v, w, dt)
-        if not all(np.isfinite(vals)):
+        v, w, dt = float(v), float(w), float(dt)
+        if not (math.isfinite(v) and math.isfinite(w) and math.isfinite(dt)):
             raise ValueError(f"odometry must be finite, got v={v}, w={w}, dt={dt}")
         if dt < 0:
             raise ValueError(f"dt must be >= 0, got {dt}")
         dth = w * dt
         if abs(dth) > 1e-9:
             radius = v / w
-            dx = radius * np.sin(dth)
-            dy = radius * (1.0 - np.cos(dth))
+            dx = radius * math.sin(dth)
+            dy = radius * (1.0 - math.cos(dth))
         else:
             dx, dy = v * dt, 0.0
         self.predict_delta((dx, dy, dth))
@@ -678,7 +678,7 @@ class ParticleFilter:
         flat *= np.int32(lf.nxp)
         flat += cells[:nb1]
         flat[nb] += np.int32(lf.offset)
-        loglik = np.take(lf.table, flat).sum(axis=0).astype(np.float64)
+        loglik = lf.table.take(flat).sum(axis=0).astype(np.float64)
         return self._apply_loglik(loglik, nb * self.config.likelihood_exponent)
 
     def _beam_matrix(self, angles: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -839,8 +839,8 @@ class ParticleFilter:
         else:
             n = self._weights.size
             n_inj = int(rng.binomial(n, p_inj)) if p_inj > 0 else 0
-            idx = _lvi(np.cumsum(self._weights), n - n_inj, rng)
-            state = np.take(self._state, idx, axis=1)
+            idx = _lvi(self._weights.cumsum(), n - n_inj, rng)
+            state = self._state.take(idx, axis=1)
         if n_inj:
             state = np.concatenate([state, self._uniform_poses(n_inj)], axis=1)
         self._state = state
