@@ -118,7 +118,7 @@ class SolveResult:
 
 
 def _check_pose(pose: np.ndarray, name: str) -> np.ndarray:
-    pose = np.asarray(pose, dtype=float)
+    pose = np.array(pose, dtype=float)  # a copy: callers' arrays are never modified
     if pose.shape != (3,) or not np.all(np.isfinite(pose)):
         raise ValueError(f"{name} must be 3 finite numbers (x, y, heading), got {pose!r}")
     return pose

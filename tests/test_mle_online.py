@@ -128,6 +128,14 @@ def test_stationary_robots_and_zero_range_give_no_nan():
     np.testing.assert_allclose(est.poses()[1, :2], 0.0, atol=0.05)
 
 
+def test_inputs_are_not_modified_and_headings_wrapped():
+    start = np.array([[0.0, 0.0, 4.0], [1.0, 0.0, -4.0]])
+    copy = start.copy()
+    est = TeamMLE(2, initial_poses=start)
+    np.testing.assert_array_equal(start, copy)
+    np.testing.assert_allclose(est.poses()[:, 2], wrap_angle(copy[:, 2]))
+
+
 def test_observation_rate_limit_and_keyframes():
     est = TeamMLE(2, observation_interval=1.0, keyframe_interval=0.5, motion_window=10.0)
     est.add_odometry(0, 0.1, 0.0, 0.1)
