@@ -7,6 +7,7 @@ the overrides (unknown keys and invalid values raise ``ValueError``).
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Callable
 from typing import Any
 
@@ -49,6 +50,7 @@ def make_config(scenario: str, **overrides: Any) -> ScenarioConfig:
     return cfg
 
 
-# Import the scenario modules so they register themselves.
-from coop_loc_env.scenarios import outdoor  # noqa: E402, F401
-from coop_loc_env.scenarios import madhavan  # noqa: E402, F401
+# Import the scenario modules so they register themselves (add new modules here).
+SCENARIO_MODULES = ("outdoor", "madhavan")
+for _module in SCENARIO_MODULES:
+    importlib.import_module(f"coop_loc_env.scenarios.{_module}")
