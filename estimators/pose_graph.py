@@ -692,6 +692,8 @@ def optimize(
         raise ValueError("the graph has no active node")
     _ensure_gauge(graph)
     h, g, cost = graph.normal_equations(dense=dense)
+    if not np.isfinite(cost):
+        raise ValueError(f"the cost at the initial estimate is not finite ({cost!r})")
     diag_slots = None if isinstance(h, np.ndarray) else graph._structure("sparse")["h_diag"]
     initial = cost
     history = [cost]

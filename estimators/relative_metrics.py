@@ -57,6 +57,32 @@ def pairwise_errors(estimated: np.ndarray, true: np.ndarray) -> np.ndarray:
     return np.abs(diff)
 
 
+def relative_matrix_errors(
+    estimated_rel: np.ndarray, true_rel: np.ndarray, mask: np.ndarray | None = None
+) -> np.ndarray:
+    """Eq. 15 errors from relative-pose matrices ``(..., N, N, 3)`` directly.
+
+    For estimators that report relative poses rather than poses in a common frame
+    (e.g. ``TeamMLE.relative_poses()``). Returns ``(..., 3)`` as :func:`relative_errors`.
+    """
+    est = np.asarray(estimated_rel, dtype=float)
+    tru = np.asarray(true_rel, dtype=float)
+    if est.ndim < 3 or est.shape[-1] != 3 or est.shape[-2] != est.shape[-3] or est.shape[-2] < 2:
+        raise ValueError(f"relative poses must have shape (..., N>=2, N, 3), got {est.shape}")
+    if tru.shape != est.shape:
+        raise ValueError(f"true relative poses shape {tru.shape} differs from {est.shape}")
+    if not (np.all(np.isfinite(est)) and np.all(np.isfinite(tru))):
+        raise ValueError("relative poses must be finite")
+    err = np.abs(est - tru)
+    err[..., 1:] = np.abs(wrap_angle(est[..., 1:] - tru[..., 1:]))
+    n = err.shape[-2]
+    pairs = _pair_mask(n, mask, err.shape[:-3])
+    count = pairs.sum(axis=(-1, -2))
+    if np.any(count == 0):
+        raise ValueError("relative errors need at least two robots (after masking)")
+    return (err * pairs[..., None]).sum(axis=(-3, -2)) / count[..., None]
+
+
 def _pair_mask(n: int, mask: np.ndarray | None, lead: tuple[int, ...]) -> np.ndarray:
     off_diag = ~np.eye(n, dtype=bool)
     if mask is None:

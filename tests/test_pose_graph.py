@@ -187,3 +187,13 @@ def test_bad_input_raises_value_error(call):
     g.add_node([1.0, 0.0, 0.0])
     with pytest.raises(ValueError):
         call(g)
+
+
+def test_optimize_rejects_non_finite_estimates():
+    g = PoseGraph()
+    a = g.add_node([0.0, 0.0, 0.0], fixed=True)
+    b = g.add_node([1.0, 0.0, 0.0])
+    g.add_between(a, b, [1.0, 0.0, 0.0], np.eye(3) * 0.01)
+    g.poses[b, 0] = np.nan
+    with pytest.raises(ValueError, match="not finite"):
+        optimize(g)

@@ -9,6 +9,7 @@ from estimators.relative_metrics import (
     relative_error_dict,
     relative_errors,
     relative_errors_per_robot,
+    relative_matrix_errors,
     relative_pose_matrix,
 )
 
@@ -112,3 +113,15 @@ def test_diagonal_is_zero_even_with_headings():
     np.testing.assert_array_equal(rel[0, [0, 1, 2], [0, 1, 2]], 0.0)
     err = pairwise_errors(poses, poses + [0.0, 0.0, 0.5])
     np.testing.assert_array_equal(err[[0, 1, 2], [0, 1, 2]], 0.0)
+
+
+def test_matrix_form_agrees_with_pose_form():
+    rng = np.random.default_rng(8)
+    truth = rng.uniform(-5, 5, (3, 4, 3))
+    est = truth + rng.normal(0.0, 0.2, truth.shape)
+    np.testing.assert_allclose(
+        relative_matrix_errors(relative_pose_matrix(est), relative_pose_matrix(truth)),
+        relative_errors(est, truth),
+    )
+    with pytest.raises(ValueError):
+        relative_matrix_errors(np.zeros((3, 4, 3)), np.zeros((3, 4, 3)))
