@@ -29,10 +29,17 @@ Gauge freedom: only relative poses are observable. Nodes flagged ``fixed`` are
 constants; if a graph has neither a fixed node nor a prior, :func:`optimize`
 fixes its first active node.
 
-The solver is Levenberg-Marquardt on ``scipy.sparse`` normal equations with an
-analytic sparse Jacobian; :func:`marginal_covariances` reads blocks of the
+The solver (:func:`optimize`) is Levenberg-Marquardt (Marquardt's diagonal
+scaling) on the normal equations ``J^T J delta = -J^T r``, assembled block by
+block from analytic factor Jacobians (:meth:`PoseGraph.linearize` gives the
+sparse ``J`` itself); they are solved by sparse LU (``scipy.sparse``) for large,
+sparse problems and by dense Cholesky for small or well-filled ones (e.g. a
+sliding window with a dense marginalization prior). Updates are additive on
+``(x, y, heading)`` with the heading wrapped. On the same graph and start it
+reaches the same minimum as GTSAM's Levenberg-Marquardt (see
+``scripts/_bench_mle.py``). :func:`marginal_covariances` reads 3x3 blocks of the
 inverse information matrix; :func:`marginalize` replaces nodes by a dense prior
-on their Markov blanket (Schur complement).
+on their Markov blanket (Schur complement at the current estimate).
 """
 
 from __future__ import annotations
