@@ -1,0 +1,67 @@
+"""A trained stable-baselines3 model as a :class:`~policies.baselines.Policy` for evaluation.
+
+:class:`LearnedPolicy` wraps a model already in memory (the periodic
+evaluation during training uses it) or loads a saved ``.zip``; one network
+acts for every live agent (parameter sharing), deterministically, one batched
+forward pass per step. :func:`load_learned_policy` loads ``DIR/final_model.zip``
+(or any SB3 zip, the algorithm detected from the file), the same file
+``scripts/evaluate.py --policy PATH`` loads through :func:`policies.runner.make_policy`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from policies.runner import SB3Policy
+
+
+class LearnedPolicy:
+    """An SB3 model (in memory) shared by all agents.
+
+    Args:
+        model: a stable-baselines3 algorithm instance (``PPO``, ``SAC``, ...).
+        name: label used in tables and plots.
+        deterministic: use the mean action (``True`` for evaluation).
+    """
+
+    def __init__(self, model: Any, name: str = "learned", deterministic: bool = True) -> None:
+        if not hasattr(model, "predict") or not hasattr(model, "observation_space"):
+            raise ValueError(f"model must be a stable-baselines3 model, got {type(model)!r}")
+        self.model = model
+        self.name = name
+        self.deterministic = deterministic
+        self.env = None
+
+    def reset(self, env, seed: int | None = None) -> None:
+        """Bind to ``env``; the observation shape must match the model's."""
+        expected = self.model.observation_space.shape
+        got = env.observation_space(env.possible_agents[0]).shape
+        if expected != got:
+            raise ValueError(
+                f"model {self.name!r} expects observations of shape {expected}, the env "
+                f"gives {got}: use the same scenario/config overrides as in training"
+            )
+        self.env = env
+
+    def act(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """One action per live agent (clipped to ``[-1, 1]``)."""
+        agents = list(self.env.agents)
+        if not agents:
+            return {}
+        batch = np.stack([obs[a] for a in agents])
+        actions, _ = self.model.predict(batch, deterministic=self.deterministic)
+        actions = np.clip(np.asarray(actions, dtype=np.float32).reshape(len(agents), -1), -1, 1)
+        return dict(zip(agents, actions, strict=True))
+
+
+def load_learned_policy(path: str | Path) -> SB3Policy:
+    """Load a saved SB3 model (``.zip``, or a training ``DIR`` holding ``final_model.zip``)."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / "final_model.zip"
+    if not path.is_file():
+        raise ValueError(f"no saved model at {str(path)!r}")
+    return SB3Policy(path)

@@ -1,0 +1,324 @@
+"""Train one policy shared by all robots with stable-baselines3 (the library of train.py).
+
+:func:`train` builds a :class:`~policies.vec_env.ParallelEnvVecEnv` (every agent
+of ``n_envs`` env copies is one slot, copies stepped in ``n_procs`` processes),
+wraps it in ``VecNormalize`` (rewards only: observations are already scaled
+by the env, and an unnormalized-input model is what ``scripts/evaluate.py``
+loads), and runs PPO (default) or SAC with:
+
+* SB3's progress bar and TensorBoard logs (``DIR/tb``);
+* :class:`BaselineEvalCallback`: every ``eval_freq`` env steps the current
+  policy (deterministic) runs ``eval_episodes`` seeded episodes and the team
+  localization error, coverage, collisions and tip-overs are logged under
+  ``eval/``, next to the same figures of the FSM baseline on the same seeds
+  (``baseline/``, computed once) and their ratio ``eval/error_ratio_vs_baseline``;
+* checkpoints every ``checkpoint_freq`` env steps (``DIR/checkpoints``), and
+  ``resume`` from a checkpoint ``.zip`` or a run directory (its newest
+  checkpoint, with its reward-normalization statistics): the model goes on
+  for ``timesteps`` more steps, its step counter continuing;
+* an optional wall-clock limit ``max_wall_s`` (training stops there, the
+  model is saved as usual);
+* the final model at ``DIR/final_model.zip`` and the run's settings at
+  ``DIR/train_config.json``.
+
+"env steps" here are SB3 timesteps: one per agent slot per step, so one
+parallel-env step of a 3-robot team counts 3.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import re
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from policies.learned import LearnedPolicy
+from policies.runner import make_policy, run_episode
+from policies.vec_env import ParallelEnvVecEnv, make_env_fn
+
+ALGOS = ("PPO", "SAC")
+REWARD_KEYS = (
+    "reward_localization_weight",
+    "reward_heading_weight",
+    "reward_coverage_weight",
+    "collision_penalty",
+    "tip_over_penalty",
+)
+EVAL_SEED = 100_000  # evaluation episodes use seeds EVAL_SEED + k, apart from training seeds
+
+
+@dataclass
+class TrainConfig:
+    """Settings of a training run (every field is a ``scripts/train.py`` option).
+
+    ``overrides`` are env config overrides (reward weights, ``max_cycles``, ...);
+    ``estimator`` is passed to the env too. ``n_steps``/``batch_size`` are PPO's
+    rollout length per slot and minibatch size (SAC uses ``batch_size`` and
+    ``buffer_size``).
+    """
+
+    out: str
+    scenario: str = "outdoor_terrain"
+    estimator: str | None = None
+    algo: str = "PPO"
+    timesteps: int = 100_000
+    n_envs: int = 2
+    n_procs: int = 1
+    seed: int = 0
+    overrides: dict[str, Any] = field(default_factory=dict)
+    learning_rate: float = 3e-4
+    n_steps: int = 256
+    batch_size: int = 256
+    n_epochs: int = 5
+    gamma: float = 0.99
+    ent_coef: float = 0.0
+    net_arch: tuple[int, ...] = (64, 64)
+    buffer_size: int = 200_000
+    eval_freq: int = 50_000
+    eval_episodes: int = 2
+    eval_baseline: str = "fsm"
+    checkpoint_freq: int = 50_000
+    resume: str | None = None
+    max_wall_s: float | None = None
+    progress_bar: bool = True
+    normalize_reward: bool = True
+    verbose: int = 0
+
+    def validate(self) -> None:
+        """Raise ``ValueError`` naming a bad field."""
+        if self.algo.upper() not in ALGOS:
+            raise ValueError(f"algo must be one of {ALGOS}, got {self.algo!r}")
+        for key in ("timesteps", "n_envs", "n_procs", "n_steps", "batch_size", "n_epochs",
+                    "buffer_size", "eval_episodes"):
+            value = getattr(self, key)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{key} must be a positive integer, got {value!r}")
+        for key in ("eval_freq", "checkpoint_freq"):
+            value = getattr(self, key)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                raise ValueError(f"{key} must be an integer >= 0 (0 = off), got {value!r}")
+        if self.n_procs > self.n_envs:
+            raise ValueError(f"n_procs must be <= n_envs ({self.n_envs}), got {self.n_procs!r}")
+        if self.max_wall_s is not None and not self.max_wall_s > 0:
+            raise ValueError(f"max_wall_s must be > 0, got {self.max_wall_s!r}")
+        if not (0 < self.gamma <= 1):
+            raise ValueError(f"gamma must be in (0, 1], got {self.gamma!r}")
+        if not self.learning_rate > 0:
+            raise ValueError(f"learning_rate must be > 0, got {self.learning_rate!r}")
+        if not self.net_arch or any(int(h) < 1 for h in self.net_arch):
+            raise ValueError(f"net_arch must be positive layer sizes, got {self.net_arch!r}")
+
+    def env_overrides(self) -> dict[str, Any]:
+        """The env config overrides of this run (``estimator`` included when set)."""
+        out = dict(self.overrides)
+        if self.estimator is not None:
+            out["estimator"] = self.estimator
+        return out
+
+
+def make_vec_env(cfg: TrainConfig):
+    """The training ``VecEnv``: slots per agent, reward-normalized when asked."""
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    venv = ParallelEnvVecEnv(
+        make_env_fn(cfg.scenario, **cfg.env_overrides()), n_envs=cfg.n_envs, n_procs=cfg.n_procs
+    )
+    if cfg.normalize_reward:
+        venv = VecNormalize(venv, norm_obs=False, norm_reward=True, gamma=cfg.gamma)
+    return venv
+
+
+def make_model(cfg: TrainConfig, venv, tensorboard_log: str | None):
+    """A fresh PPO/SAC model on ``venv``."""
+    import stable_baselines3 as sb3
+
+    algo = cfg.algo.upper()
+    arch = [int(h) for h in cfg.net_arch]
+    common = dict(
+        learning_rate=cfg.learning_rate, gamma=cfg.gamma, seed=cfg.seed, verbose=cfg.verbose,
+        tensorboard_log=tensorboard_log, device="cpu",
+    )
+    if algo == "PPO":
+        return sb3.PPO(
+            "MlpPolicy", venv, n_steps=cfg.n_steps, batch_size=cfg.batch_size,
+            n_epochs=cfg.n_epochs, ent_coef=cfg.ent_coef,
+            policy_kwargs=dict(net_arch=dict(pi=arch, vf=arch)), **common,
+        )
+    return sb3.SAC(
+        "MlpPolicy", venv, batch_size=cfg.batch_size, buffer_size=cfg.buffer_size,
+        learning_starts=min(1000, cfg.timesteps), policy_kwargs=dict(net_arch=arch), **common,
+    )
+
+
+def evaluate_figures(
+    scenario: str, policy, n_episodes: int, overrides: dict[str, Any], seed: int = EVAL_SEED
+) -> dict[str, float]:
+    """Mean figures of ``policy`` over ``n_episodes`` seeded episodes (no progress bar)."""
+    import coop_loc_env
+
+    env = coop_loc_env.parallel_env(scenario, **overrides)
+    try:
+        eps = [run_episode(env, policy, seed + k) for k in range(n_episodes)]
+    finally:
+        env.close()
+    keys = ("localization_error_m", "coverage", "collisions", "tip_overs", "team_return")
+    return {k: float(np.mean([ep[k] for ep in eps])) for k in keys}
+
+
+def _callbacks(cfg: TrainConfig, out: Path):
+    from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
+
+    class BaselineEvalCallback(BaseCallback):
+        """Every ``eval_freq`` env steps, log the policy's figures next to the baseline's."""
+
+        def __init__(self) -> None:
+            super().__init__()
+            self.next_eval = 0
+            self.baseline: dict[str, float] | None = None
+            self.history: list[dict[str, float]] = []
+
+        def _on_training_start(self) -> None:
+            self.next_eval = self.num_timesteps + cfg.eval_freq
+            if cfg.eval_baseline:
+                self.baseline = evaluate_figures(
+                    cfg.scenario, make_policy(cfg.eval_baseline), cfg.eval_episodes,
+                    cfg.env_overrides(),
+                )
+
+        def _on_step(self) -> bool:
+            if self.num_timesteps >= self.next_eval:
+                self.next_eval += cfg.eval_freq
+                self.evaluate()
+            return True
+
+        def evaluate(self) -> dict[str, float]:
+            policy = LearnedPolicy(self.model, name="learned")
+            figs = evaluate_figures(cfg.scenario, policy, cfg.eval_episodes, cfg.env_overrides())
+            for key, value in figs.items():
+                self.logger.record(f"eval/{key}", value)
+            if self.baseline is not None:
+                for key, value in self.baseline.items():
+                    self.logger.record(f"baseline/{key}", value)
+                base_err = self.baseline["localization_error_m"]
+                ratio = figs["localization_error_m"] / base_err if base_err > 0 else float("nan")
+                self.logger.record("eval/error_ratio_vs_baseline", ratio)
+            self.logger.dump(self.num_timesteps)
+            self.history.append({"timesteps": float(self.num_timesteps), **figs})
+            return figs
+
+    callbacks = []
+    if cfg.checkpoint_freq:
+        slots = _n_slots(cfg)
+        callbacks.append(CheckpointCallback(
+            save_freq=max(1, cfg.checkpoint_freq // slots), save_path=str(out / "checkpoints"),
+            name_prefix="model", save_vecnormalize=True,
+        ))
+    class WallClockLimit(BaseCallback):
+        """Stop training once ``max_wall_s`` seconds have passed since it started."""
+
+        def _on_training_start(self) -> None:
+            self.deadline = time.perf_counter() + cfg.max_wall_s
+
+        def _on_step(self) -> bool:
+            return time.perf_counter() < self.deadline
+
+    if cfg.max_wall_s is not None:
+        callbacks.append(WallClockLimit())
+    evaluator = BaselineEvalCallback() if cfg.eval_freq else None
+    if evaluator is not None:
+        callbacks.append(evaluator)
+    return callbacks, evaluator
+
+
+def _n_slots(cfg: TrainConfig) -> int:
+    import coop_loc_env
+
+    return cfg.n_envs * coop_loc_env.make_config(cfg.scenario, **cfg.env_overrides()).n_robots
+
+
+def find_checkpoint(path: str | Path) -> Path:
+    """A checkpoint ``.zip`` itself, or the newest one of a run directory."""
+    path = Path(path)
+    if path.is_file():
+        return path
+    if path.is_dir():
+        zips = list((path / "checkpoints").glob("model_*_steps.zip")) + list(
+            path.glob("model_*_steps.zip")
+        )
+        if zips:
+            return max(zips, key=lambda p: int(re.findall(r"_(\d+)_steps", p.name)[-1]))
+        if (path / "final_model.zip").is_file():
+            return path / "final_model.zip"
+    raise ValueError(f"resume: no checkpoint found at {str(path)!r}")
+
+
+def _vecnormalize_of(ckpt: Path) -> Path | None:
+    """The reward-normalization statistics saved with a checkpoint, if any."""
+    steps = re.findall(r"_(\d+)_steps", ckpt.name)
+    candidates = [ckpt.parent / f"model_vecnormalize_{steps[-1]}_steps.pkl"] if steps else []
+    candidates.append(ckpt.parent / "vecnormalize.pkl")
+    return next((c for c in candidates if c.is_file()), None)
+
+
+def train(cfg: TrainConfig) -> dict[str, Any]:
+    """Run the training described by ``cfg``; returns a summary (paths, timings, evals).
+
+    The summary holds ``final_model`` (path), ``timesteps`` (total, counting a
+    resumed run's earlier steps), ``wall_s``, ``steps_per_s`` and ``evals``
+    (the periodic evaluation records).
+    """
+    import stable_baselines3 as sb3
+    import torch
+
+    cfg.validate()
+    torch.set_num_threads(1)
+    out = Path(cfg.out)
+    out.mkdir(parents=True, exist_ok=True)
+    config = dataclasses.asdict(cfg)
+    (out / "train_config.json").write_text(json.dumps(config, indent=2, default=str) + "\n")
+    venv = make_vec_env(cfg)
+    tb = str(out / "tb")
+    try:
+        if cfg.resume:
+            ckpt = find_checkpoint(cfg.resume)
+            stats = _vecnormalize_of(ckpt)
+            if cfg.normalize_reward and stats is not None:
+                from stable_baselines3.common.vec_env import VecNormalize
+
+                venv = VecNormalize.load(str(stats), venv.venv)
+            algo = getattr(sb3, cfg.algo.upper())
+            model = algo.load(str(ckpt), env=venv, device="cpu", tensorboard_log=tb)
+            reset = False
+        else:
+            model = make_model(cfg, venv, tb)
+            reset = True
+        callbacks, evaluator = _callbacks(cfg, out)
+        start_steps = model.num_timesteps
+        start = time.perf_counter()
+        model.learn(
+            total_timesteps=cfg.timesteps, callback=callbacks, progress_bar=cfg.progress_bar,
+            reset_num_timesteps=reset, tb_log_name=cfg.algo.upper(),
+        )
+        wall = time.perf_counter() - start
+        final = out / "final_model.zip"
+        model.save(str(final))
+        if cfg.normalize_reward:
+            venv.save(str(out / "vecnormalize.pkl"))
+    finally:
+        venv.close()
+    done = model.num_timesteps - start_steps
+    summary = {
+        "final_model": str(final),
+        "timesteps": int(model.num_timesteps),
+        "wall_s": wall,
+        "steps_per_s": done / wall if wall > 0 else float("nan"),
+        "evals": evaluator.history if evaluator is not None else [],
+        "baseline": evaluator.baseline if evaluator is not None else None,
+    }
+    (out / "train_summary.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")
+    return summary

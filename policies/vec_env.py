@@ -1,0 +1,415 @@
+"""A stable-baselines3 ``VecEnv`` over copies of a PettingZoo ``ParallelEnv`` (parameter sharing).
+
+Every agent of every env copy is one slot of the ``VecEnv``: with ``n_envs``
+copies of an env with ``n`` agents, ``num_envs = n_envs * n`` and slot
+``k * n + i`` is agent ``possible_agents[i]`` of copy ``k``. One policy then
+acts for all agents (they are interchangeable; the observation holds the
+agent's own features, never its index).
+
+Episode ends are reported the way SB3 expects (unlike SuperSuit's
+``pettingzoo_env_to_vec_env_v1``, which merges terminated and truncated,
+PettingZoo issue #1126):
+
+* when an agent's episode ends, its slot returns ``done=True`` with
+  ``info["terminal_observation"]`` (the env's last observation of that agent)
+  and ``info["TimeLimit.truncated"] = truncated and not terminated``, so PPO
+  bootstraps the value on ``max_cycles`` truncation and not on a tip-over;
+  ``info["episode"] = {"r", "l", "t"}`` holds the agent's return and length
+  (what SB3 logs as ``rollout/ep_rew_mean``);
+* an agent that terminates early (a tip-over removes it from ``env.agents``)
+  leaves a *padding* slot until its copy resets: the slot observes zeros, gets
+  reward 0 and ``done=False``, and its actions are ignored. When the copy
+  resets, the padding slot returns ``done=True`` once more, as a termination
+  (``TimeLimit.truncated = False``, ``info["padding"] = True``, zero terminal
+  observation), so no value is bootstrapped from the next episode into the
+  padding segment;
+* a copy resets itself (auto-reset) when none of its agents is left; the
+  observation returned for its slots is then the first of the new episode.
+
+Seeding: the first reset of copy ``k`` uses the seed SB3 set for the copy's
+first slot (``VecEnv.seed(s)`` gives slot ``j`` seed ``s + j``, so copy ``k``
+gets ``s + k * n``); later auto-resets continue the copy's own generator, so a
+run is reproducible from its seed.
+
+Processes: with ``n_procs = 1`` every copy runs in this process; with
+``n_procs > 1`` the copies are split into ``n_procs`` contiguous blocks, each
+stepped by one worker process (a pipe-based worker, like SB3's
+``SubprocVecEnv``), all workers stepping in parallel.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import time
+from collections.abc import Callable, Sequence
+from functools import partial
+from typing import Any
+
+import cloudpickle
+import numpy as np
+from gymnasium import spaces
+from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
+
+import coop_loc_env
+
+EnvFn = Callable[[], Any]
+_COMMANDS = ("step", "reset", "get_attr", "set_attr", "env_method")
+
+
+def make_env_fn(scenario: str = "outdoor_terrain", **overrides: Any) -> EnvFn:
+    """A picklable factory of ``coop_loc_env.parallel_env(scenario, **overrides)``."""
+    coop_loc_env.make_config(scenario, **overrides)  # fail early, naming the bad key/value
+    return partial(coop_loc_env.parallel_env, scenario, **overrides)
+
+
+class EnvCopies:
+    """``n_copies`` ParallelEnv copies stepped in one process; the unit a worker runs.
+
+    Arrays are slot-major: row ``k * n_agents + i`` is agent ``i`` of copy ``k``.
+    """
+
+    def __init__(self, env_fn: EnvFn, n_copies: int) -> None:
+        if isinstance(n_copies, bool) or not isinstance(n_copies, int) or n_copies < 1:
+            raise ValueError(f"n_copies must be a positive integer, got {n_copies!r}")
+        self.envs = [env_fn() for _ in range(n_copies)]
+        first = self.envs[0]
+        self.agents = list(first.possible_agents)
+        self.n_agents = len(self.agents)
+        self.observation_space = first.observation_space(self.agents[0])
+        self.action_space = first.action_space(self.agents[0])
+        shape = (n_copies, self.n_agents)
+        self.padding = np.zeros(shape, dtype=bool)  # agent done, copy not yet reset
+        self.ep_return = np.zeros(shape)
+        self.ep_length = np.zeros(shape, dtype=np.int64)
+        self.start_time = time.time()
+
+    @property
+    def n_slots(self) -> int:
+        """``n_copies * n_agents``."""
+        return len(self.envs) * self.n_agents
+
+    def _zeros(self) -> np.ndarray:
+        return np.zeros(self.observation_space.shape, dtype=self.observation_space.dtype)
+
+    def _reset_copy(self, k: int, seed: int | None) -> np.ndarray:
+        obs, _ = self.envs[k].reset(seed=seed)
+        self.padding[k] = False
+        self.ep_return[k] = 0.0
+        self.ep_length[k] = 0
+        return np.stack([obs[a] for a in self.agents])
+
+    def reset(self, seeds: Sequence[int | None]) -> np.ndarray:
+        """Reset every copy (copy ``k`` with ``seeds[k]``); observations ``(n_slots, obs)``."""
+        if len(seeds) != len(self.envs):
+            raise ValueError(f"need one seed per copy ({len(self.envs)}), got {list(seeds)!r}")
+        return np.concatenate([self._reset_copy(k, s) for k, s in enumerate(seeds)])
+
+    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict]]:
+        """Step every copy with ``actions (n_slots, act)``; auto-resets finished copies."""
+        actions = np.asarray(actions, dtype=np.float32).reshape(self.n_slots, -1)
+        low, high = self.action_space.low, self.action_space.high
+        obs_out, rew_out, done_out, info_out = [], [], [], []
+        for k, env in enumerate(self.envs):
+            rows = slice(k * self.n_agents, (k + 1) * self.n_agents)
+            act = np.clip(actions[rows], low, high)
+            live = list(env.agents)
+            obs, rewards, terms, truncs, infos = env.step(
+                {a: act[self.agent_index(a)] for a in live}
+            )
+            o = np.zeros((self.n_agents,) + self.observation_space.shape, dtype=np.float32)
+            r = np.zeros(self.n_agents, dtype=np.float32)
+            d = np.zeros(self.n_agents, dtype=bool)
+            slot_infos: list[dict] = [{} for _ in range(self.n_agents)]
+            was_padding = self.padding[k].copy()
+            for i, agent in enumerate(self.agents):
+                if agent not in rewards:  # padding slot: zeros, reward 0, action ignored
+                    slot_infos[i] = {"padding": True}
+                    continue
+                r[i] = rewards[agent]
+                self.ep_return[k, i] += rewards[agent]
+                self.ep_length[k, i] += 1
+                info = dict(infos[agent])
+                if terms[agent] or truncs[agent]:
+                    d[i] = True
+                    info["terminal_observation"] = obs[agent]
+                    info["TimeLimit.truncated"] = bool(truncs[agent] and not terms[agent])
+                    info["episode"] = {
+                        "r": float(self.ep_return[k, i]),
+                        "l": int(self.ep_length[k, i]),
+                        "t": round(time.time() - self.start_time, 6),
+                    }
+                    self.padding[k, i] = True
+                else:
+                    o[i] = obs[agent]
+                slot_infos[i] = info
+            if not env.agents:
+                o = self._reset_copy(k, None)
+                for i in np.flatnonzero(was_padding):
+                    d[i] = True
+                    slot_infos[i] = {
+                        "padding": True,
+                        "terminal_observation": self._zeros(),
+                        "TimeLimit.truncated": False,
+                    }
+            obs_out.append(o)
+            rew_out.append(r)
+            done_out.append(d)
+            info_out.extend(slot_infos)
+        return np.concatenate(obs_out), np.concatenate(rew_out), np.concatenate(done_out), info_out
+
+    def agent_index(self, agent: str) -> int:
+        """Index of ``agent`` in ``possible_agents``."""
+        return self.agents.index(agent)
+
+    def get_attr(self, name: str, copies: Sequence[int]) -> list[Any]:
+        """``getattr(env, name)`` of the given copies."""
+        return [getattr(self.envs[k], name) for k in copies]
+
+    def set_attr(self, name: str, value: Any, copies: Sequence[int]) -> None:
+        """``setattr(env, name, value)`` on the given copies."""
+        for k in copies:
+            setattr(self.envs[k], name, value)
+
+    def env_method(self, name: str, args: tuple, kwargs: dict, copies: Sequence[int]) -> list:
+        """``env.name(*args, **kwargs)`` on the given copies."""
+        return [getattr(self.envs[k], name)(*args, **kwargs) for k in copies]
+
+    def close(self) -> None:
+        """Close every copy."""
+        for env in self.envs:
+            env.close()
+
+
+def _worker(remote, parent_remote, payload: bytes) -> None:
+    """Worker process: builds an :class:`EnvCopies` and serves commands over a pipe."""
+    parent_remote.close()
+    env_fn, n_copies = cloudpickle.loads(payload)
+    copies = None
+    try:
+        copies = EnvCopies(env_fn, n_copies)
+        remote.send(("ok", (copies.observation_space, copies.action_space, copies.n_agents)))
+        while True:
+            cmd, data = remote.recv()
+            if cmd == "close":
+                break
+            try:
+                if cmd not in _COMMANDS:
+                    raise ValueError(f"unknown worker command {cmd!r}")
+                result = getattr(copies, cmd)(*data)
+                remote.send(("ok", result))
+            except Exception as err:  # report to the parent, keep serving
+                remote.send(("error", err))
+    except (KeyboardInterrupt, EOFError):
+        pass
+    except Exception as err:  # construction failed
+        remote.send(("error", err))
+    finally:
+        if copies is not None:
+            copies.close()
+        remote.close()
+
+
+class _RemoteCopies:
+    """The parent's handle on a worker process running an :class:`EnvCopies`."""
+
+    def __init__(self, env_fn: EnvFn, n_copies: int, ctx) -> None:
+        self.remote, work_remote = ctx.Pipe()
+        payload = cloudpickle.dumps((env_fn, n_copies))
+        self.process = ctx.Process(
+            target=_worker, args=(work_remote, self.remote, payload), daemon=True
+        )
+        self.process.start()
+        work_remote.close()
+        self.observation_space, self.action_space, self.n_agents = self.receive()
+        self.n_copies = n_copies
+
+    def send(self, cmd: str, data: Any = None) -> None:
+        self.remote.send((cmd, data))
+
+    def receive(self) -> Any:
+        status, result = self.remote.recv()
+        if status == "error":
+            raise result
+        return result
+
+    def call(self, cmd: str, data: Any = None) -> Any:
+        self.send(cmd, data)
+        return self.receive()
+
+    def close(self) -> None:
+        try:
+            self.send("close")
+        except (BrokenPipeError, OSError):
+            pass
+        self.process.join(timeout=5)
+        if self.process.is_alive():
+            self.process.terminate()
+
+
+class ParallelEnvVecEnv(VecEnv):
+    """SB3 ``VecEnv`` with one slot per agent of ``n_envs`` ParallelEnv copies.
+
+    Args:
+        env_fn: a picklable zero-argument factory of the ParallelEnv (see
+            :func:`make_env_fn`); all copies must have the same agents and spaces.
+        n_envs: number of env copies (``num_envs = n_envs * n_agents``).
+        n_procs: ``1`` steps all copies in this process; ``> 1`` runs them in
+            that many worker processes (at most ``n_envs``).
+        start_method: multiprocessing start method for the workers
+            (default ``"forkserver"`` where available, else ``"spawn"``).
+
+    See the module docstring for the done/truncation/padding conventions.
+    """
+
+    def __init__(
+        self, env_fn: EnvFn, n_envs: int = 1, n_procs: int = 1, start_method: str | None = None
+    ) -> None:
+        if isinstance(n_envs, bool) or not isinstance(n_envs, int) or n_envs < 1:
+            raise ValueError(f"n_envs must be a positive integer, got {n_envs!r}")
+        if isinstance(n_procs, bool) or not isinstance(n_procs, int) or n_procs < 1:
+            raise ValueError(f"n_procs must be a positive integer, got {n_procs!r}")
+        if n_procs > n_envs:
+            raise ValueError(f"n_procs must be <= n_envs ({n_envs}), got {n_procs!r}")
+        self.n_envs = n_envs
+        self.n_procs = n_procs
+        blocks = np.array_split(np.arange(n_envs), n_procs)
+        self.copy_block = np.concatenate([np.full(len(b), j) for j, b in enumerate(blocks)])
+        self.copy_local = np.concatenate([np.arange(len(b)) for b in blocks])
+        self.groups: list[Any] = []
+        if n_procs == 1:
+            local = EnvCopies(env_fn, n_envs)
+            self.groups = [local]
+            obs_space, act_space, n_agents = (
+                local.observation_space, local.action_space, local.n_agents
+            )
+        else:
+            if start_method is None:
+                methods = mp.get_all_start_methods()
+                start_method = "forkserver" if "forkserver" in methods else "spawn"
+            ctx = mp.get_context(start_method)
+            try:
+                for b in blocks:
+                    self.groups.append(_RemoteCopies(env_fn, len(b), ctx))
+            except Exception:
+                for g in self.groups:
+                    g.close()
+                raise
+            g = self.groups[0]
+            obs_space, act_space, n_agents = g.observation_space, g.action_space, g.n_agents
+        if not isinstance(obs_space, spaces.Box) or not isinstance(act_space, spaces.Box):
+            raise ValueError(
+                f"ParallelEnvVecEnv needs Box spaces, got {obs_space!r} and {act_space!r}"
+            )
+        self.n_agents = n_agents
+        self._actions: np.ndarray | None = None
+        self._closed = False
+        super().__init__(n_envs * n_agents, obs_space, act_space)
+
+    # ------------------------------------------------------------------ helpers
+    def _remote(self) -> bool:
+        return self.n_procs > 1
+
+    def _slot_copies(self, indices: VecEnvIndices) -> list[int]:
+        """Copy index of each requested slot."""
+        return [i // self.n_agents for i in self._get_indices(indices)]
+
+    def _per_group(self, copies: list[int]) -> dict[int, list[int]]:
+        out: dict[int, list[int]] = {}
+        for k in copies:
+            out.setdefault(int(self.copy_block[k]), []).append(int(self.copy_local[k]))
+        return out
+
+    def _call_groups(self, cmd: str, per_group: dict[int, Any]) -> dict[int, Any]:
+        """Run ``cmd`` with per-group argument tuples on the groups (in parallel when remote)."""
+        if not self._remote():
+            return {0: getattr(self.groups[0], cmd)(*per_group[0])}
+        for j, data in per_group.items():
+            self.groups[j].send(cmd, data)
+        return {j: self.groups[j].receive() for j in per_group}
+
+    # ------------------------------------------------------------------ VecEnv API
+    def reset(self) -> np.ndarray:
+        """Reset every copy, seeding copy ``k`` with the seed of its first slot."""
+        seeds = [self._seeds[k * self.n_agents] for k in range(self.n_envs)]
+        per_group = {
+            j: ([seeds[k] for k in range(self.n_envs) if self.copy_block[k] == j],)
+            for j in range(len(self.groups))
+        }
+        results = self._call_groups("reset", per_group)
+        self._reset_seeds()
+        self._reset_options()
+        self.reset_infos = [{} for _ in range(self.num_envs)]
+        return np.concatenate([results[j] for j in range(len(self.groups))])
+
+    def step_async(self, actions: np.ndarray) -> None:
+        """Send the actions ``(num_envs, act)`` to the copies."""
+        actions = np.asarray(actions, dtype=np.float32).reshape(self.num_envs, -1)
+        if not self._remote():
+            self._actions = actions
+            return
+        start = 0
+        for g in self.groups:
+            stop = start + g.n_copies * self.n_agents
+            g.send("step", (actions[start:stop],))
+            start = stop
+
+    def step_wait(self) -> VecEnvStepReturn:
+        """Observations, rewards, dones and infos of every slot."""
+        if not self._remote():
+            if self._actions is None:
+                raise ValueError("step_wait() called before step_async()")
+            result = self.groups[0].step(self._actions)
+            self._actions = None
+            return result
+        parts = [g.receive() for g in self.groups]
+        obs = np.concatenate([p[0] for p in parts])
+        rew = np.concatenate([p[1] for p in parts])
+        done = np.concatenate([p[2] for p in parts])
+        infos = [info for p in parts for info in p[3]]
+        return obs, rew, done, infos
+
+    def close(self) -> None:
+        """Close the copies and stop the workers."""
+        if self._closed:
+            return
+        for g in self.groups:
+            g.close()
+        self._closed = True
+
+    def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
+        """``getattr`` on the env copy of each requested slot."""
+        copies = self._slot_copies(indices)
+        per_group = self._per_group(sorted(set(copies)))
+        results = self._call_groups(
+            "get_attr", {j: (attr_name, ks) for j, ks in per_group.items()}
+        )
+        value = {}
+        for j, ks in per_group.items():
+            for local, v in zip(ks, results[j], strict=True):
+                value[(j, local)] = v
+        return [value[(int(self.copy_block[k]), int(self.copy_local[k]))] for k in copies]
+
+    def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
+        """``setattr`` on the env copy of each requested slot."""
+        per_group = self._per_group(sorted(set(self._slot_copies(indices))))
+        self._call_groups("set_attr", {j: (attr_name, value, ks) for j, ks in per_group.items()})
+
+    def env_method(
+        self, method_name: str, *method_args, indices: VecEnvIndices = None, **method_kwargs
+    ) -> list[Any]:
+        """Call a method of the env copy of each requested slot (once per copy)."""
+        copies = self._slot_copies(indices)
+        per_group = self._per_group(sorted(set(copies)))
+        results = self._call_groups(
+            "env_method",
+            {j: (method_name, method_args, method_kwargs, ks) for j, ks in per_group.items()},
+        )
+        value = {}
+        for j, ks in per_group.items():
+            for local, v in zip(ks, results[j], strict=True):
+                value[(j, local)] = v
+        return [value[(int(self.copy_block[k]), int(self.copy_local[k]))] for k in copies]
+
+    def env_is_wrapped(self, wrapper_class: type, indices: VecEnvIndices = None) -> list[bool]:
+        """ParallelEnv copies are never gymnasium-wrapped: all ``False``."""
+        return [False for _ in self._get_indices(indices)]

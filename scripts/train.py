@@ -1,0 +1,121 @@
+"""Train one policy shared by all robots of a team (PPO by default, or SAC) with stable-baselines3.
+
+Examples::
+
+    python scripts/train.py --scenario outdoor_terrain --estimator ekf --timesteps 300000 \\
+        --n-envs 4 --n-procs 2 --seed 0 --out runs/ppo_outdoor \\
+        --reward-localization-weight 5 --reward-coverage-weight 1
+    python scripts/train.py --out runs/ppo_outdoor --resume runs/ppo_outdoor --timesteps 100000
+    python scripts/evaluate.py --policy runs/ppo_outdoor/final_model.zip --episodes 20
+
+Writes ``DIR/final_model.zip`` (loadable by ``scripts/evaluate.py --policy``),
+``DIR/checkpoints/``, TensorBoard logs in ``DIR/tb`` (``tensorboard --logdir DIR/tb``;
+periodic evaluation against the FSM baseline under ``eval/`` and ``baseline/``),
+``DIR/train_config.json`` and ``DIR/train_summary.json``. ``--timesteps`` counts
+agent steps (one per robot per env step). Evaluate with the same ``--set``
+overrides as in training (the observation size depends on some of them).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from policies.runner import parse_overrides
+from policies.training import ALGOS, TrainConfig, train
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command-line interface."""
+    d = TrainConfig(out="")
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--scenario", default=d.scenario, help="registered scenario name")
+    p.add_argument("--estimator", default=None, help="ekf | mcl | mle (scenario default if unset)")
+    p.add_argument("--algo", default=d.algo, type=str.upper, choices=ALGOS, help="PPO or SAC")
+    p.add_argument("--timesteps", type=int, default=d.timesteps, help="agent steps to train")
+    p.add_argument("--n-envs", type=int, default=d.n_envs, help="env copies (each gives one "
+                   "slot per robot)")
+    p.add_argument("--n-procs", type=int, default=d.n_procs, help="processes stepping the "
+                   "copies (1 = this process)")
+    p.add_argument("--seed", type=int, default=d.seed, help="seed of model and env copies")
+    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--max-cycles", type=int, default=None, help="episode length override")
+    p.add_argument("--reward-localization-weight", type=float, default=None)
+    p.add_argument("--reward-heading-weight", type=float, default=None)
+    p.add_argument("--reward-coverage-weight", type=float, default=None)
+    p.add_argument("--collision-penalty", type=float, default=None)
+    p.add_argument("--tip-over-penalty", type=float, default=None)
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="env config override, repeatable (e.g. --set n_robots=4)")
+    p.add_argument("--learning-rate", type=float, default=d.learning_rate)
+    p.add_argument("--n-steps", type=int, default=d.n_steps, help="PPO rollout length per slot")
+    p.add_argument("--batch-size", type=int, default=d.batch_size)
+    p.add_argument("--n-epochs", type=int, default=d.n_epochs)
+    p.add_argument("--gamma", type=float, default=d.gamma)
+    p.add_argument("--ent-coef", type=float, default=d.ent_coef)
+    p.add_argument("--net-arch", type=int, nargs="+", default=list(d.net_arch))
+    p.add_argument("--eval-freq", type=int, default=d.eval_freq,
+                   help="agent steps between evaluations against the baseline (0 = off)")
+    p.add_argument("--eval-episodes", type=int, default=d.eval_episodes)
+    p.add_argument("--eval-baseline", default=d.eval_baseline, help="fsm | random | seek")
+    p.add_argument("--checkpoint-freq", type=int, default=d.checkpoint_freq,
+                   help="agent steps between checkpoints (0 = off)")
+    p.add_argument("--resume", default=None, help="checkpoint .zip or run DIR to continue from")
+    p.add_argument("--max-wall-minutes", type=float, default=None,
+                   help="stop training after this many minutes of wall time")
+    p.add_argument("--no-reward-norm", action="store_true", help="no VecNormalize on rewards")
+    p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    return p
+
+
+def config_from_args(args: argparse.Namespace) -> TrainConfig:
+    """The :class:`TrainConfig` of parsed arguments."""
+    overrides = parse_overrides(args.overrides)
+    if args.max_cycles is not None:
+        overrides["max_cycles"] = args.max_cycles
+    for key in ("reward_localization_weight", "reward_heading_weight", "reward_coverage_weight",
+                "collision_penalty", "tip_over_penalty"):
+        value = getattr(args, key)
+        if value is not None:
+            overrides[key] = value
+    return TrainConfig(
+        out=args.out, scenario=args.scenario, estimator=args.estimator, algo=args.algo,
+        timesteps=args.timesteps, n_envs=args.n_envs, n_procs=args.n_procs, seed=args.seed,
+        overrides=overrides, learning_rate=args.learning_rate, n_steps=args.n_steps,
+        batch_size=args.batch_size, n_epochs=args.n_epochs, gamma=args.gamma,
+        ent_coef=args.ent_coef, net_arch=tuple(args.net_arch), eval_freq=args.eval_freq,
+        eval_episodes=args.eval_episodes, eval_baseline=args.eval_baseline,
+        checkpoint_freq=args.checkpoint_freq, resume=args.resume,
+        progress_bar=not args.no_progress,
+        max_wall_s=None if args.max_wall_minutes is None else 60.0 * args.max_wall_minutes,
+        normalize_reward=not args.no_reward_norm,
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Train; returns the exit status (2 on bad input)."""
+    args = build_parser().parse_args(argv)
+    try:
+        cfg = config_from_args(args)
+        cfg.validate()
+        import coop_loc_env
+
+        coop_loc_env.make_config(cfg.scenario, **cfg.env_overrides())
+        summary = train(cfg)
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    print(f"trained {summary['timesteps']} agent steps in {summary['wall_s']:.0f} s "
+          f"({summary['steps_per_s']:.0f} steps/s); final model: {summary['final_model']}")
+    for ev in summary["evals"]:
+        print(f"  eval at {ev['timesteps']:.0f}: error {ev['localization_error_m']:.3f} m, "
+              f"coverage {ev['coverage']:.4f}")
+    if summary["baseline"]:
+        b = summary["baseline"]
+        print(f"  baseline {args.eval_baseline}: error {b['localization_error_m']:.3f} m, "
+              f"coverage {b['coverage']:.4f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
