@@ -89,7 +89,9 @@ def bench_mcl(
     injection, which draws uniform poses each resample), and
     ``naive_update_us`` / ``naive_ratio``: the same update as usually written
     in numpy, for comparison. Best of ``repeat`` interleaved rounds of
-    ``number`` calls.
+    ``number`` calls. The parts are timed in isolation (the laser part then
+    gathers the same, cache-hot cells every call), so they add up to less
+    than ``mcl_update_us``, where the particles move between gathers.
     """
     grid = bench_map()
     rng = np.random.default_rng(seed)
