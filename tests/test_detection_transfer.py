@@ -76,6 +76,24 @@ def test_detection_by_localized_robot_reduces_lost_robot_error(orientation):
         assert close.mean() > 0.6
 
 
+def test_detection_resolves_a_symmetric_ambiguity():
+    # n's belief is bimodal (true pose and its mirror image, as in a symmetric hallway);
+    # a detection by a localized robot picks the true mode
+    g = room()
+    m = localized(g, POSE_M, 1)
+    n = ParticleFilter(g, np.random.default_rng(2), MCLConfig(n_particles=2000))
+    mirror = np.array([10.0 - POSE_N[0], 6.0 - POSE_N[1], wrap_angle(POSE_N[2] + np.pi)])
+    rng = np.random.default_rng(7)
+    modes = np.where(rng.random(2000)[:, None] < 0.5, POSE_N, mirror)
+    n.set_particles(modes + rng.normal(0.0, [0.15, 0.15, 0.05], (2000, 3)))
+    near_true = np.hypot(*(n.particles[:, :2] - POSE_N[:2]).T) < 1.0
+    assert 0.4 < n.weights[near_true].sum() < 0.6
+    res = DetectionTransfer().apply(detection(), m, n, np.random.default_rng(3))
+    assert res.applied and res.false_positive_posterior < 0.05
+    assert n.weights[near_true].sum() > 0.95
+    assert mean_error(n, POSE_N) < 0.3
+
+
 def test_symmetric_update_also_localizes_the_observer():
     g = room()
     m, n = lost(g, 4), localized(g, POSE_N, 5)
