@@ -392,7 +392,9 @@ class TeamMLE:
         )
         self._dirty = self._new_keyframe = False
         self._solved_at = now
-        self._node_cov = None
+        # Keyframe marginals now, reusing the solver's factorization; marginalizing
+        # at this estimate below leaves them unchanged (Schur complement).
+        self._node_cov = marginal_covariances(self.graph, self._last, self.last_result.factor)
         if self.window is not None:
             drop = []
             for nodes in self._nodes:

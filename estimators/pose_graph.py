@@ -122,6 +122,10 @@ class SolveResult:
     n_residuals: int
     n_variables: int
     history: list[float] = field(default_factory=list)
+    factor: object | None = field(default=None, repr=False)
+    """Factorized information of the last accepted step (lightly damped, at the estimate
+    before it) when that step was the final one; reusable by :func:`marginal_covariances`
+    as long as the graph is not changed."""
 
 
 def _check_pose(pose: np.ndarray, name: str) -> np.ndarray:
@@ -649,6 +653,7 @@ class _Factor:
 
     def __init__(self, h: np.ndarray | sp.csc_matrix) -> None:
         self.dense = isinstance(h, np.ndarray)
+        self.scale = max(float(np.abs(h.diagonal()).max(initial=0.0)), 1e-300)
         try:
             if self.dense:
                 self._f = sla.cho_factor(h, lower=False, check_finite=False)
@@ -676,12 +681,16 @@ def _add_diagonal(
     return out
 
 
+_MIN_DAMPING = 1e-6
+"""Damping tried first when an undamped (Gauss-Newton) step fails."""
+
+
 def optimize(
     graph: PoseGraph,
     max_iterations: int = 50,
     rel_tol: float = 1e-12,
     step_tol: float = 1e-10,
-    initial_lambda: float = 1e-6,
+    initial_lambda: float = 0.0,
     dense: bool | None = None,
 ) -> SolveResult:
     """Minimize ``U(X)`` in place by Levenberg-Marquardt on the normal equations.
@@ -689,8 +698,11 @@ def optimize(
     Each iteration assembles ``H = J^T J`` and ``g = J^T r`` from the analytic
     factor Jacobians and solves ``(H + lambda diag(H)) delta = -g`` (dense Cholesky
     for small problems, sparse LU otherwise; see :meth:`PoseGraph.normal_equations`).
-    Stops when the relative cost decrease falls below ``rel_tol``, the largest step
-    component below ``step_tol``, or after ``max_iterations`` linearizations.
+    ``lambda`` starts at ``initial_lambda`` (0: a Gauss-Newton step is tried first),
+    grows tenfold (from at least 1e-6) while a step fails to lower the cost or ``H``
+    is singular, and shrinks tenfold (back to 0) after each success. Stops when the
+    relative cost decrease falls below ``rel_tol``, the largest step component below
+    ``step_tol``, or after ``max_iterations`` linearizations.
     If the graph has no fixed node and no prior, its first active node is fixed.
     """
     if max_iterations < 0:
@@ -708,36 +720,43 @@ def optimize(
     n_var = len(g)
     converged = n_var == 0
     it = 0
+    lam_used = lam
     while not converged and it < max_iterations:
         it += 1
         diag = h.diagonal()
         damp = np.maximum(diag, 1e-9 * max(diag.max(initial=0.0), 1.0))
         improved = False
+        factor = None
         while lam < 1e12:
             try:
-                delta = -_Factor(_add_diagonal(h, lam * damp, diag_slots)).solve(g)
+                factor = _Factor(_add_diagonal(h, lam * damp, diag_slots))
+                delta = -factor.solve(g)
             except np.linalg.LinAlgError:  # numerically singular: raise damping
-                lam *= 10.0
+                lam = max(10.0 * lam, _MIN_DAMPING)
                 continue
             trial = graph.retract(delta)
             new_cost = graph.cost(trial)
             if np.isfinite(new_cost) and new_cost <= cost:
                 improved = True
                 break
-            lam *= 10.0
+            lam = max(10.0 * lam, _MIN_DAMPING)
         if not improved:
             converged = True  # no descent possible at machine precision: at a minimum
+            factor = None
             break
         graph.poses[:] = trial
         decrease = cost - new_cost
         history.append(new_cost)
-        lam = max(lam / 10.0, 1e-12)
+        lam_used = lam
+        lam = lam / 10.0 if lam >= 10.0 * _MIN_DAMPING else 0.0
         if decrease <= rel_tol * max(new_cost, 1e-300) or np.max(np.abs(delta)) < step_tol:
             cost = new_cost
             converged = True
             break
         h, g, cost = graph.normal_equations(dense=dense)
-    return SolveResult(initial, cost, it, converged, graph.n_residuals, n_var, history)
+    if it == 0 or lam_used > 0.0:  # no step taken, or a damped factor (not H itself)
+        factor = None
+    return SolveResult(initial, cost, it, converged, graph.n_residuals, n_var, history, factor)
 
 
 def information_matrix(graph: PoseGraph) -> sp.csc_matrix:
@@ -745,11 +764,15 @@ def information_matrix(graph: PoseGraph) -> sp.csc_matrix:
     return sp.csc_matrix(graph.normal_equations()[0])
 
 
-def marginal_covariances(graph: PoseGraph, nodes: np.ndarray) -> np.ndarray:
+def marginal_covariances(
+    graph: PoseGraph, nodes: np.ndarray, factor: object | None = None
+) -> np.ndarray:
     """3x3 marginal covariances of ``nodes`` from the inverse information matrix.
 
-    Fixed nodes get a zero covariance. Raises ``ValueError`` if the information
-    matrix is singular (a node not tied to the anchor or a prior).
+    Fixed nodes get a zero covariance. ``factor`` (``SolveResult.factor`` of the
+    last :func:`optimize` on this unchanged graph) saves re-linearizing and
+    re-factorizing. Raises ``ValueError`` if the information matrix is singular
+    (a node not tied to the anchor or a prior).
     """
     nodes = np.asarray([graph._check_node(n) for n in np.atleast_1d(nodes)], dtype=int)
     var = graph.variable_index()
@@ -757,20 +780,22 @@ def marginal_covariances(graph: PoseGraph, nodes: np.ndarray) -> np.ndarray:
     free = np.flatnonzero(var[nodes] >= 0)
     if len(free) == 0:
         return out
-    h = graph.normal_equations()[0]
+    n_var = 3 * int(var.max(initial=-1) + 1)
     cols = (3 * var[nodes[free]][:, None] + np.arange(3)).ravel()
-    rhs = np.zeros((h.shape[0], len(cols)))
+    rhs = np.zeros((n_var, len(cols)))
     rhs[cols, np.arange(len(cols))] = 1.0
-    scale = max(float(np.abs(h.diagonal()).max()), 1e-300)
     try:
-        sol = _Factor(h).solve(rhs)
+        if not isinstance(factor, _Factor):
+            h = graph.normal_equations()[0]
+            factor = _Factor(h)
+        sol = factor.solve(rhs)
     except np.linalg.LinAlgError as exc:
         raise ValueError(f"information matrix is singular (gauge not fixed?): {exc}") from None
     block = sol[cols].reshape(len(free), 3, len(free), 3)
     out[free] = block[np.arange(len(free)), :, np.arange(len(free)), :]
     out = 0.5 * (out + out.transpose(0, 2, 1))
     eig = np.linalg.eigvalsh(out[free])
-    if not np.all(np.isfinite(out)) or np.any(eig <= 0) or np.any(eig.max(1) * scale > 1e14):
+    if not np.all(np.isfinite(out)) or np.any(eig <= 0) or np.any(eig.max(1) * factor.scale > 1e14):
         raise ValueError("information matrix is singular (gauge not fixed?)")
     return out
 
