@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from estimators.geometry import wrap_angle
+from estimators.geometry import relative_pose, wrap_angle
 from estimators.mle_online import (
     OdometryIntegrator,
     TeamMLE,
@@ -12,6 +12,7 @@ from estimators.mle_online import (
     integrate_odometry,
     simulate_team_stream,
 )
+from estimators.pose_graph import compose
 from estimators.relative_metrics import relative_errors
 
 
@@ -198,3 +199,25 @@ def test_solve_interval_defers_optimization_until_due():
     # solves only when 1 s has passed (t = 1 s and 2 s, also keyframe times here)
     assert solved == [k in (9, 19) for k in range(20)]
     assert est.graph.n_observations == 20  # waiting observations were all kept
+
+
+def test_offset_covariance_matches_numeric_propagation():
+    """Observations attached through odometry offsets get the offsets' covariance."""
+    est = TeamMLE(2, initial_poses=[[0.0, 0.0, 0.3], [3.0, 1.0, -1.0]], keyframe_interval=None)
+    for _ in range(5):
+        est.add_odometry(0, 0.4, 0.2, 0.1, std=(0.1, 0.1))
+        est.add_odometry(1, 0.3, -0.3, 0.1, std=(0.2, 0.05))
+    ka, kb = est.graph.poses[0], est.graph.poses[1]
+    oa, ob = est._odom[0], est._odom[1]
+
+    def g(da, db):
+        return relative_pose(compose(ka, oa.delta + da), compose(kb, ob.delta + db))
+
+    h = 1e-6
+    ja = np.stack([(g(h * e, 0) - g(-h * e, 0)) / (2 * h) for e in np.eye(3)], axis=1)
+    jb = np.stack([(g(0, h * e) - g(0, -h * e)) / (2 * h) for e in np.eye(3)], axis=1)
+    expected = ja @ oa.cov @ ja.T + jb @ ob.cov @ jb.T
+    np.testing.assert_allclose(est._offset_covariance(0, 1, "rbo"), expected, rtol=1e-5,
+                               atol=1e-12)
+    np.testing.assert_allclose(est._offset_covariance(0, 1, "rb"), expected[:2, :2], rtol=1e-5,
+                               atol=1e-12)
