@@ -1,0 +1,177 @@
+"""Compare policies on one scenario: means with 95 % confidence intervals, a table and a bar plot.
+
+Used by ``scripts/evaluate.py --compare fsm,random,PATH.zip``. Every policy runs
+the same seeded episodes (episode ``k`` seeded ``seed + k``). Figures per
+episode are those of :mod:`policies.runner` plus ``time_to_localize_s``: per
+robot, the first time its belief's spread ``sqrt(var_x + var_y)`` falls below
+``spread_threshold`` (1.5 m), averaged over the robots; a robot that never
+gets there counts the episode length (a censored, optimistic value, flagged by
+``localized_fraction``, the fraction of robots that got there).
+
+The 95 % interval of a mean over ``n`` episodes is ``mean +/- t(0.975, n-1) *
+s / sqrt(n)`` (Student t, ``s`` the sample standard deviation).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+from policies.runner import FIGURES, episode_figures, make_policy, run_episodes
+
+COMPARE_FIGURES = FIGURES + ("time_to_localize_s", "localized_fraction")
+LABELS = {
+    "localization_error_m": "team loc. error (m)",
+    "coverage": "coverage",
+    "map_rmse_m": "map RMSE (m)",
+    "collisions": "collisions",
+    "tip_overs": "tip-overs",
+    "time_to_localize_s": "time to localize (s)",
+    "localized_fraction": "localized",
+}
+SPREAD_THRESHOLD = 1.5
+
+
+def parse_policy_list(text: str) -> list[str]:
+    """``"fsm,random,PATH"`` -> ``["fsm", "random", "PATH"]``; rejects empty or repeated entries."""
+    specs = [s.strip() for s in str(text).split(",")]
+    if not specs or any(not s for s in specs):
+        raise ValueError(f"--compare expects a comma-separated list of policies, got {text!r}")
+    if len(set(specs)) != len(specs):
+        raise ValueError(f"--compare lists a policy twice: {text!r}")
+    return specs
+
+
+def time_to_localize(ep: dict[str, Any], dt: float, threshold: float = SPREAD_THRESHOLD
+                     ) -> tuple[float, float]:
+    """``(mean time to localize (s), fraction of robots localized)`` of one episode record."""
+    std = np.asarray(ep["series"]["position_std_m"], dtype=float)  # sqrt(0.5 (var_x + var_y))
+    spread = np.sqrt(2.0) * std
+    steps, n = spread.shape
+    times = np.full(n, steps * dt)
+    done = np.zeros(n, dtype=bool)
+    for i in range(n):
+        hit = np.flatnonzero(spread[:, i] < threshold)
+        if len(hit):
+            times[i] = (hit[0] + 1) * dt
+            done[i] = True
+    return float(times.mean()), float(done.mean())
+
+
+def mean_ci(values: np.ndarray, level: float = 0.95) -> tuple[float, float, float]:
+    """``(mean, low, high)`` of the Student-t ``level`` interval of the mean."""
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    if len(v) == 0:
+        return float("nan"), float("nan"), float("nan")
+    m = float(v.mean())
+    if len(v) < 2:
+        return m, float("nan"), float("nan")
+    half = float(stats.t.ppf(0.5 + level / 2, len(v) - 1) * v.std(ddof=1) / np.sqrt(len(v)))
+    return m, m - half, m + half
+
+
+def compare(
+    scenario: str,
+    specs: list[str],
+    n_episodes: int = 20,
+    seed: int = 0,
+    overrides: dict[str, Any] | None = None,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Run every policy of ``specs`` on the same seeds; returns the comparison report.
+
+    The report holds ``scenario``, ``n_episodes``, ``seed``, ``policies`` (the
+    specs), ``summary[spec][figure] = {"mean", "low", "high"}`` and
+    ``episodes[spec]`` (per-episode figures).
+    """
+    import coop_loc_env
+
+    dt = coop_loc_env.make_config(scenario, **(overrides or {})).dt
+    policies = [make_policy(s) for s in specs]  # fail before running anything
+    summary: dict[str, dict[str, dict[str, float]]] = {}
+    episodes: dict[str, list[dict[str, Any]]] = {}
+    for spec, policy in zip(specs, policies, strict=True):
+        eps = run_episodes(scenario, policy, n_episodes, seed, overrides, progress=progress)
+        records = []
+        for ep in eps:
+            t_loc, frac = time_to_localize(ep, dt)
+            rec = episode_figures(ep)
+            rec["time_to_localize_s"] = t_loc
+            rec["localized_fraction"] = frac
+            records.append(rec)
+        episodes[spec] = records
+        summary[spec] = {}
+        for key in COMPARE_FIGURES:
+            m, lo, hi = mean_ci(np.array([r[key] for r in records], dtype=float))
+            summary[spec][key] = {"mean": m, "low": lo, "high": hi}
+    return {"scenario": scenario, "n_episodes": n_episodes, "seed": seed, "policies": specs,
+            "overrides": dict(overrides or {}), "summary": summary, "episodes": episodes}
+
+
+def policy_label(spec: str) -> str:
+    """A short label: the name, or ``parent/stem`` of a model path."""
+    p = Path(spec)
+    return f"{p.parent.name}/{p.stem}" if p.suffix == ".zip" else spec
+
+
+def format_compare_table(report: dict[str, Any],
+                         figures: tuple[str, ...] = COMPARE_FIGURES) -> str:
+    """One table: a row per policy, ``mean [low, high]`` per figure (95 % CI)."""
+    specs = report["policies"]
+    names = [policy_label(s) for s in specs]
+    width = max(10, *(len(n) for n in names))
+    cols = []
+    for key in figures:
+        cells = []
+        for spec in specs:
+            s = report["summary"][spec][key]
+            cells.append(f"{s['mean']:.4g} [{s['low']:.4g}, {s['high']:.4g}]")
+        cols.append((LABELS[key], cells))
+    widths = [max(len(label), *(len(c) for c in cells)) for label, cells in cols]
+    head = f"{'policy':<{width}}  " + "  ".join(
+        f"{label:<{w}}" for (label, _), w in zip(cols, widths, strict=True))
+    lines = [f"{report['scenario']}: mean [95 % CI] over {report['n_episodes']} episodes "
+             f"(seeds {report['seed']}..{report['seed'] + report['n_episodes'] - 1})", head,
+             "-" * len(head)]
+    for r, name in enumerate(names):
+        lines.append(f"{name:<{width}}  " + "  ".join(
+            f"{cells[r]:<{w}}" for (_, cells), w in zip(cols, widths, strict=True)))
+    return "\n".join(lines)
+
+
+def plot_compare(report: dict[str, Any], path: str | Path,
+                 figures: tuple[str, ...] = ("localization_error_m", "coverage",
+                                             "time_to_localize_s", "collisions")) -> Path:
+    """Bar plot (one panel per figure, one bar per policy, 95 % CI error bars) saved to ``path``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    specs = report["policies"]
+    names = [policy_label(s) for s in specs]
+    fig, axes = plt.subplots(1, len(figures), figsize=(3.6 * len(figures), 3.6))
+    axes = np.atleast_1d(axes)
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for ax, key in zip(axes, figures, strict=True):
+        s = [report["summary"][spec][key] for spec in specs]
+        means = np.array([v["mean"] for v in s])
+        err = np.array([[v["mean"] - v["low"], v["high"] - v["mean"]] for v in s]).T
+        err = np.nan_to_num(err)
+        ax.bar(range(len(specs)), means, yerr=err, capsize=4,
+               color=[colors[i % len(colors)] for i in range(len(specs))])
+        ax.set_xticks(range(len(specs)), names, rotation=20, ha="right", fontsize=8)
+        ax.set_title(LABELS[key], fontsize=10)
+        ax.grid(axis="y", alpha=0.3)
+    fig.suptitle(f"{report['scenario']}: mean and 95 % CI over {report['n_episodes']} episodes",
+                 fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path

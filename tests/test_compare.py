@@ -1,0 +1,72 @@
+"""``scripts/evaluate.py --compare``: confidence intervals, time to localize, table, plot, JSON."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from policies.compare import mean_ci, parse_policy_list, time_to_localize
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _evaluate_main():
+    spec = importlib.util.spec_from_file_location("evaluate", ROOT / "scripts" / "evaluate.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod.main
+
+
+def test_mean_ci_is_the_student_t_interval():
+    v = np.array([1.0, 2.0, 3.0, 4.0])
+    m, lo, hi = mean_ci(v)
+    # t(0.975, 3) = 3.182446, s = 1.290994, n = 4
+    half = 3.182446 * 1.290994 / 2
+    assert m == 2.5
+    assert lo == pytest.approx(2.5 - half, rel=1e-5) and hi == pytest.approx(2.5 + half, rel=1e-5)
+    m, lo, hi = mean_ci(np.array([5.0]))
+    assert m == 5.0 and np.isnan(lo) and np.isnan(hi)
+
+
+def test_time_to_localize_first_crossing_and_censoring():
+    std = np.full((10, 2), 5.0)
+    std[4:, 0] = 1.0  # robot 0: spread sqrt(2) * 1.0 = 1.41 < 1.5 from step index 4
+    ep = {"series": {"position_std_m": std}}
+    t, frac = time_to_localize(ep, dt=0.1)
+    assert t == pytest.approx((0.5 + 1.0) / 2)  # robot 1 never: counted as the episode length
+    assert frac == 0.5
+    std[4:, 0] = 1.1  # spread 1.556 > 1.5: not localized
+    assert time_to_localize(ep, dt=0.1) == (pytest.approx(1.0), 0.0)
+
+
+def test_parse_policy_list_rejects_bad_lists():
+    assert parse_policy_list("fsm, random,a/b.zip") == ["fsm", "random", "a/b.zip"]
+    for bad in ("", "fsm,,random", "fsm,fsm"):
+        with pytest.raises(ValueError):
+            parse_policy_list(bad)
+
+
+def test_evaluate_compare_prints_one_table_and_saves_plot_and_json(tmp_path, capsys):
+    out = tmp_path / "cmp.json"
+    rc = _evaluate_main()(["--compare", "fsm,random", "--episodes", "3", "--max-cycles", "15",
+                           "--set", "n_robots=2", "--seed", "4", "--json", str(out),
+                           "--plot-dir", str(tmp_path), "--no-progress"])
+    assert rc == 0
+    text = capsys.readouterr().out
+    assert "mean [95 % CI] over 3 episodes (seeds 4..6)" in text
+    assert text.count("\nfsm ") == 1 and text.count("\nrandom ") == 1
+    data = json.loads(out.read_text())
+    assert data["policies"] == ["fsm", "random"]
+    for spec in ("fsm", "random"):
+        errs = [ep["localization_error_m"] for ep in data["episodes"][spec]]
+        assert [ep["seed"] for ep in data["episodes"][spec]] == [4, 5, 6]
+        s = data["summary"][spec]["localization_error_m"]
+        assert s["mean"] == pytest.approx(np.mean(errs))
+        assert s["low"] < s["mean"] < s["high"]
+    assert (tmp_path / "outdoor_terrain_compare.png").stat().st_size > 10_000
+    assert _evaluate_main()(["--compare", "fsm,nonsense", "--no-progress"]) == 2
+    assert "unknown policy 'nonsense'" in capsys.readouterr().err
