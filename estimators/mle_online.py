@@ -43,7 +43,9 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.stats import chi2
 
+from estimators.geometry import relative_pose, wrap_angle
 from estimators.pose_graph import (
     COMPONENTS,
     PoseGraph,
@@ -52,6 +54,7 @@ from estimators.pose_graph import (
     marginal_covariances,
     marginalize,
     optimize,
+    sqrt_information,
 )
 from estimators.relative_metrics import relative_pose_matrix
 
@@ -159,6 +162,11 @@ class TeamMLE:
     inflate_offsets:
         Propagate the odometry covariance since the last keyframes into the
         covariance of robot observations attached to those keyframes.
+    gate_prob:
+        If set, reject observations whose innovation (against the current poses and
+        marginal covariances; cross-covariance ignored) exceeds this chi-square
+        quantile, a guard against false detections. Rejections are counted in
+        ``n_gated``. ``None``: accept all (the least-squares MLE has no outlier model).
     """
 
     def __init__(
@@ -180,6 +188,7 @@ class TeamMLE:
         solve_interval: float = 0.0,
         motion_floor_std: tuple[float, float] = (1e-3, 1e-3),
         inflate_offsets: bool = True,
+        gate_prob: float | None = None,
     ) -> None:
         if int(n_robots) < 1:
             raise ValueError(f"n_robots must be >= 1, got {n_robots!r}")
@@ -204,6 +213,11 @@ class TeamMLE:
             raise ValueError(f"solve_interval must be >= 0, got {solve_interval!r}")
         self.solve_interval = float(solve_interval)
         self.keyframe_interval = None if keyframe_interval is None else float(keyframe_interval)
+        if gate_prob is not None and not 0.0 < gate_prob < 1.0:
+            raise ValueError(f"gate_prob must be in (0, 1) or None, got {gate_prob!r}")
+        self.gate_prob = None if gate_prob is None else float(gate_prob)
+        self.n_gated = 0
+        self._gate_cache: tuple | None = None
         self.tolerance = float(tolerance)
         self.odometry_std = self._check_std2(odometry_std, "odometry_std", allow_zero=True)
         floor = self._check_std2(motion_floor_std, "motion_floor_std", allow_zero=False)
@@ -309,15 +323,17 @@ class TeamMLE:
         observer: int,
         target: int,
         measurement: np.ndarray,
-        std: np.ndarray,
+        std: np.ndarray | None = None,
         components: str = COMPONENTS,
+        cov: np.ndarray | None = None,
     ) -> bool:
         """Add ``observer``'s measurement of ``target``: range, bearing, orientation (a subset).
 
         ``components`` names the measured subset in order (``"rbo"``, ``"rb"``, ...);
-        ``measurement`` and ``std`` (independent std devs) follow it. Returns whether
-        the observation was used (it is skipped when the same ordered pair was seen
-        less than ``observation_interval`` ago).
+        ``measurement`` and either ``std`` (independent std devs) or ``cov`` (a full
+        covariance) follow it. Returns whether the observation was used: it is skipped
+        when the same ordered pair was seen less than ``observation_interval`` ago, or
+        (with ``gate_prob``) when it is implausible given the current beliefs.
         """
         a = self._check_robot(observer, "observer")
         b = self._check_robot(target, "target")
@@ -329,25 +345,37 @@ class TeamMLE:
             raise ValueError(f"components must be a non-empty subset of 'rbo', got {components!r}")
         k = len(components)
         meas = np.asarray(measurement, dtype=float).reshape(-1)
-        sd = np.asarray(std, dtype=float).reshape(-1)
         if meas.shape != (k,) or not np.all(np.isfinite(meas)):
             raise ValueError(f"measurement must be {k} finite numbers, got {measurement!r}")
-        if sd.shape != (k,) or not np.all(np.isfinite(sd)) or np.any(sd <= 0):
-            raise ValueError(f"std must be {k} positive numbers, got {std!r}")
+        if (std is None) == (cov is None):
+            raise ValueError("give exactly one of std and cov")
+        if std is not None:
+            sd = np.asarray(std, dtype=float).reshape(-1)
+            if sd.shape != (k,) or not np.all(np.isfinite(sd)) or np.any(sd <= 0):
+                raise ValueError(f"std must be {k} positive numbers, got {std!r}")
+            r_meas = np.diag(sd**2)
+        else:
+            r_meas = np.asarray(cov, dtype=float)
+            if r_meas.shape != (k, k):
+                raise ValueError(f"cov must be {k}x{k}, got {r_meas!r}")
+            sqrt_information(r_meas, "cov")  # raises ValueError unless finite SPD
         last = self._last_seen.get((a, b))
         if last is not None and self._clock[a] - last < self.observation_interval - 1e-9:
             return False
         if "r" in components and "b" in components and meas[components.index("r")] < self.min_range:
             keep = [i for i, ch in enumerate(components) if ch != "b"]
             components = "".join(components[i] for i in keep)
-            meas, sd = meas[keep], sd[keep]
+            meas, r_meas = meas[keep], r_meas[np.ix_(keep, keep)]
+        if self.gate_prob is not None and not self._plausible(a, b, meas, r_meas, components):
+            self.n_gated += 1
+            return False
         self._last_seen[(a, b)] = self._clock[a]
         if self.keyframe_interval is not None:
             for robot in (a, b):
                 acc = self._odom[robot]
                 if acc.duration > 0 and acc.duration >= self.keyframe_interval - 1e-9:
                     self._close_window(robot)
-        cov = np.diag(sd**2)
+        cov = r_meas
         off_a, off_b = self._odom[a], self._odom[b]
         if self.inflate_offsets:
             cov = cov + self._offset_covariance(a, b, components)
@@ -358,6 +386,30 @@ class TeamMLE:
             )
         self._dirty = True
         return True
+
+    def _plausible(
+        self, a: int, b: int, meas: np.ndarray, r_meas: np.ndarray, components: str
+    ) -> bool:
+        """Chi-square gate on the innovation of a measurement (cross-covariance ignored)."""
+        key = (float(self._clock.max()), tuple(self._last))
+        if self._gate_cache is None or self._gate_cache[0] != key:
+            self._gate_cache = (key, self.poses(), self.covariances())
+        _, poses, covs = self._gate_cache
+        xa, xb = poses[a], poses[b]
+        idx = [COMPONENTS.index(ch) for ch in components]
+        nu = meas - relative_pose(xa, xb)[idx]
+        for i, ch in enumerate(components):
+            if ch != "r":
+                nu[i] = wrap_angle(nu[i])
+        dx, dy = xb[0] - xa[0], xb[1] - xa[1]
+        r = max(float(np.hypot(dx, dy)), self.min_range, 1e-9)
+        g_b = np.array([[dx / r, dy / r, 0.0], [-dy / r**2, dx / r**2, 0.0], [0.0, 0.0, 1.0]])
+        g_a = -g_b
+        g_a[1, 2] = -1.0
+        s = g_a @ covs[a] @ g_a.T + g_b @ covs[b] @ g_b.T
+        s = s[np.ix_(idx, idx)] + r_meas
+        d2 = float(nu @ np.linalg.solve(s, nu))
+        return d2 <= float(chi2.ppf(self.gate_prob, len(idx)))
 
     def _offset_covariance(self, a: int, b: int, components: str) -> np.ndarray:
         """Covariance the odometry since the two keyframes adds to a measurement (first order)."""

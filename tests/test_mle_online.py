@@ -129,6 +129,23 @@ def test_stationary_robots_and_zero_range_give_no_nan():
     np.testing.assert_allclose(est.poses()[1, :2], 0.0, atol=0.05)
 
 
+def test_full_covariance_observation_equals_diagonal_std():
+    runs = []
+    for use_cov in (False, True):
+        est = TeamMLE(2, initial_poses=[[0.0, 0.0, 0.0], [2.0, 0.5, 0.3]],
+                      initial_std=[1.0, 1.0, 0.5])
+        std = np.array([0.1, 0.05])
+        if use_cov:
+            assert est.add_observation(0, 1, [2.0, 0.2], cov=np.diag(std**2), components="rb")
+        else:
+            assert est.add_observation(0, 1, [2.0, 0.2], std, components="rb")
+        est.step()
+        runs.append((est.poses(), est.covariances()))
+    np.testing.assert_allclose(runs[0][0], runs[1][0])
+    np.testing.assert_allclose(runs[0][1], runs[1][1])
+    assert not np.allclose(runs[0][0][1], [2.0, 0.5, 0.3])  # the observation moved robot 1
+
+
 def test_inputs_are_not_modified_and_headings_wrapped():
     start = np.array([[0.0, 0.0, 4.0], [1.0, 0.0, -4.0]])
     copy = start.copy()
@@ -163,6 +180,9 @@ def test_observation_rate_limit_and_keyframes():
         lambda e: e.add_observation(0, 1, [1.0, 0.0], [0.1, 0.1], components="rz"),
         lambda e: e.add_observation(0, 1, [1.0, 0.0], [0.1, -0.1], components="rb"),
         lambda e: e.solve_batch(),
+        lambda e: e.add_observation(0, 1, [1.0], std=[0.1], cov=[[0.01]], components="r"),
+        lambda e: e.add_observation(0, 1, [1.0, 0.0], cov=[[0.01, 0.0], [0.0, -1.0]],
+                                    components="rb"),
     ],
 )
 def test_bad_input_raises_value_error(call):
@@ -180,6 +200,7 @@ def test_bad_input_raises_value_error(call):
         {"n_robots": 2, "initial_std": [0.1, 0.0, 0.1]},
         {"n_robots": 2, "odometry_std": (0.1, -1.0)},
         {"n_robots": 2, "motion_window": 0.0},
+        {"n_robots": 2, "gate_prob": 1.5},
     ],
 )
 def test_bad_config_raises_value_error(kwargs):
@@ -221,3 +242,34 @@ def test_offset_covariance_matches_numeric_propagation():
                                atol=1e-12)
     np.testing.assert_allclose(est._offset_covariance(0, 1, "rb"), expected[:2, :2], rtol=1e-5,
                                atol=1e-12)
+
+
+def test_gate_rejects_false_detections():
+    stream = simulate_team_stream(5, 300, np.random.default_rng(4), p_observe=0.1)
+    rng = np.random.default_rng(5)
+    fakes = {}
+    for k in range(10, 300, 10):  # a random sighting of a random teammate every second
+        a, b = rng.choice(5, 2, replace=False)
+        z = [rng.uniform(0.5, 6.0), rng.uniform(-np.pi, np.pi), rng.uniform(-np.pi, np.pi)]
+        fakes[k] = (int(a), int(b), np.array(z))
+    errors, accepted_fakes, gated = {}, {}, {}
+    for gate in (None, 0.999):
+        est = TeamMLE(5, initial_poses=stream.truth[0], initial_std=[0.3, 0.3, 0.1],
+                      motion_window=3.0, window=5, gate_prob=gate, observation_interval=0.0)
+        accepted_fakes[gate] = 0
+        for k in range(300):
+            for r in range(5):
+                est.add_odometry(r, *stream.odometry[k, r], stream.dt)
+            for a, b, meas, std in stream.observations[k]:
+                est.add_observation(a, b, meas, std)
+            if k in fakes:
+                a, b, z = fakes[k]
+                accepted_fakes[gate] += est.add_observation(a, b, z, [0.1, 0.03, 0.03])
+            est.step()
+        errors[gate] = relative_errors(est.poses(), stream.truth[-1])
+        gated[gate] = est.n_gated
+    assert accepted_fakes[None] == len(fakes) and gated[None] == 0
+    assert accepted_fakes[0.999] <= 2
+    assert gated[0.999] <= len(fakes) + 5  # hardly any genuine sighting rejected
+    assert errors[0.999][0] < 0.25 * errors[None][0]
+    assert errors[0.999][0] < 0.3
