@@ -57,11 +57,12 @@ class _LFField(NamedTuple):
     nxp: int  # padded grid width
     nyp: int  # padded grid height
     offset: int  # start of the penalty grid in ``table``
-    shift: np.ndarray  # (2, 1) float32: world -> padded cell coordinates, added after scaling
+    shift: np.float32  # pad: map cell -> padded cell coordinates
     lo: np.ndarray  # (2, 1) float32: lowest allowed particle cell coordinates
     hi: np.ndarray  # (2, 1) float32: highest allowed particle cell coordinates
     inv_res: float  # 1 / resolution
     reach: float  # ranges are clipped to this (no endpoint can leave the table)
+    origin: np.ndarray  # (2, 1) float64 map origin, subtracted before scaling
 
 
 @dataclass(frozen=True)
@@ -391,6 +392,7 @@ class ParticleFilter:
         self._lf_cache: dict[float, _LFField] = {}
         self._mats: dict[bytes, tuple] = {}  # reusable beam matrices by beam angles
         self._a4 = np.empty((4, 0), dtype=np.float32)  # reusable [cos; sin; x; y] buffer
+        self._rel = np.empty((2, 0))  # reusable positions relative to the map origin
         self._state = np.zeros((3, 0))
         self._weights = np.zeros(0)
         self.init_uniform()
@@ -621,10 +623,12 @@ class ParticleFilter:
             table = np.concatenate([loglik.ravel(), penalty.ravel()]).astype(np.float32)
             nyp, nxp = dist.shape
             ox, oy = self.grid.origin
-            shift = np.array([[pad - ox / res], [pad - oy / res]], dtype=np.float32)
+            shift = np.float32(pad)
+            origin = np.array([[ox], [oy]])
             lo = np.full((2, 1), pad - 1.0, dtype=np.float32)
             hi = np.array([[nxp - pad + 1.0], [nyp - pad + 1.0]], dtype=np.float32)
-            return _LFField(table, pad, nxp, nyp, nxp * nyp, shift, lo, hi, 1.0 / res, reach)
+            return _LFField(table, pad, nxp, nyp, nxp * nyp, shift, lo, hi, 1.0 / res, reach,
+                            origin)
 
         lf = self.grid.memo(shared_key, build)
         self._lf_cache[key] = lf
@@ -675,8 +679,13 @@ class ParticleFilter:
         # Particle cell coordinates, clamped to one cell around the map so that no
         # endpoint leaves the table (clamped particles sit outside the map and get
         # the penalty anyway).
+        # (subtract the origin in float64 first: maps may sit at UTM-size coordinates)
         xy = a4[2:4]
-        np.multiply(st[:2], lf.inv_res, out=xy, casting="unsafe")
+        rel = self._rel
+        if rel.shape[1] != n:
+            rel = self._rel = np.empty((2, n))
+        np.subtract(st[:2], lf.origin, out=rel)
+        np.multiply(rel, lf.inv_res, out=xy, casting="unsafe")
         xy += lf.shift
         np.maximum(xy, lf.lo, out=xy)
         np.minimum(xy, lf.hi, out=xy)

@@ -386,6 +386,22 @@ def test_likelihood_field_matches_the_textbook_formula():
     np.testing.assert_allclose(pf.weights, expected, rtol=1e-3, atol=1e-9)
 
 
+def test_map_far_from_the_origin_gives_the_same_weights():
+    # real logs use UTM-size coordinates: float32 shortcuts must not lose precision there
+    local = room()
+    utm = OccupancyGrid(local.occupied, local.resolution, (500000.0, 4200000.0))
+    pose = np.array([5.0, 3.0, 0.3])
+    z = local.simulate_scan(pose, BEAMS, MAX_RANGE)
+    weights = []
+    for g in (local, utm):
+        pf = ParticleFilter(g, np.random.default_rng(0), MCLConfig(n_particles=500))
+        pf.init_gaussian(np.r_[pose[:2] + g.origin, pose[2]], np.diag([0.3, 0.3, 0.1]) ** 2)
+        pf.update_likelihood_field(z, BEAMS, MAX_RANGE)
+        weights.append(pf.weights.copy())
+    assert weights[0].max() > 5 / 500  # the scan is informative
+    np.testing.assert_allclose(weights[1], weights[0], atol=1e-6)
+
+
 def test_filters_on_one_map_share_the_likelihood_table():
     g = room()
     a = ParticleFilter(g, np.random.default_rng(0), MCLConfig(n_particles=10))
