@@ -356,12 +356,13 @@ class TeamMLE:
             r_meas = np.diag(sd**2)
         else:
             r_meas = np.asarray(cov, dtype=float)
-            if r_meas.shape != (k, k):
-                raise ValueError(f"cov must be {k}x{k}, got {r_meas!r}")
-            sqrt_information(r_meas, "cov")  # raises ValueError unless finite SPD
+            if r_meas.shape != (k, k) or not np.all(np.isfinite(r_meas)):
+                raise ValueError(f"cov must be a finite {k}x{k} matrix, got {r_meas!r}")
         last = self._last_seen.get((a, b))
         if last is not None and self._clock[a] - last < self.observation_interval - 1e-9:
-            return False
+            return False  # rate-limited (checked before the costlier validation below)
+        if cov is not None:
+            sqrt_information(r_meas, "cov")  # raises ValueError unless symmetric positive
         if "r" in components and "b" in components and meas[components.index("r")] < self.min_range:
             keep = [i for i, ch in enumerate(components) if ch != "b"]
             components = "".join(components[i] for i in keep)
