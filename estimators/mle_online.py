@@ -447,7 +447,10 @@ class TeamMLE:
         self._solved_at = now
         # Keyframe marginals now, reusing the solver's factorization; marginalizing
         # at this estimate below leaves them unchanged (Schur complement).
-        self._node_cov = marginal_covariances(self.graph, self._last, self.last_result.factor)
+        try:
+            self._node_cov = marginal_covariances(self.graph, self._last, self.last_result.factor)
+        except ValueError:  # ill-posed window: covariances() will report it if asked
+            self._node_cov = None
         if self.window is not None:
             drop = []
             for nodes in self._nodes:
