@@ -273,3 +273,11 @@ def test_gate_rejects_false_detections():
     assert gated[0.999] <= len(fakes) + 5  # hardly any genuine sighting rejected
     assert errors[0.999][0] < 0.25 * errors[None][0]
     assert errors[0.999][0] < 0.3
+
+
+def test_priors_alone_fix_the_frame_without_anchor(stream):
+    est = _run(stream, anchor=None, window=4)
+    assert not est.graph.fixed.any()
+    cov = est.covariances()
+    assert np.all(np.linalg.eigvalsh(cov) > 0)  # the anchor robot has a covariance too
+    assert relative_errors(est.poses(), stream.truth[-1])[0] < 0.3
