@@ -6,7 +6,8 @@ wraps it in ``VecNormalize`` (rewards only: observations are already scaled
 by the env, and an unnormalized-input model is what ``scripts/evaluate.py``
 loads), and runs PPO (default) or SAC with:
 
-* SB3's progress bar and TensorBoard logs (``DIR/tb``);
+* SB3's progress bar (a plain tqdm bar when ``rich``, which SB3's bar needs,
+  is not installed) and TensorBoard logs (``DIR/tb``);
 * :class:`BaselineEvalCallback`: every ``eval_freq`` env steps the current
   policy (deterministic) runs ``eval_episodes`` seeded episodes and the team
   localization error, coverage, collisions and tip-overs are logged under
@@ -235,6 +236,36 @@ def _callbacks(cfg: TrainConfig, out: Path):
     return callbacks, evaluator
 
 
+def _has_rich() -> bool:
+    """Whether SB3's own progress bar can run (it needs ``tqdm`` and ``rich``)."""
+    import importlib.util
+
+    return importlib.util.find_spec("rich") is not None and (
+        importlib.util.find_spec("tqdm") is not None
+    )
+
+
+def _tqdm_progress(total: int):
+    """A plain-tqdm progress bar callback (SB3's needs ``rich``, which may be missing)."""
+    from stable_baselines3.common.callbacks import BaseCallback
+    from tqdm import tqdm
+
+    class TqdmProgress(BaseCallback):
+        def _on_training_start(self) -> None:
+            self.bar = tqdm(total=total, unit="step", desc="training")
+            self.last = self.num_timesteps
+
+        def _on_step(self) -> bool:
+            self.bar.update(self.num_timesteps - self.last)
+            self.last = self.num_timesteps
+            return True
+
+        def _on_training_end(self) -> None:
+            self.bar.close()
+
+    return TqdmProgress()
+
+
 def _n_slots(cfg: TrainConfig) -> int:
     import coop_loc_env
 
@@ -298,10 +329,13 @@ def train(cfg: TrainConfig) -> dict[str, Any]:
             model = make_model(cfg, venv, tb)
             reset = True
         callbacks, evaluator = _callbacks(cfg, out)
+        sb3_bar = cfg.progress_bar and _has_rich()
+        if cfg.progress_bar and not sb3_bar:
+            callbacks.append(_tqdm_progress(cfg.timesteps))
         start_steps = model.num_timesteps
         start = time.perf_counter()
         model.learn(
-            total_timesteps=cfg.timesteps, callback=callbacks, progress_bar=cfg.progress_bar,
+            total_timesteps=cfg.timesteps, callback=callbacks, progress_bar=sb3_bar,
             reset_num_timesteps=reset, tb_log_name=cfg.algo.upper(),
         )
         wall = time.perf_counter() - start

@@ -65,7 +65,7 @@ def test_tiny_training_saves_a_model_that_evaluate_loads(tmp_path, capsys):
 def test_resume_continues_the_step_counter(tmp_path):
     base = dict(scenario="outdoor_terrain", estimator="ekf",
                 overrides={"n_robots": 2, "max_cycles": 20}, n_envs=1, n_steps=32,
-                batch_size=64, n_epochs=1, eval_freq=0, progress_bar=False)
+                batch_size=64, n_epochs=1, eval_freq=0, progress_bar=True)
     first = train(TrainConfig(out=str(tmp_path / "a"), timesteps=64, checkpoint_freq=64, **base))
     assert first["timesteps"] == 64
     ckpt = find_checkpoint(tmp_path / "a")
