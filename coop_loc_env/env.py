@@ -77,7 +77,7 @@ class CoopLocParallelEnv(ParallelEnv):
         self.agent_name_mapping = {a: i for i, a in enumerate(self.possible_agents)}
         self.world = World(cfg)
         self.sensors = SensorSuite(cfg, self.world)
-        self.backends = make_backends(cfg)
+        self.backends = make_backends(cfg, self.world)
         self.mapper = TeamMapper(cfg, self.world)
         self.depth = DepthFromMotion(cfg, len(self.world.layout.ooi_centers))
         belief_size = max(b.feature_size for b in self.backends)

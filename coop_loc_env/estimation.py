@@ -16,6 +16,7 @@ import numpy as np
 
 from coop_loc_env.config import ScenarioConfig
 from coop_loc_env.sensors import Readings
+from coop_loc_env.world import World
 from estimators.ekf import PoseEKF
 
 
@@ -94,7 +95,7 @@ class EKFBackend:
 
     feature_size = 10
 
-    def __init__(self, cfg: ScenarioConfig, robots: np.ndarray) -> None:
+    def __init__(self, cfg: ScenarioConfig, robots: np.ndarray, world: World | None = None) -> None:
         self.cfg = cfg
         self.robots = np.asarray(robots, dtype=int)
         self._local = {int(g): i for i, g in enumerate(self.robots)}
@@ -185,8 +186,12 @@ def register_backend(name: str, cls: type) -> None:
     BACKENDS[name] = cls
 
 
-def make_backends(cfg: ScenarioConfig) -> list[EstimatorBackend]:
-    """One backend per estimator type used by the team."""
+def make_backends(cfg: ScenarioConfig, world: World) -> list[EstimatorBackend]:
+    """One backend per estimator type used by the team.
+
+    A backend class is called as ``cls(cfg, robots, world)`` (``world`` gives
+    the known map, e.g. for particle filters; estimators never read the truth).
+    """
     by_type: dict[str, list[int]] = {}
     for i in range(cfg.n_robots):
         by_type.setdefault(cfg.robot_spec(i).estimator, []).append(i)
@@ -196,5 +201,5 @@ def make_backends(cfg: ScenarioConfig) -> list[EstimatorBackend]:
             raise ValueError(
                 f"estimator {name!r} is not available; available: {', '.join(sorted(BACKENDS))}"
             )
-        backends.append(BACKENDS[name](cfg, np.array(robots)))
+        backends.append(BACKENDS[name](cfg, np.array(robots), world))
     return backends

@@ -1,9 +1,68 @@
 """State estimators for cooperative localization: pure numpy/scipy, no environment import.
 
 Everything here consumes plain arrays, so it runs on simulated data and on
-real robot logs alike.
+real robot logs alike:
+
+- :class:`PoseEKF` — per-robot EKFs in numpy batches (Madhavan et al.), with
+  :class:`TeamEKF` the centralized full-covariance variant used on real logs;
+- :class:`ParticleFilter`, :class:`DensityTree`, :class:`DetectionTransfer` —
+  multi-robot Monte Carlo localization (Fox et al.);
+- :class:`PoseGraph`, :class:`TeamMLE` — maximum-likelihood team localization
+  (Howard et al.) and its Eq. 15 metrics;
+- :class:`TerrainMap` — elevation-gradient terrain mapping;
+- :func:`load_mrclam` — the UTIAS MR.CLAM log format.
 """
 
+from estimators.density_tree import DensityTree
+from estimators.detection_transfer import (
+    DetectionTransfer,
+    RobotDetection,
+    TransferConfig,
+    detection_from_measurement,
+)
+from estimators.ekf import Belief, PoseEKF, chi2_threshold
 from estimators.geometry import compose_relative, relative_pose, wrap_angle
+from estimators.mle_online import TeamMLE
+from estimators.mrclam import load_mrclam
+from estimators.occupancy import OccupancyGrid
+from estimators.particle_filter import MCLConfig, ParticleFilter, belief_feature_names
+from estimators.pose_graph import PoseGraph, marginal_covariances, optimize
+from estimators.relative_metrics import (
+    relative_error_dict,
+    relative_errors,
+    relative_errors_per_robot,
+)
+from estimators.team_ekf import TeamEKF
+from estimators.terrain_fusion import fuse_elevation, fusion_weights, paper_delta_z
+from estimators.terrain_map import TerrainMap
 
-__all__ = ["compose_relative", "relative_pose", "wrap_angle"]
+__all__ = [
+    "Belief",
+    "DensityTree",
+    "DetectionTransfer",
+    "MCLConfig",
+    "OccupancyGrid",
+    "ParticleFilter",
+    "PoseEKF",
+    "PoseGraph",
+    "RobotDetection",
+    "TeamEKF",
+    "TeamMLE",
+    "TerrainMap",
+    "TransferConfig",
+    "belief_feature_names",
+    "chi2_threshold",
+    "compose_relative",
+    "detection_from_measurement",
+    "fuse_elevation",
+    "fusion_weights",
+    "load_mrclam",
+    "marginal_covariances",
+    "optimize",
+    "paper_delta_z",
+    "relative_error_dict",
+    "relative_errors",
+    "relative_errors_per_robot",
+    "relative_pose",
+    "wrap_angle",
+]

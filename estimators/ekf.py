@@ -110,34 +110,12 @@ class PoseEKF:
         ``v``, ``w``, ``var_v``, ``var_w`` are per robot (or scalars); ``idx``
         selects which robots to predict (default all).
         """
-        if idx is None:
-            mean, p = self.mean, self.cov
-        else:
-            idx = np.asarray(idx)
-            mean, p = self.mean[idx], self.cov[idx]
-        phi = mean[:, 2]
-        c, s = np.cos(phi), np.sin(phi)
-        dv = dt * np.asarray(v, dtype=float)
-        mean[:, 0] += dv * c
-        mean[:, 1] += dv * s
-        mean[:, 2] = wrap_angle(phi + dt * np.asarray(w, dtype=float))
-        # P <- Fx P Fx^T with Fx = I + a e_02 + b e_12, written out elementwise.
-        a = (-dv * s)[:, None]
-        b = (dv * c)[:, None]
-        p[:, 0, :] += a * p[:, 2, :]
-        p[:, 1, :] += b * p[:, 2, :]
-        p[:, :, 0] += a * p[:, :, 2]
-        p[:, :, 1] += b * p[:, :, 2]
-        # + Fw Q Fw^T, Fw = dt [[c, 0], [s, 0], [0, 1]].
-        qv = dt * dt * np.asarray(var_v, dtype=float)
-        p[:, 0, 0] += qv * c * c
-        p[:, 0, 1] += qv * c * s
-        p[:, 1, 0] += qv * c * s
-        p[:, 1, 1] += qv * s * s
-        p[:, 2, 2] += dt * dt * np.asarray(var_w, dtype=float)
-        if idx is not None:
-            self.mean[idx] = mean
-            self.cov[idx] = p
+        sel = slice(None) if idx is None else np.asarray(idx)
+        k = len(self.mean[sel])
+        as_row = lambda x: np.broadcast_to(np.asarray(x, dtype=float), (k,))[None]  # noqa: E731
+        mean, cov = self.mean[sel], self.cov[sel]
+        _propagate(mean, cov, as_row(v), as_row(w), dt, as_row(var_v), as_row(var_w))
+        self.mean[sel], self.cov[sel] = mean, cov
 
     def predict_sequence(
         self,
@@ -150,50 +128,19 @@ class PoseEKF:
         """Apply ``T`` consecutive :meth:`predict` steps at once (all robots).
 
         ``v``, ``w`` (and the variances) have shape ``(T, n)``. The result equals
-        ``T`` sequential calls up to rounding: the headings along the way follow
-        from a cumulative sum, and the Jacobians ``Fx_k = I + a_k e02 + b_k e12``
-        commute, so their product and each noise term's propagation are sums.
+        ``T`` sequential calls up to rounding (see :func:`_propagate`).
         """
         v = np.asarray(v, dtype=float)
-        w = np.asarray(w, dtype=float)
-        phi0 = self.mean[:, 2]
-        # Heading before each substep k: phi0 + dt * sum_{j<k} w_j.
-        phi = phi0[None] + dt * np.concatenate([np.zeros((1, self.n)), np.cumsum(w, 0)[:-1]], 0)
-        c, s = np.cos(phi), np.sin(phi)
-        dv = dt * v
-        a = -dv * s  # (T, n)
-        b = dv * c
-        self.mean[:, 0] += (dv * c).sum(0)
-        self.mean[:, 1] += (dv * s).sum(0)
-        self.mean[:, 2] = wrap_angle(phi0 + dt * w.sum(0))
-        qv = dt * dt * np.broadcast_to(np.asarray(var_v, dtype=float), v.shape)
-        qw = dt * dt * np.broadcast_to(np.asarray(var_w, dtype=float), v.shape)
-        # Later Jacobians applied to the noise entering at substep k: sums over j > k.
-        a_tot, b_tot = a.sum(0), b.sum(0)
-        a_after = a_tot[None] - np.cumsum(a, 0)
-        b_after = b_tot[None] - np.cumsum(b, 0)
-        p = self.cov
-        p[:, 0, :] += a_tot[:, None] * p[:, 2, :]
-        p[:, 1, :] += b_tot[:, None] * p[:, 2, :]
-        p[:, :, 0] += a_tot[:, None] * p[:, :, 2]
-        p[:, :, 1] += b_tot[:, None] * p[:, :, 2]
-        # Noise M_k = [[qv c^2, qv cs, 0], [qv cs, qv s^2, 0], [0, 0, qw]] pushed through
-        # F = I + A e02 + B e12: adds A^2 qw, AB qw, B^2 qw, A qw, B qw terms.
-        m00 = qv * c * c + a_after**2 * qw
-        m01 = qv * c * s + a_after * b_after * qw
-        m11 = qv * s * s + b_after**2 * qw
-        m02 = a_after * qw
-        m12 = b_after * qw
-        p[:, 0, 0] += m00.sum(0)
-        p[:, 1, 1] += m11.sum(0)
-        p[:, 2, 2] += qw.sum(0)
-        s01, s02, s12 = m01.sum(0), m02.sum(0), m12.sum(0)
-        p[:, 0, 1] += s01
-        p[:, 1, 0] += s01
-        p[:, 0, 2] += s02
-        p[:, 2, 0] += s02
-        p[:, 1, 2] += s12
-        p[:, 2, 1] += s12
+        shape = v.shape
+        _propagate(
+            self.mean,
+            self.cov,
+            v,
+            np.asarray(w, dtype=float),
+            dt,
+            np.broadcast_to(np.asarray(var_v, dtype=float), shape),
+            np.broadcast_to(np.asarray(var_w, dtype=float), shape),
+        )
 
     # ------------------------------------------------------------------ updates
     def update(
@@ -373,6 +320,59 @@ class PoseEKF:
             self.mean[rob, 2] = wrap_angle(self.mean[rob, 2])
             self.cov[rob] = post[keep]
         return ok
+
+
+def _propagate(
+    mean: np.ndarray,
+    p: np.ndarray,
+    v: np.ndarray,
+    w: np.ndarray,
+    dt: float,
+    var_v: np.ndarray,
+    var_w: np.ndarray,
+) -> None:
+    """``T`` unicycle EKF predictions of ``k`` robots in place; inputs ``(T, k)``.
+
+    The headings along the way follow from a cumulative sum, and the Jacobians
+    ``Fx_t = I + a_t e02 + b_t e12`` commute, so their product and each noise
+    term's propagation through the later Jacobians are sums.
+    """
+    phi0 = mean[:, 2].copy()
+    # Heading before each substep t: phi0 + dt * sum_{j<t} w_j.
+    phi = phi0[None] + dt * np.concatenate([np.zeros((1, len(phi0))), np.cumsum(w, 0)[:-1]], 0)
+    c, s = np.cos(phi), np.sin(phi)
+    dv = dt * v
+    a = -dv * s  # (T, k)
+    b = dv * c
+    mean[:, 0] += b.sum(0)
+    mean[:, 1] -= a.sum(0)
+    mean[:, 2] = wrap_angle(phi0 + dt * w.sum(0))
+    qv = dt * dt * var_v
+    qw = dt * dt * var_w
+    # Later Jacobians applied to the noise entering at substep t: sums over j > t.
+    a_tot, b_tot = a.sum(0), b.sum(0)
+    a_after = a_tot[None] - np.cumsum(a, 0)
+    b_after = b_tot[None] - np.cumsum(b, 0)
+    p[:, 0, :] += a_tot[:, None] * p[:, 2, :]
+    p[:, 1, :] += b_tot[:, None] * p[:, 2, :]
+    p[:, :, 0] += a_tot[:, None] * p[:, :, 2]
+    p[:, :, 1] += b_tot[:, None] * p[:, :, 2]
+    # Noise M_t = [[qv c^2, qv cs, 0], [qv cs, qv s^2, 0], [0, 0, qw]] pushed through
+    # F = I + A e02 + B e12: adds A^2 qw, AB qw, B^2 qw, A qw, B qw terms.
+    s00 = (qv * c * c + a_after**2 * qw).sum(0)
+    s01 = (qv * c * s + a_after * b_after * qw).sum(0)
+    s11 = (qv * s * s + b_after**2 * qw).sum(0)
+    s02 = (a_after * qw).sum(0)
+    s12 = (b_after * qw).sum(0)
+    p[:, 0, 0] += s00
+    p[:, 1, 1] += s11
+    p[:, 2, 2] += qw.sum(0)
+    p[:, 0, 1] += s01
+    p[:, 1, 0] += s01
+    p[:, 0, 2] += s02
+    p[:, 2, 0] += s02
+    p[:, 1, 2] += s12
+    p[:, 2, 1] += s12
 
 
 def relative_measurement(
