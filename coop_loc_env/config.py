@@ -178,7 +178,7 @@ class ScenarioConfig:
     camera_flow_std_px: float = 0.5  # optical-flow bearing noise for depth from motion (pixels)
     camera_looming_gain: float = 0.3  # weight of motion along the line of sight in the baseline
     # --- robot detector (identity + range, bearing, orientation)
-    detector_rate: float = 10.0
+    detector_rate: float = 2.0
     detector_range: float = 8.0
     detector_fov_deg: float = 360.0
     detection_model: str = "fox"
@@ -196,7 +196,8 @@ class ScenarioConfig:
     ekf_process_noise_scale: float = 1.0
     init_pos_std: float = 0.5
     init_heading_std: float = 0.1
-    n_particles: int = 1000
+    n_particles: int = 1000  # MCL: maximum particles per robot (KLD-sampling adapts below it)
+    global_localization: bool = False  # MCL: start particles uniform over free space
     # --- observations
     laser_obs_bins: int = 16
     max_detections_obs: int = 3
@@ -252,6 +253,10 @@ class ScenarioConfig:
         _int_at_least(self, "max_detections_obs", 0)
         _int_at_least(self, "map_patch_obs", 0)
         _int_at_least(self, "n_particles", 10)
+        if not isinstance(self.global_localization, bool):
+            raise ValueError(
+                f"global_localization must be True or False, got {self.global_localization!r}"
+            )
         _int_at_least(self, "gps_reference_satellites", 1)
         for key in ("n_random_trees", "n_random_rocks", "n_random_ooi", "terrain_hills"):
             _int_at_least(self, key, 0)

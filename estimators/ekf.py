@@ -409,7 +409,7 @@ def relative_measurement(
     return h, ja, jb
 
 
-_CI_WEIGHTS = np.linspace(0.05, 0.95, 19)
+_CI_WEIGHTS = np.linspace(0.05, 0.95, 10)
 
 
 def _best_ci_weight(pa: np.ndarray, pb: np.ndarray, jac: np.ndarray, r: np.ndarray) -> np.ndarray:
