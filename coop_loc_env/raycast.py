@@ -86,27 +86,26 @@ def cast(
         ``(distance (R,), hit_extra (R,))``: the hit distance (``inf`` on a miss)
         and the index of the extra circle hit, or -1 when the nearest hit is static.
     """
-    best = np.full(len(origins), np.inf)
     cm = scene.circle_mask[:, channel]
-    if cm.any():
-        best = np.minimum(
-            best,
-            ray_circles(origins, dirs, scene.circle_centers[cm], scene.circle_radii[cm]).min(1),
-        )
+    centers, radii = scene.circle_centers[cm], scene.circle_radii[cm]
+    n_static = len(radii)
+    if extra_centers is not None and len(extra_centers):
+        centers = np.concatenate([centers, extra_centers])
+        radii = np.concatenate([radii, extra_radii])
+    if len(radii):
+        d = ray_circles(origins, dirs, centers, radii)
+        if extra_exclude is not None and len(radii) > n_static:
+            rows = np.nonzero(extra_exclude >= 0)[0]
+            d[rows, n_static + extra_exclude[rows]] = np.inf
+        j = d.argmin(1)
+        best = d[np.arange(len(d)), j]
+        hit_extra = np.where((j >= n_static) & np.isfinite(best), j - n_static, -1)
+    else:
+        best = np.full(len(origins), np.inf)
+        hit_extra = np.full(len(origins), -1)
     sm = scene.seg_mask[:, channel]
     if sm.any():
-        best = np.minimum(
-            best, ray_segments(origins, dirs, scene.seg_a[sm], scene.seg_b[sm]).min(1)
-        )
-    hit_extra = np.full(len(origins), -1)
-    if extra_centers is not None and len(extra_centers):
-        d = ray_circles(origins, dirs, extra_centers, extra_radii)
-        if extra_exclude is not None:
-            rows = np.nonzero(extra_exclude >= 0)[0]
-            d[rows, extra_exclude[rows]] = np.inf
-        j = d.argmin(1)
-        dj = d[np.arange(len(d)), j]
-        closer = dj < best
-        best = np.where(closer, dj, best)
-        hit_extra = np.where(closer, j, -1)
+        seg = ray_segments(origins, dirs, scene.seg_a[sm], scene.seg_b[sm]).min(1)
+        hit_extra = np.where(seg < best, -1, hit_extra)
+        best = np.minimum(best, seg)
     return best, hit_extra

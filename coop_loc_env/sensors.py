@@ -117,7 +117,19 @@ class SensorSuite:
         self._ray_robot = np.array(rows, dtype=int)
         self._ray_beam = np.array(beams, dtype=int)
         self._ray_angle = np.array(angles, dtype=float)
-        self._ray_laser = np.array(lasers, dtype=bool)
+        laser = np.array(lasers, dtype=bool)
+        self._ray_groups = [
+            (CHANNEL[name], np.nonzero(laser == is_laser)[0])
+            for name, is_laser in (("laser", True), ("sonar", False))
+            if (laser == is_laser).any()
+        ]
+        self._one_ray_per_beam = len(set(zip(rows, beams, strict=True))) == len(rows)
+        n = self.cfg.n_robots
+        self._beam_pad = np.arange(self.max_beams)[None] >= np.array(
+            [len(b) for b in self.beam_angles]
+        )[:, None]
+        self._no_range = ~self.has_range
+        self._robot_radii = np.full(n, self.cfg.robot_radius)
 
     # ------------------------------------------------------------------ read
     def read(
@@ -229,37 +241,32 @@ class SensorSuite:
     # ------------------------------------------------------------------ range finder
     def _scan(self, poses: np.ndarray, rng: np.random.Generator, active: np.ndarray) -> np.ndarray:
         """Range scans of every robot with a range sensor, in one vectorized cast."""
-        cfg = self.cfg
         n = len(poses)
         rob = self._ray_robot
         ang = poses[rob, 2] + self._ray_angle
         dirs = np.stack([np.cos(ang), np.sin(ang)], axis=1)
         origins = poses[rob, :2]
         dist = np.empty(len(rob))
-        radii = np.full(n, cfg.robot_radius)
-        for channel_laser in (True, False):
-            sel = self._ray_laser == channel_laser
-            if not sel.any():
-                continue
-            channel = CHANNEL["laser" if channel_laser else "sonar"]
-            d, _ = cast(
+        for channel, sel in self._ray_groups:
+            dist[sel], _ = cast(
                 self.world.layout.scene,
                 origins[sel],
                 dirs[sel],
                 channel,
                 extra_centers=poses[:, :2],
-                extra_radii=radii,
+                extra_radii=self._robot_radii,
                 extra_exclude=rob[sel],
             )
-            dist[sel] = d
         ranges = np.full((n, self.max_beams), np.inf)
-        np.minimum.at(ranges, (rob, self._ray_beam), dist)
+        if self._one_ray_per_beam:
+            ranges[rob, self._ray_beam] = dist
+        else:
+            np.minimum.at(ranges, (rob, self._ray_beam), dist)
         rmax = self.range_max[:, None]
         noisy = ranges + self.range_std[:, None] * rng.standard_normal(ranges.shape)
         out = np.where(ranges >= rmax, rmax, np.clip(noisy, 0.0, rmax))
-        for i in range(n):
-            out[i, len(self.beam_angles[i]) :] = np.nan
-        out[~(self.has_range & active)] = np.nan
+        out[self._beam_pad] = np.nan
+        out[self._no_range | ~active] = np.nan
         return out
 
     # ------------------------------------------------------------------ camera
