@@ -203,3 +203,6 @@ def make_backends(cfg: ScenarioConfig, world: World) -> list[EstimatorBackend]:
             )
         backends.append(BACKENDS[name](cfg, np.array(robots), world))
     return backends
+
+
+import coop_loc_env.mcl_backend  # noqa: E402, F401  (registers "mcl")

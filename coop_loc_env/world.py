@@ -43,6 +43,8 @@ class Layout:
             [o.center for o in obstacles if o.kind == "ooi"], dtype=float
         ).reshape(-1, 2)
         self.scene = _ray_scene(cfg, obstacles)
+        self._polygons = [np.asarray(o.vertices, dtype=float) for o in obstacles
+                          if o.shape == "polygon" and o.solid]
 
     def under_canopy(self, points: np.ndarray) -> np.ndarray:
         """Depth of each point under canopy in [0, 1] (0 = open sky)."""
@@ -68,7 +70,20 @@ class Layout:
             )
             proj = s.seg_a[None] + np.clip(t, 0, 1)[..., None] * e[None]
             best = np.minimum(best, np.linalg.norm(points[:, None] - proj, axis=2).min(1))
+        for verts in self._polygons:  # inside a solid polygon: no clearance at all
+            best[_inside_polygon(points, verts)] = 0.0
         return best
+
+
+def _inside_polygon(points: np.ndarray, verts: np.ndarray) -> np.ndarray:
+    """Even-odd test: which of ``points (k, 2)`` lie inside the polygon ``verts (V, 2)``."""
+    x, y = points[:, 0:1], points[:, 1:2]
+    x0, y0 = verts[:, 0], verts[:, 1]
+    x1, y1 = np.roll(x0, -1), np.roll(y0, -1)
+    crosses = (y0 > y) != (y1 > y)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x_at = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
+    return ((crosses & (x < x_at)).sum(axis=1) % 2).astype(bool)
 
 
 def _scatter(

@@ -1,0 +1,314 @@
+"""Monte Carlo localization backend (Fox, Burgard, Kruppa, Thrun): ``estimator="mcl"``.
+
+Each MCL robot keeps its own particle set (:class:`estimators.particle_filter.ParticleFilter`)
+in a known map built from the scenario's layout. Per env step and robot:
+
+1. resample if needed (low-variance, with augmented-MCL random particles and
+   KLD-sampling of the count between ``n_min`` and ``n_particles``, the maximum);
+2. predict with the step's odometry sub-steps (one composed motion);
+3. weight by the range scan: the likelihood-field model for a laser, the beam
+   model with wide cones for a sonar (``cone_half_width = 0.5 * sonar_fov / sonar_beams``,
+   expected ranges looked up in a precomputed range table);
+4. weight by DGPS fixes and compass readings when the robot has them
+   (Gaussian likelihoods with the variances the receivers report);
+5. detections between two MCL robots (``cooperative_updates``): the observed
+   robot's belief is multiplied by the density of where the observer's particles
+   say it is (:class:`estimators.detection_transfer.DetectionTransfer`, density
+   trees, the paper's 2.5 m lockout, negative sightings ignored).
+
+Maps: one :class:`~estimators.occupancy.OccupancyGrid` per range-sensor type,
+rasterized from ``world.layout.obstacles`` honouring each obstacle's
+``visible_to`` (a laser robot's map lacks the sonar-only features) plus the
+world's border. Grids and their derived tables are cached per process, so
+many envs of one scenario share them. The resolution is
+``max(0.1, max(world_size) / 160)`` m unless the scenario sets
+``extras["mcl_resolution"]``; other :class:`MCLConfig` fields can be set
+through ``extras["mcl"]`` (a dict).
+
+Initial belief: uniform over the free space when ``cfg.global_localization``
+(the paper's global localization), otherwise Gaussian around a noisy draw
+around the true start (``init_pos_std``, ``init_heading_std``), as the EKF.
+
+Not handled: detections between an MCL robot and a robot running another
+estimator (EKF/MLE) are ignored by this backend (and by the EKF's); the
+relative measurement would need a Gaussian <-> particle conversion.
+
+Observation features: :meth:`ParticleFilter.belief_features` (48 values, layout
+in :func:`estimators.particle_filter.belief_feature_names`): weighted mean and
+covariance (as the EKF's first ten entries), heading resultant, normalized
+effective sample size, histogram entropy, particle-count fraction, a 5 x 5
+egocentric histogram of particle mass (``HIST_CELL`` m cells) plus the mass
+outside it, and an 8-bin heading histogram.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+
+import numpy as np
+
+from coop_loc_env.config import ScenarioConfig
+from coop_loc_env.estimation import register_backend
+from coop_loc_env.sensors import Readings
+from coop_loc_env.world import World
+from estimators.detection_transfer import (
+    DetectionTransfer,
+    TransferConfig,
+    detection_from_measurement,
+)
+from estimators.geometry import wrap_angle
+from estimators.occupancy import OccupancyGrid
+from estimators.particle_filter import (
+    MCLConfig,
+    MotionNoise,
+    ParticleFilter,
+    belief_feature_names,
+)
+
+__all__ = ["MCLBackend", "beam_angles", "known_map", "map_resolution"]
+
+HIST_CELLS = 5
+HIST_CELL = 1.0  # m, edge of one egocentric histogram cell
+HEADING_BINS = 8
+SONAR_LOOKUP_BINS = 180
+LOCKOUT_DISTANCE = 2.5  # m (Fox et al.)
+_GRID_CACHE: OrderedDict[tuple, OccupancyGrid] = OrderedDict()
+_GRID_CACHE_SIZE = 16
+
+
+def beam_angles(cfg: ScenarioConfig, sonar: bool) -> np.ndarray:
+    """Robot-frame beam angles of a laser or sonar (same as ``SensorSuite._beams``)."""
+    count = cfg.sonar_beams if sonar else cfg.laser_beams
+    fov = np.deg2rad(cfg.sonar_fov_deg if sonar else cfg.laser_fov_deg)
+    if fov >= 2 * np.pi - 1e-9:
+        return -np.pi + (np.arange(count) + 0.5) * 2 * np.pi / count
+    return np.linspace(-fov / 2, fov / 2, count)
+
+
+def map_resolution(cfg: ScenarioConfig) -> float:
+    """Cell size (m) of the MCL maps: ``extras["mcl_resolution"]`` or from the world size."""
+    res = cfg.extras.get("mcl_resolution")
+    if res is None:
+        return max(0.1, max(cfg.world_size) / 160.0)
+    if isinstance(res, bool) or not isinstance(res, (int, float)) or not 0 < res < np.inf:
+        raise ValueError(f"extras['mcl_resolution'] must be a positive number, got {res!r}")
+    return float(res)
+
+
+def mcl_overrides(cfg: ScenarioConfig) -> dict:
+    """:class:`MCLConfig` fields a scenario sets through ``extras["mcl"]`` (validated)."""
+    tuned = cfg.extras.get("mcl", {})
+    if not isinstance(tuned, dict):
+        raise ValueError(f"extras['mcl'] must be a dict of MCLConfig fields, got {tuned!r}")
+    known = set(MCLConfig.__dataclass_fields__) - {"n_particles", "n_max"}
+    bad = sorted(set(tuned) - known)
+    if bad:
+        raise ValueError(
+            f"extras['mcl'] has unknown MCLConfig field(s) {bad} (n_particles comes from the "
+            f"config key n_particles); known: {sorted(known)}"
+        )
+    return dict(tuned)
+
+
+def known_map(world: World, sensor: str, resolution: float) -> OccupancyGrid:
+    """The occupancy grid a ``sensor`` (``"laser"``/``"sonar"``) robot localizes in (cached).
+
+    Obstacles invisible to ``sensor`` are left out; the world's border is a wall.
+    """
+    if sensor not in ("laser", "sonar"):
+        raise ValueError(f"sensor must be 'laser' or 'sonar', got {sensor!r}")
+    obstacles = tuple(o for o in world.layout.obstacles if sensor in o.visible_to)
+    size = tuple(float(v) for v in world.cfg.world_size)
+    key = (size, float(resolution), obstacles)
+    grid = _GRID_CACHE.get(key)
+    if grid is not None:
+        _GRID_CACHE.move_to_end(key)
+        return grid
+    circles = [(o.center, o.radius) for o in obstacles if o.shape == "circle"]
+    segments = [(o.a, o.b, o.radius) for o in obstacles if o.shape == "segment"]
+    polygons = [np.asarray(o.vertices, dtype=float) for o in obstacles if o.shape == "polygon"]
+    # One ring of border cells just outside the world, so the walls sit at 0 and W, H.
+    grid = OccupancyGrid.from_shapes(
+        (size[0] + 2 * resolution, size[1] + 2 * resolution), resolution,
+        origin=(-resolution, -resolution), circles=circles, segments=segments,
+        polygons=polygons, border=True,
+    )
+    _GRID_CACHE[key] = grid
+    while len(_GRID_CACHE) > _GRID_CACHE_SIZE:
+        _GRID_CACHE.popitem(last=False)
+    return grid
+
+
+class MCLBackend:
+    """Per-robot particle filters with detection-based belief transfer for ``robots``.
+
+    Args:
+        cfg: the scenario (``n_particles`` is each filter's maximum count).
+        robots: global indices of the robots that run MCL.
+        world: the world, for its known static layout (never its robot poses).
+    """
+
+    feature_names = tuple(belief_feature_names(HIST_CELLS, HEADING_BINS))
+    feature_size = len(feature_names)
+
+    def __init__(self, cfg: ScenarioConfig, robots: np.ndarray, world: World | None = None) -> None:
+        if world is None:
+            raise ValueError("the MCL backend needs the world (its known map), got world=None")
+        self.cfg = cfg
+        self.robots = np.asarray(robots, dtype=int)
+        self._local = {int(g): i for i, g in enumerate(self.robots)}
+        specs = [cfg.robot_spec(int(g)) for g in self.robots]
+        self._has_range = np.array([s.has_range_sensor for s in specs])
+        self._sonar = np.array([s.range_sensor == "sonar" for s in specs])
+        self._has_gps = np.array([s.has_gps for s in specs])
+        self._has_compass = np.array([s.has_compass for s in specs])
+        res = map_resolution(cfg)
+        self._grids = {
+            t: known_map(world, t, res)
+            for t in {("sonar" if s else "laser") for s in self._sonar}
+        }
+        self._angles = {t: beam_angles(cfg, t == "sonar") for t in self._grids}
+        self._cone = 0.5 * np.deg2rad(cfg.sonar_fov_deg) / cfg.sonar_beams
+        n = cfg.n_particles
+        # Motion-noise floors are per prediction (one per env step): scale them with dt.
+        motion = MotionNoise(min_xy=0.02 * cfg.dt / 0.1, min_heading=0.01 * cfg.dt / 0.1)
+        tuned = mcl_overrides(cfg)
+        self.mcl_config = {
+            t: MCLConfig(
+                **{
+                    "n_particles": n,
+                    "motion": motion,
+                    "adaptive": True,
+                    "n_max": n,
+                    "n_min": min(n, 100),
+                    "beam_sigma": max(0.3, 2 * cfg.sonar_range_std),
+                    "lf_sigma": max(0.2, 2 * cfg.laser_range_std),
+                    "beam_lookup_bins": SONAR_LOOKUP_BINS if t == "sonar" else 0,
+                    **tuned,
+                }
+            )
+            for t in self._grids
+        }
+        self.transfer = DetectionTransfer(
+            TransferConfig(
+                lockout_distance=LOCKOUT_DISTANCE,
+                false_positive_prob=max(cfg.false_positive_prob, 1e-3),
+                n_samples=min(n, 1000),
+            )
+        )
+        self.filters: list[ParticleFilter] = []
+        self.rng = np.random.default_rng(0)
+        self.transfers_applied = np.zeros(len(self.robots), dtype=int)
+
+    # ------------------------------------------------------------------ reset
+    def _sensor(self, i: int) -> str:
+        return "sonar" if self._sonar[i] else "laser"
+
+    def reset(self, true_poses: np.ndarray, rng: np.random.Generator) -> None:
+        """New filters: uniform (global localization) or Gaussian around a noisy start."""
+        cfg = self.cfg
+        k = len(self.robots)
+        std = np.array([cfg.init_pos_std, cfg.init_pos_std, cfg.init_heading_std])
+        start = true_poses[self.robots] + rng.standard_normal((k, 3)) * std
+        cov = np.diag(np.maximum(std, 1e-3) ** 2)
+        seeds = rng.integers(2**63, size=k + 1)
+        self.rng = np.random.default_rng(int(seeds[-1]))
+        self.filters = []
+        for i in range(k):
+            t = self._sensor(i)
+            pf = ParticleFilter(
+                self._grids[t], np.random.default_rng(int(seeds[i])), self.mcl_config[t]
+            )
+            if not cfg.global_localization:
+                pf.init_gaussian(start[i], cov)
+            self.filters.append(pf)
+        self.transfer.reset()
+        self.transfers_applied[:] = 0
+        if self._sonar.any():  # build the shared range table now, not inside the first step
+            self._grids["sonar"].range_table(cfg.sonar_max_range, SONAR_LOOKUP_BINS)
+
+    # ------------------------------------------------------------------ step
+    def step(self, readings: Readings, active: np.ndarray) -> dict[str, int]:
+        """Predict, weight by range scans, DGPS, compass and detections; returns counts."""
+        cfg = self.cfg
+        dt_sub = cfg.dt / cfg.odometry_substeps
+        stats = {"range_updates": 0, "detections_applied": 0, "detections_ignored": 0}
+        for i, g in enumerate(self.robots):
+            if not active[g]:
+                continue
+            pf = self.filters[i]
+            pf.resample_if_needed()
+            odo = readings.odometry[:, g]
+            pf.predict_odometry_sequence(odo[:, 0], odo[:, 1], dt_sub)
+            if self._has_range[i] and readings.range_mask[g]:
+                self._range_update(i, readings.ranges[g])
+                stats["range_updates"] += 1
+            if self._has_gps[i] and readings.gps_mask[g]:
+                d = pf.particles[:, :2] - readings.gps_xy[g]
+                var = float(readings.gps_var[g])
+                pf.apply_weight_factors(np.exp(-0.5 * np.einsum("nd,nd->n", d, d) / var) + 1e-12)
+            if self._has_compass[i] and readings.compass_mask[g]:
+                e = wrap_angle(pf.particles[:, 2] - readings.compass[g])
+                pf.apply_weight_factors(np.exp(-0.5 * (e / cfg.compass_std) ** 2) + 1e-12)
+        det = readings.detections
+        if cfg.cooperative_updates and len(det):
+            for k in range(len(det)):
+                a, b = int(det.observer[k]), int(det.target[k])
+                if a not in self._local or b not in self._local:
+                    continue  # cross-backend detections are ignored (see module docstring)
+                ia, ib = self._local[a], self._local[b]
+                if not (active[a] and active[b]):
+                    continue
+                rec = detection_from_measurement(a, b, det.z[k], det.cov[k])
+                res = self.transfer.apply(rec, self.filters[ia], self.filters[ib], self.rng)
+                if res.applied:
+                    stats["detections_applied"] += 1
+                    self.transfers_applied[ib] += 1
+                else:
+                    stats["detections_ignored"] += 1
+        return stats
+
+    def _range_update(self, i: int, row: np.ndarray) -> None:
+        cfg = self.cfg
+        t = self._sensor(i)
+        angles = self._angles[t]
+        ranges = row[: len(angles)]
+        ok = np.isfinite(ranges)
+        if not ok.any():
+            return
+        pf = self.filters[i]
+        if t == "sonar":
+            pf.update_beam(ranges[ok], angles[ok], cfg.sonar_max_range, self._cone)
+        else:
+            pf.update_likelihood_field(ranges[ok], angles[ok], cfg.laser_max_range)
+
+    # ------------------------------------------------------------------ outputs
+    def mean(self) -> np.ndarray:
+        """Weighted mean poses ``(k, 3)`` (circular mean heading)."""
+        return np.array([pf.mean_pose() for pf in self.filters]).reshape(-1, 3)
+
+    def cov(self) -> np.ndarray:
+        """Weighted covariances ``(k, 3, 3)`` (heading deviations wrapped about the mean)."""
+        return np.array([pf.belief().cov for pf in self.filters]).reshape(-1, 3, 3)
+
+    def features(self) -> np.ndarray:
+        """Belief embeddings ``(k, 48)`` (layout: :attr:`feature_names`)."""
+        return np.array(
+            [pf.belief_features(HIST_CELLS, HIST_CELL, HEADING_BINS) for pf in self.filters],
+            dtype=float,
+        ).reshape(-1, self.feature_size)
+
+    def extra_info(self, true_poses: np.ndarray) -> dict[int, dict]:
+        """``particle_spread`` (weighted mean particle distance from the truth, m),
+        ``n_particles`` and ``detections_used`` (belief transfers received) per robot."""
+        return {
+            int(g): {
+                "particle_spread": self.filters[i].particle_spread(true_poses[g]),
+                "n_particles": int(self.filters[i].n_particles),
+                "detections_used": int(self.transfers_applied[i]),
+            }
+            for i, g in enumerate(self.robots)
+        }
+
+
+register_backend("mcl", MCLBackend)

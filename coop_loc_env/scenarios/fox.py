@@ -1,0 +1,180 @@
+"""The simulation experiments of Fox, Burgard, Kruppa and Thrun (their Figs. 12 and 13).
+
+Both are global-localization tasks (``estimator="mcl"``, ``global_localization=True``):
+every robot starts with particles spread uniformly over the free space of a
+known map and has only odometry, a range finder and a robot detector (no DGPS,
+compass, inclinometer or camera). The env step is 0.5 s so that episodes of
+several simulated minutes stay cheap; sensors fire once per step.
+
+* ``symmetric_hallway`` (Fig. 12): eight sonar robots in a square ring of
+  2.5 m wide corridors around a 15 m x 15 m block. The ring is symmetric under
+  quarter turns; the only feature that breaks the symmetry is an open area
+  (a 4 m deep, 5 m long bay) off the left corridor, so a robot alone must pass
+  it to know which corridor it is in (or see enough of it from a corner).
+* ``hexagon`` (Fig. 13): a hexagonal room with 8 m edges, four sonar and four
+  laser robots. Three sonar-only features (``visible_to=("sonar",)``, like
+  glass panes a laser sees through) sit at every other edge, symmetric under
+  120 degree turns; two laser-only features (``visible_to=("laser",)``, like
+  thin poles a sonar misses) sit at opposite corners, symmetric under 180
+  degree turns. A sonar robot alone cannot tell three poses apart, a laser
+  robot two; together (through detections) they can. The features are not
+  solid (robots pass through them), so a robot never bumps into something
+  its own sensor cannot see.
+"""
+
+from __future__ import annotations
+
+import math
+
+from coop_loc_env.config import Obstacle, RobotSpec, ScenarioConfig
+from coop_loc_env.scenarios import register_scenario, scenario_from_base
+
+
+def _fox_robot(sensor: str) -> RobotSpec:
+    """A robot with odometry, a ``sensor`` range finder and a robot detector only."""
+    return RobotSpec(
+        estimator="mcl",
+        has_gps=False,
+        has_compass=False,
+        has_inclinometer=False,
+        has_camera=False,
+        has_detector=True,
+        range_sensor=sensor,
+    )
+
+
+def _rect(x0: float, y0: float, x1: float, y1: float) -> Obstacle:
+    return Obstacle("wall", "polygon", vertices=((x0, y0), (x1, y0), (x1, y1), (x0, y1)))
+
+
+HALLWAY_SIZE = 20.0  # m, the square world
+CORRIDOR = 2.5  # m, corridor width
+BAY = (4.0, 5.0)  # m, depth and length of the open area off the left corridor
+
+
+def hallway_obstacles() -> tuple[Obstacle, ...]:
+    """The inner block of the ring (three rectangles leaving the bay open)."""
+    s, c = HALLWAY_SIZE, CORRIDOR
+    depth, length = BAY
+    y0, y1 = s / 2 - length / 2, s / 2 + length / 2
+    return (
+        _rect(c + depth, c, s - c, s - c),  # the block east of the bay
+        _rect(c, c, c + depth, y0),  # south of the bay
+        _rect(c, y1, c + depth, s - c),  # north of the bay
+    )
+
+
+def _common() -> dict:
+    """Settings shared by both experiments."""
+    return dict(
+        estimator="mcl",
+        global_localization=True,
+        dt=0.5,
+        odometry_rate=10.0,
+        laser_rate=2.0,
+        detector_rate=2.0,
+        camera_rate=2.0,
+        gps_rate=1.0,
+        compass_rate=1.0,
+        inclinometer_rate=1.0,
+        n_random_trees=0,
+        n_random_rocks=0,
+        n_random_ooi=0,
+        terrain_amplitude=0.0,
+        terrain_hills=0,
+        steep_patches=0,
+        max_speed=1.0,
+        max_turn_rate=1.0,
+        robot_radius=0.25,
+        sonar_beams=16,
+        sonar_fov_deg=360.0,
+        sonar_max_range=6.0,
+        sonar_range_std=0.15,
+        laser_beams=30,
+        laser_fov_deg=180.0,
+        laser_max_range=10.0,
+        laser_range_std=0.03,
+        detector_range=6.0,
+        detector_fov_deg=360.0,
+        detection_model="fox",
+        detection_range_std=0.3,
+        detection_bearing_std=0.04,
+        detection_orientation_std=0.1,
+        n_particles=1000,
+        reward_localization_weight=1.0,
+        extras={"mcl_resolution": 0.25},
+    )
+
+
+def symmetric_hallway() -> ScenarioConfig:
+    """Eight sonar robots localize globally in a symmetric ring of corridors (Fig. 12)."""
+    return ScenarioConfig(
+        name="symmetric_hallway",
+        n_robots=8,
+        team=(_fox_robot("sonar"),),
+        world_size=(HALLWAY_SIZE, HALLWAY_SIZE),
+        obstacles=hallway_obstacles(),
+        max_cycles=1200,
+        **_common(),
+    )
+
+
+HEX_EDGE = 8.0  # m
+
+
+def hexagon_vertices(edge: float = HEX_EDGE) -> list[tuple[float, float]]:
+    """Corners of the flat-topped hexagon filling the world box, counter-clockwise from east."""
+    cx, cy = edge, edge * math.sqrt(3) / 2
+    return [
+        (cx + edge * math.cos(k * math.pi / 3), cy + edge * math.sin(k * math.pi / 3))
+        for k in range(6)
+    ]
+
+
+def hexagon_obstacles(edge: float = HEX_EDGE) -> tuple[Obstacle, ...]:
+    """Corner triangles outside the hexagon, and the sonar-only / laser-only features."""
+    w, h = 2 * edge, edge * math.sqrt(3)
+    v = hexagon_vertices(edge)
+    corners = (
+        Obstacle("wall", "polygon", vertices=((0.0, 0.0), v[4], v[3])),
+        Obstacle("wall", "polygon", vertices=((w, 0.0), v[0], v[5])),
+        Obstacle("wall", "polygon", vertices=((w, h), v[1], v[0])),
+        Obstacle("wall", "polygon", vertices=((0.0, h), v[3], v[2])),
+    )
+    cx, cy = edge, h / 2
+    apothem = h / 2
+    features = []
+    # sonar-only: at the middle of every other edge (30, 150, 270 degrees), 1 m from the wall
+    for deg in (30.0, 150.0, 270.0):
+        a = math.radians(deg)
+        r = apothem - 1.0
+        features.append(
+            Obstacle("rock", "circle", center=(cx + r * math.cos(a), cy + r * math.sin(a)),
+                     radius=0.5, visible_to=("sonar",), solid=False)
+        )
+    # laser-only: two thin poles 2 m in from opposite corners (0 and 180 degrees)
+    for deg in (0.0, 180.0):
+        a = math.radians(deg)
+        r = edge - 2.0
+        features.append(
+            Obstacle("rock", "circle", center=(cx + r * math.cos(a), cy + r * math.sin(a)),
+                     radius=0.2, visible_to=("laser",), solid=False)
+        )
+    return corners + tuple(features)
+
+
+def hexagon() -> ScenarioConfig:
+    """Four sonar and four laser robots in a symmetric hexagon with 8 m edges (Fig. 13)."""
+    return ScenarioConfig(
+        name="hexagon",
+        n_robots=8,
+        team=(_fox_robot("sonar"), _fox_robot("laser")),
+        world_size=(2 * HEX_EDGE, HEX_EDGE * math.sqrt(3)),
+        obstacles=hexagon_obstacles(),
+        max_cycles=600,
+        **_common(),
+    )
+
+
+register_scenario("symmetric_hallway", scenario_from_base(symmetric_hallway))
+register_scenario("hexagon", scenario_from_base(hexagon))
