@@ -1,0 +1,176 @@
+"""The env with ``estimator="mcl"``: PettingZoo API, seeding, determinism, beliefs and infos."""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+import pytest
+from pettingzoo.test import parallel_api_test, parallel_seed_test
+
+import coop_loc_env
+from coop_loc_env.config import RobotSpec
+from coop_loc_env.mcl_backend import MCLBackend, beam_angles, known_map
+from coop_loc_env.sensors import SensorSuite
+from estimators.particle_filter import belief_feature_names
+
+SCENARIOS = coop_loc_env.list_scenarios()
+# Small particle sets and short episodes keep this fast.
+FAST = {"estimator": "mcl", "n_particles": 40, "max_cycles": 8}
+
+
+def _make(scenario: str, **kw) -> coop_loc_env.CoopLocParallelEnv:
+    return coop_loc_env.parallel_env(scenario, **{**FAST, **kw})
+
+
+def _rollout(env, seed: int, steps: int):
+    """Fixed-action rollout; returns the stacked observations and infos."""
+    obs, infos = env.reset(seed=seed)
+    rng = np.random.default_rng(123)
+    trace = [np.stack([obs[a] for a in env.possible_agents])]
+    spreads = []
+    for _ in range(steps):
+        if not env.agents:
+            break
+        actions = {a: rng.uniform(-1, 1, 2).astype(np.float32) for a in env.agents}
+        obs, _, _, _, infos = env.step(actions)
+        trace.append(np.stack([obs[a] for a in env.possible_agents if a in obs]))
+        spreads.append([infos[a]["particle_spread"] for a in infos])
+    return trace, spreads
+
+
+@pytest.mark.parametrize("scenario", SCENARIOS)
+def test_parallel_api_with_mcl(scenario):
+    parallel_api_test(_make(scenario), num_cycles=8)
+
+
+@pytest.mark.parametrize("scenario", SCENARIOS)
+def test_parallel_seed_with_mcl(scenario):
+    parallel_seed_test(functools.partial(_make, scenario), num_cycles=8)
+
+
+@pytest.mark.parametrize("scenario", SCENARIOS)
+def test_episode_is_deterministic_with_mcl(scenario):
+    a, sa = _rollout(_make(scenario), seed=5, steps=6)
+    b, sb = _rollout(_make(scenario), seed=5, steps=6)
+    assert len(a) == len(b)
+    for x, y in zip(a, b, strict=True):
+        np.testing.assert_array_equal(x, y)
+    np.testing.assert_array_equal(sa, sb)
+    c, _ = _rollout(_make(scenario), seed=6, steps=6)
+    assert not np.array_equal(a[-1], c[-1])
+
+
+def test_mcl_observation_layout_and_infos():
+    env = _make("outdoor_terrain", n_robots=2)
+    obs, infos = env.reset(seed=0)
+    names = env.observations.names
+    feat = belief_feature_names(5, 8)
+    assert names[: len(feat)] == feat
+    assert len(feat) == MCLBackend.feature_size == 48
+    o = obs["robot_0"]
+    assert o.shape == env.observation_space("robot_0").shape
+    hist = o[names.index("hist_r0_c0") : names.index("hist_outside") + 1]
+    assert hist.sum() == pytest.approx(1.0, abs=1e-5)
+    heading = o[names.index("heading_hist_0") : names.index("heading_hist_7") + 1]
+    assert heading.sum() == pytest.approx(1.0, abs=1e-5)
+    assert 0 < o[names.index("ess_fraction")] <= 1
+    info = infos["robot_0"]
+    for key in ("est_pose", "pose_cov", "particle_spread", "n_particles", "position_error"):
+        assert key in info
+    backend = env.backends[0]
+    pf = backend.filters[0]
+    np.testing.assert_allclose(info["est_pose"], pf.mean_pose())
+    np.testing.assert_allclose(info["pose_cov"], pf.belief().cov)
+    parts = pf.particles
+    dist = np.hypot(parts[:, 0] - info["true_pose"][0], parts[:, 1] - info["true_pose"][1])
+    assert info["particle_spread"] == pytest.approx(float(np.dot(pf.weights, dist)))
+    assert info["n_particles"] <= env.config.n_particles
+
+
+def test_tracking_stays_close_outdoors():
+    """Position tracking with DGPS, compass and laser: errors stay well below a metre."""
+    env = coop_loc_env.parallel_env(
+        "outdoor_terrain", estimator="mcl", n_particles=300, max_cycles=60, n_robots=2
+    )
+    env.reset(seed=1)
+    while env.agents:
+        _, _, _, _, infos = env.step({a: np.array([0.6, 0.2]) for a in env.agents})
+    for info in infos.values():
+        assert info["position_error"] < 0.8
+        assert info["particle_spread"] < 1.2
+
+
+def test_team_mixes_ekf_and_mcl():
+    team = (RobotSpec(estimator="ekf"), RobotSpec(estimator="mcl"))
+    env = coop_loc_env.parallel_env(
+        "outdoor_terrain", team=team, n_robots=4, n_particles=50, max_cycles=5
+    )
+    kinds = sorted(type(b).__name__ for b in env.backends)
+    assert kinds == ["EKFBackend", "MCLBackend"]
+    obs, infos = env.reset(seed=0)
+    assert "particle_spread" in infos["robot_1"] and "particle_spread" not in infos["robot_0"]
+    # EKF rows carry their 10 Gaussian features, zero-padded to the MCL's 48
+    assert np.all(obs["robot_0"][10:48] == 0)
+    while env.agents:
+        env.step({a: np.array([0.3, 0.0]) for a in env.agents})
+
+
+def test_beam_angles_match_the_sensors():
+    env = _make("hexagon")
+    suite = SensorSuite(env.config, env.world)
+    for i in range(env.config.n_robots):
+        sonar = env.config.robot_spec(i).range_sensor == "sonar"
+        np.testing.assert_array_equal(beam_angles(env.config, sonar), suite.beam_angles[i])
+
+
+def test_known_maps_honour_visible_to():
+    env = _make("hexagon")
+    res = 0.25
+    laser = known_map(env.world, "laser", res)
+    sonar = known_map(env.world, "sonar", res)
+    assert laser is known_map(env.world, "laser", res)  # cached
+    sonar_only = [o for o in env.world.layout.obstacles if o.visible_to == ("sonar",)]
+    laser_only = [o for o in env.world.layout.obstacles if o.visible_to == ("laser",)]
+    assert len(sonar_only) == 3 and len(laser_only) == 2
+    for o in sonar_only:
+        assert not sonar.is_free(np.array(o.center)) and laser.is_free(np.array(o.center))
+    for o in laser_only:
+        assert not laser.is_free(np.array(o.center)) and sonar.is_free(np.array(o.center))
+    # walls at the world's edges: the border ring lies just outside
+    assert laser.bounds[0] == pytest.approx(-res)
+    with pytest.raises(ValueError, match="radar"):
+        known_map(env.world, "radar", res)
+
+
+def test_global_localization_starts_uniform_and_gaussian_otherwise():
+    env = _make("symmetric_hallway", n_particles=400)
+    _, infos = env.reset(seed=0)
+    assert np.mean([i["particle_spread"] for i in infos.values()]) > 5.0
+    env = _make("symmetric_hallway", n_particles=400, global_localization=False)
+    _, infos = env.reset(seed=0)
+    assert np.mean([i["particle_spread"] for i in infos.values()]) < 1.5
+
+
+def test_cooperative_updates_switch_transfers():
+    kw = dict(n_particles=200, max_cycles=20)
+    for coop in (True, False):
+        env = _make("hexagon", cooperative_updates=coop, **kw)
+        env.reset(seed=0)
+        while env.agents:
+            _, _, _, _, infos = env.step({a: np.array([0.2, 0.3]) for a in env.agents})
+        used = sum(i["detections_used"] for i in infos.values())
+        assert (used > 0) == coop
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"global_localization": 1}, "global_localization"),
+        ({"extras": {"mcl_resolution": -1.0}}, "mcl_resolution"),
+        ({"extras": {"mcl": {"bogus": 1}}}, "bogus"),
+    ],
+)
+def test_bad_mcl_settings_raise(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        _make("outdoor_terrain", **kwargs)
