@@ -1,0 +1,69 @@
+"""Env throughput with the MCL backend: 4 robots x 1000 particles.
+
+``bench_mcl_env()`` returns env steps per second (process CPU time, random
+actions) for
+
+* ``outdoor_terrain`` with ``estimator="mcl"`` (laser likelihood field, DGPS,
+  compass; position tracking, so KLD-sampling may shrink the sets below 1000),
+* ``symmetric_hallway`` with 4 sonar robots in global localization (beam model
+  with range-table lookups; sets stay near 1000 while the robots are lost),
+* ``hexagon`` with 2 sonar and 2 laser robots in global localization,
+
+each with a fixed particle count (``adaptive`` off) as well, so the figure is
+for exactly 1000 particles per robot. The lead's ``scripts/benchmark.py``
+imports it; ``python scripts/_bench_mcl_env.py`` prints it.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+import coop_loc_env
+
+__all__ = ["bench_mcl_env"]
+
+CASES = {
+    "outdoor_terrain": {"start_region": None},
+    "symmetric_hallway": {},
+    "hexagon": {},
+}
+
+
+def _steps_per_second(scenario: str, seconds: float, fixed: bool, **overrides) -> float:
+    kw = {"n_robots": 4, "estimator": "mcl", "n_particles": 1000, "max_cycles": 10**9}
+    kw.update(overrides)
+    if fixed:
+        kw["extras"] = {**coop_loc_env.make_config(scenario).extras, "mcl": {"adaptive": False}}
+    env = coop_loc_env.parallel_env(scenario, **kw)
+    env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    for _ in range(3):  # warm-up (table building)
+        env.step({a: rng.uniform(-1, 1, 2).astype(np.float32) for a in env.agents})
+    steps = 0
+    start = time.process_time()
+    while time.process_time() - start < seconds:
+        if not env.agents:
+            env.reset()
+        env.step({a: rng.uniform(-1, 1, 2).astype(np.float32) for a in env.agents})
+        steps += 1
+    return steps / (time.process_time() - start)
+
+
+def bench_mcl_env(seconds: float = 3.0) -> dict[str, float]:
+    """Env steps per second with 4 MCL robots x 1000 particles, per scenario."""
+    out = {}
+    for scenario, overrides in CASES.items():
+        out[f"{scenario}_4x1000_fixed_steps_per_s"] = _steps_per_second(
+            scenario, seconds, True, **overrides
+        )
+        out[f"{scenario}_4x1000_adaptive_steps_per_s"] = _steps_per_second(
+            scenario, seconds, False, **overrides
+        )
+    return out
+
+
+if __name__ == "__main__":
+    for key, value in bench_mcl_env().items():
+        print(f"{key:<50} {value:10.1f}")
