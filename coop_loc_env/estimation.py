@@ -206,3 +206,4 @@ def make_backends(cfg: ScenarioConfig, world: World) -> list[EstimatorBackend]:
 
 
 import coop_loc_env.mcl_backend  # noqa: E402, F401  (registers "mcl")
+import coop_loc_env.mle_backend  # noqa: E402, F401  (registers "mle")

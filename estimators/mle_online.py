@@ -216,6 +216,10 @@ class TeamMLE:
         if gate_prob is not None and not 0.0 < gate_prob < 1.0:
             raise ValueError(f"gate_prob must be in (0, 1) or None, got {gate_prob!r}")
         self.gate_prob = None if gate_prob is None else float(gate_prob)
+        self._gate_threshold = (
+            {} if gate_prob is None else {k: float(chi2.ppf(gate_prob, k)) for k in (1, 2, 3)}
+        )
+        self._n_solves = 0
         self.n_gated = 0
         self._gate_cache: tuple | None = None
         self.tolerance = float(tolerance)
@@ -308,6 +312,67 @@ class TeamMLE:
         if acc.duration >= self.motion_window - 1e-9:
             self._close_window(robot)
 
+    def add_odometry_team(
+        self,
+        v: np.ndarray,
+        w: np.ndarray,
+        dt: float,
+        std_v: np.ndarray | float | None = None,
+        std_w: np.ndarray | float | None = None,
+    ) -> None:
+        """Integrate odometry of every robot at once (vectorized over robots).
+
+        ``v``, ``w`` are ``(N,)`` (one reading per robot) or ``(S, N)`` (``S``
+        readings per robot in time order, each over ``dt`` seconds); ``std_v``,
+        ``std_w`` broadcast to the same shape (default ``odometry_std``). The
+        result equals calling :meth:`add_odometry` for each reading in order (up
+        to rounding): keyframes close at the same readings.
+        """
+        n = self.n_robots
+        v = np.asarray(v, dtype=float)
+        w = np.asarray(w, dtype=float)
+        if v.ndim == 1:
+            v, w = v[None], w[None]
+        if v.shape != w.shape or v.ndim != 2 or v.shape[1] != n:
+            raise ValueError(f"v and w must both be ({n},) or (S, {n}), got {v.shape}, {w.shape}")
+        dt = float(dt)
+        if not (np.isfinite(dt) and dt >= 0) or not (np.isfinite(v).all() and np.isfinite(w).all()):
+            raise ValueError(f"odometry must be finite with dt >= 0, got dt={dt!r}")
+        sv = np.broadcast_to(np.asarray(self.odometry_std[0] if std_v is None else std_v, float),
+                             v.shape)
+        sw = np.broadcast_to(np.asarray(self.odometry_std[1] if std_w is None else std_w, float),
+                             v.shape)
+        if not (np.isfinite(sv).all() and np.isfinite(sw).all()) or (sv < 0).any() or (
+            sw < 0
+        ).any():
+            raise ValueError("std_v and std_w must be finite and >= 0")
+        delta = np.stack([acc.delta for acc in self._odom])
+        cov = np.stack([acc.cov for acc in self._odom])
+        dur = np.array([acc.duration for acc in self._odom])
+        eye = np.broadcast_to(np.eye(3), (n, 3, 3))
+        for k in range(v.shape[0]):
+            c, s = np.cos(delta[:, 2]), np.sin(delta[:, 2])
+            f = eye.copy()
+            f[:, 0, 2] = -dt * v[k] * s
+            f[:, 1, 2] = dt * v[k] * c
+            qv, qw = (dt * sv[k]) ** 2, (dt * sw[k]) ** 2
+            gqg = np.zeros((n, 3, 3))
+            gqg[:, 0, 0] = c * c * qv
+            gqg[:, 0, 1] = gqg[:, 1, 0] = c * s * qv
+            gqg[:, 1, 1] = s * s * qv
+            gqg[:, 2, 2] = qw
+            cov = f @ cov @ f.transpose(0, 2, 1) + gqg
+            delta = delta + dt * np.stack([v[k] * c, v[k] * s, w[k]], axis=1)
+            dur = dur + dt
+            self._clock += dt
+            closing = np.flatnonzero(dur >= self.motion_window - 1e-9)
+            for r in closing:
+                self._odom[r] = OdometryIntegrator(delta[r].copy(), cov[r].copy(), float(dur[r]))
+                self._close_window(int(r))
+                delta[r], cov[r], dur[r] = 0.0, 0.0, 0.0
+        for r in range(n):
+            self._odom[r] = OdometryIntegrator(delta[r].copy(), cov[r].copy(), float(dur[r]))
+
     def _close_window(self, robot: int) -> None:
         acc = self._odom[robot]
         prev = int(self._last[robot])
@@ -388,11 +453,23 @@ class TeamMLE:
         self._dirty = True
         return True
 
+    def observation_due(self, observer: int, target: int) -> bool:
+        """Whether an observation of ``target`` by ``observer`` would pass the rate limit.
+
+        A cheap pre-check for callers with many detections per step: :meth:`add_observation`
+        ignores observations of the same ordered pair within ``observation_interval``.
+        """
+        last = self._last_seen.get((int(observer), int(target)))
+        return last is None or self._clock[observer] - last >= self.observation_interval - 1e-9
+
     def _plausible(
         self, a: int, b: int, meas: np.ndarray, r_meas: np.ndarray, components: str
     ) -> bool:
         """Chi-square gate on the innovation of a measurement (cross-covariance ignored)."""
-        key = (float(self._clock.max()), tuple(self._last))
+        # Beliefs of the robots' current poses only change when odometry arrives or the
+        # graph is re-optimized (closing a keyframe does not move them): one evaluation
+        # serves every observation of a step.
+        key = (float(self._clock.max()), self._n_solves)
         if self._gate_cache is None or self._gate_cache[0] != key:
             self._gate_cache = (key, self.poses(), self.covariances())
         _, poses, covs = self._gate_cache
@@ -410,7 +487,7 @@ class TeamMLE:
         s = g_a @ covs[a] @ g_a.T + g_b @ covs[b] @ g_b.T
         s = s[np.ix_(idx, idx)] + r_meas
         d2 = float(nu @ np.linalg.solve(s, nu))
-        return d2 <= float(chi2.ppf(self.gate_prob, len(idx)))
+        return d2 <= self._gate_threshold[len(idx)]
 
     def _offset_covariance(self, a: int, b: int, components: str) -> np.ndarray:
         """Covariance the odometry since the two keyframes adds to a measurement (first order)."""
@@ -445,6 +522,7 @@ class TeamMLE:
         )
         self._dirty = self._new_keyframe = False
         self._solved_at = now
+        self._n_solves += 1
         # Keyframe marginals now, reusing the solver's factorization; marginalizing
         # at this estimate below leaves them unchanged (Schur complement).
         try:

@@ -51,6 +51,6 @@ def make_config(scenario: str, **overrides: Any) -> ScenarioConfig:
 
 
 # Import the scenario modules so they register themselves (add new modules here).
-SCENARIO_MODULES = ("outdoor", "madhavan", "fox")
+SCENARIO_MODULES = ("outdoor", "madhavan", "fox", "howard")
 for _module in SCENARIO_MODULES:
     importlib.import_module(f"coop_loc_env.scenarios.{_module}")
