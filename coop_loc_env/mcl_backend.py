@@ -53,8 +53,10 @@ from coop_loc_env.sensors import Readings
 from coop_loc_env.world import World
 from estimators.detection_transfer import (
     DetectionTransfer,
+    RobotDetection,
     TransferConfig,
     detection_from_measurement,
+    sample_detected_poses,
 )
 from estimators.geometry import wrap_angle
 from estimators.occupancy import OccupancyGrid
@@ -63,6 +65,7 @@ from estimators.particle_filter import (
     MotionNoise,
     ParticleFilter,
     belief_feature_names,
+    low_variance_indices,
 )
 
 __all__ = ["MCLBackend", "beam_angles", "known_map", "map_resolution"]
@@ -72,6 +75,7 @@ HIST_CELL = 1.0  # m, edge of one egocentric histogram cell
 HEADING_BINS = 8
 SONAR_LOOKUP_BINS = 180
 LOCKOUT_DISTANCE = 2.5  # m (Fox et al.)
+RESET_OBSERVER_STD = 1.0  # m: only confident observers seed a target (detection reset)
 _GRID_CACHE: OrderedDict[tuple, OccupancyGrid] = OrderedDict()
 _GRID_CACHE_SIZE = 16
 
@@ -108,6 +112,15 @@ def mcl_overrides(cfg: ScenarioConfig) -> dict:
             f"config key n_particles); known: {sorted(known)}"
         )
     return dict(tuned)
+
+
+def detection_reset_fraction(cfg: ScenarioConfig) -> float:
+    """``extras["mcl_detection_reset"]``: fraction of a detected robot's particles re-seeded
+    from a confident observer's detection (0, the default, is the paper's pure transfer)."""
+    f = cfg.extras.get("mcl_detection_reset", 0.0)
+    if isinstance(f, bool) or not isinstance(f, (int, float)) or not 0.0 <= f < 1.0:
+        raise ValueError(f"extras['mcl_detection_reset'] must be in [0, 1), got {f!r}")
+    return float(f)
 
 
 def known_map(world: World, sensor: str, resolution: float) -> OccupancyGrid:
@@ -196,6 +209,7 @@ class MCLBackend:
                 n_samples=min(n, 1000),
             )
         )
+        self.reset_fraction = detection_reset_fraction(cfg)
         self.filters: list[ParticleFilter] = []
         self.rng = np.random.default_rng(0)
         self.transfers_applied = np.zeros(len(self.robots), dtype=int)
@@ -260,13 +274,53 @@ class MCLBackend:
                 if not (active[a] and active[b]):
                     continue
                 rec = detection_from_measurement(a, b, det.z[k], det.cov[k])
-                res = self.transfer.apply(rec, self.filters[ia], self.filters[ib], self.rng)
+                observer, target = self.filters[ia], self.filters[ib]
+                if self.reset_fraction > 0 and not self.transfer.lockout.is_locked(
+                    a, b, observer.odometer
+                ):
+                    self._detection_reset(rec, observer, target)
+                res = self.transfer.apply(rec, observer, target, self.rng)
                 if res.applied:
                     stats["detections_applied"] += 1
                     self.transfers_applied[ib] += 1
                 else:
                     stats["detections_ignored"] += 1
         return stats
+
+    def _detection_reset(
+        self, rec: RobotDetection, observer: ParticleFilter, target: ParticleFilter
+    ) -> None:
+        """Seed the target with poses the detection implies, when the observer is confident.
+
+        Replaces ``reset_fraction`` of the target's particles (chosen at random)
+        by draws of the observer's particles pushed through the detection model,
+        each with the target's mean weight; the density-tree reweighting that
+        follows then decides between them and the target's own hypotheses. Only
+        done when the observer's position std is below ``RESET_OBSERVER_STD``:
+        a lost observer's detection implies no compact region worth seeding.
+        Without it the transfer can only reweight particles the target already
+        has, and a target whose set collapsed onto a wrong mode of a symmetric
+        map has none near the truth (sensor resetting, Lenser and Veloso 2000).
+        """
+        cov = observer.belief().cov
+        if np.sqrt(0.5 * (cov[0, 0] + cov[1, 1])) > RESET_OBSERVER_STD:
+            return
+        n = target.n_particles
+        m = int(round(self.reset_fraction * n))
+        if m < 1:
+            return
+        idx = low_variance_indices(observer.weights, m, self.rng)
+        seeds = sample_detected_poses(observer.particles[idx], rec, self.rng)
+        grid = target.grid
+        seeds = seeds[grid.is_free(seeds[:, :2])]
+        if len(seeds) == 0:
+            return
+        parts = target.particles.copy()
+        weights = target.weights.copy()
+        slots = self.rng.choice(n, size=len(seeds), replace=False)
+        parts[slots] = seeds
+        weights[slots] = 1.0 / n
+        target.set_particles(parts, weights)
 
     def _range_update(self, i: int, row: np.ndarray) -> None:
         cfg = self.cfg
