@@ -30,6 +30,8 @@ by interchangeable robots.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from gymnasium import spaces
 
@@ -143,8 +145,11 @@ class ObservationBuilder:
         return np.clip(obs, -OBS_LIMIT, OBS_LIMIT, out=obs)
 
 
+@functools.lru_cache(maxsize=64)
+def _pool_starts(beams: int, bins: int) -> np.ndarray:
+    return np.minimum(np.floor(np.linspace(0, beams, bins + 1)[:-1]).astype(int), beams - 1)
+
+
 def _pool(scans: np.ndarray, bins: int) -> np.ndarray:
     """Min-pool each row of ``scans (k, beams)`` into ``bins`` columns."""
-    beams = scans.shape[1]
-    starts = np.minimum(np.floor(np.linspace(0, beams, bins + 1)[:-1]).astype(int), beams - 1)
-    return np.minimum.reduceat(scans, starts, axis=1)
+    return np.minimum.reduceat(scans, _pool_starts(scans.shape[1], bins), axis=1)
