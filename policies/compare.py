@@ -1,9 +1,12 @@
 """Compare policies on one scenario: means with 95 % confidence intervals, a table and a bar plot.
 
 Used by ``scripts/evaluate.py --compare fsm,random,PATH.zip``. Every policy runs
-the same seeded episodes (episode ``k`` seeded ``seed + k``). Figures per
-episode are those of :mod:`policies.runner` plus ``time_to_localize_s``: per
-robot, the first time its belief's spread ``sqrt(var_x + var_y)`` falls below
+the same seeded episodes (episode ``k`` seeded ``seed + k``); policies are the
+specs of :func:`policies.runner.make_policy` plus ``wander``
+(:class:`policies.fox.WanderPolicy`). Figures per episode are those of
+:mod:`policies.runner` plus ``time_to_localize_s``: per robot, the first time
+its spread (MCL: ``info["particle_spread"]``, the weighted mean particle
+distance from the truth; otherwise ``sqrt(var_x + var_y)`` of the belief) falls below
 ``spread_threshold`` (1.5 m), averaged over the robots; a robot that never
 gets there counts the episode length (a censored, optimistic value, flagged by
 ``localized_fraction``, the fraction of robots that got there).
@@ -20,7 +23,7 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from policies.runner import FIGURES, episode_figures, make_policy, run_episodes
+from policies.runner import FIGURES, episode_figures, make_policy, run_episode
 
 COMPARE_FIGURES = FIGURES + ("time_to_localize_s", "localized_fraction")
 LABELS = {
@@ -45,11 +48,27 @@ def parse_policy_list(text: str) -> list[str]:
     return specs
 
 
+def resolve_policy(spec: str):
+    """:func:`policies.runner.make_policy`, plus ``"wander"`` (``policies.fox.WanderPolicy``)."""
+    if spec == "wander":
+        from policies.fox import WanderPolicy
+
+        return WanderPolicy()
+    return make_policy(spec)
+
+
 def time_to_localize(ep: dict[str, Any], dt: float, threshold: float = SPREAD_THRESHOLD
                      ) -> tuple[float, float]:
-    """``(mean time to localize (s), fraction of robots localized)`` of one episode record."""
-    std = np.asarray(ep["series"]["position_std_m"], dtype=float)  # sqrt(0.5 (var_x + var_y))
-    spread = np.sqrt(2.0) * std
+    """``(mean time to localize (s), fraction of robots localized)`` of one episode record.
+
+    The spread is ``ep["series"]["particle_spread_m"]`` when the episode has it
+    (MCL: weighted mean particle distance from the truth, Fox et al.'s measure),
+    else ``sqrt(var_x + var_y)`` of the belief covariance.
+    """
+    if "particle_spread_m" in ep["series"]:
+        spread = np.asarray(ep["series"]["particle_spread_m"], dtype=float)
+    else:  # position_std_m is sqrt(0.5 (var_x + var_y))
+        spread = np.sqrt(2.0) * np.asarray(ep["series"]["position_std_m"], dtype=float)
     steps, n = spread.shape
     times = np.full(n, steps * dt)
     done = np.zeros(n, dtype=bool)
@@ -90,12 +109,14 @@ def compare(
     """
     import coop_loc_env
 
+    if isinstance(n_episodes, bool) or not isinstance(n_episodes, int) or n_episodes < 1:
+        raise ValueError(f"n_episodes must be a positive integer, got {n_episodes!r}")
     dt = coop_loc_env.make_config(scenario, **(overrides or {})).dt
-    policies = [make_policy(s) for s in specs]  # fail before running anything
+    policies = [resolve_policy(s) for s in specs]  # fail before running anything
     summary: dict[str, dict[str, dict[str, float]]] = {}
     episodes: dict[str, list[dict[str, Any]]] = {}
     for spec, policy in zip(specs, policies, strict=True):
-        eps = run_episodes(scenario, policy, n_episodes, seed, overrides, progress=progress)
+        eps = _run(scenario, policy, n_episodes, seed, overrides or {}, progress, spec)
         records = []
         for ep in eps:
             t_loc, frac = time_to_localize(ep, dt)
@@ -110,6 +131,47 @@ def compare(
             summary[spec][key] = {"mean": m, "low": lo, "high": hi}
     return {"scenario": scenario, "n_episodes": n_episodes, "seed": seed, "policies": specs,
             "overrides": dict(overrides or {}), "summary": summary, "episodes": episodes}
+
+
+def _run(scenario: str, policy, n_episodes: int, seed: int, overrides: dict[str, Any],
+         progress: bool, label: str) -> list[dict[str, Any]]:
+    """:func:`policies.runner.run_episode` for each seed, also recording ``particle_spread``
+    (when the estimator reports it) as ``series["particle_spread_m"]``."""
+    import coop_loc_env
+
+    env = coop_loc_env.parallel_env(scenario, **overrides)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=n_episodes * env.config.max_cycles, unit="step",
+                   desc=f"{scenario} {policy_label(label)}")
+    n = env.config.n_robots
+    out = []
+    try:
+        for k in range(n_episodes):
+            rows: list[np.ndarray] = []
+            last = np.full(n, np.nan)
+
+            def on_step(e, infos, rows=rows, last=last):
+                for agent, info in infos.items():
+                    if "particle_spread" in info:
+                        last[e.agent_name_mapping[agent]] = info["particle_spread"]
+                rows.append(last.copy())  # robots that left keep their last spread
+                if bar is not None:
+                    bar.update()
+
+            ep = run_episode(env, policy, seed + k, on_step)
+            if rows and np.isfinite(rows[-1]).any():
+                ep["series"]["particle_spread_m"] = np.array(rows)
+            if bar is not None:
+                bar.update(env.config.max_cycles - ep["steps"])
+            out.append(ep)
+    finally:
+        if bar is not None:
+            bar.close()
+        env.close()
+    return out
 
 
 def policy_label(spec: str) -> str:

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from policies.compare import mean_ci, parse_policy_list, time_to_localize
+from policies.compare import compare, mean_ci, parse_policy_list, time_to_localize
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -70,3 +70,20 @@ def test_evaluate_compare_prints_one_table_and_saves_plot_and_json(tmp_path, cap
     assert (tmp_path / "outdoor_terrain_compare.png").stat().st_size > 10_000
     assert _evaluate_main()(["--compare", "fsm,nonsense", "--no-progress"]) == 2
     assert "unknown policy 'nonsense'" in capsys.readouterr().err
+
+
+def test_particle_spread_is_used_when_present():
+    std = np.full((4, 1), 0.1)  # covariance says localized from the start
+    spread = np.array([[3.0], [2.0], [1.0], [0.5]])  # particles: localized at step 3
+    ep = {"series": {"position_std_m": std, "particle_spread_m": spread}}
+    assert time_to_localize(ep, dt=0.5) == (pytest.approx(1.5), 1.0)
+
+
+def test_compare_records_mcl_particle_spread_and_runs_wander():
+    data = compare("symmetric_hallway", ["wander"], 1, seed=0,
+                   overrides={"max_cycles": 3, "n_robots": 2, "n_particles": 200},
+                   progress=False)
+    rec = data["episodes"]["wander"][0]
+    assert rec["steps"] == 3
+    # global localization from a uniform belief: not localized after 1.5 s
+    assert rec["localized_fraction"] == 0.0 and rec["time_to_localize_s"] == pytest.approx(1.5)
