@@ -50,7 +50,7 @@ from estimators.relative_metrics import (
 DEFAULT_RELATIVE_SLOTS = 3
 RELATIVE_FIELDS = ("present", "range", "cos_bearing", "sin_bearing", "cos_orient", "sin_orient")
 MOTION_WINDOW_S = 10.0  # odometry integrated into one motion factor (Howard et al.)
-WINDOW_KEYFRAMES = 10  # keyframes per robot kept in the optimization window
+WINDOW_KEYFRAMES = 5  # keyframes per robot kept in the optimization window (>= 5 s)
 
 
 def relative_slots(cfg: ScenarioConfig) -> int:

@@ -9,8 +9,10 @@ camera; the laser range finder is kept for obstacle avoidance. The team runs
 the centralized MLE (``estimator="mle"``, :mod:`coop_loc_env.mle_backend`).
 
 Odometry runs at 10 Hz (one physics substep per env step) with small additive
-encoder noise and a large multiplicative wheel slip, so dead-reckoning error
-grows with the distance driven and a robot that stands still stays put.
+encoder noise (``odom_v_std = 0.01`` m/s, ``odom_w_std = 0.02`` rad/s) and a
+large multiplicative wheel slip (``slip_std = 0.25`` per 0.1 s step, about 8 %
+over a second), so dead-reckoning error grows with the distance driven while a
+robot that stands still stays (nearly) put.
 
 * ``dispersal``: 20 robots start crowded in one 8 m x 10 m room (bottom left)
   of a 32 m x 20 m building of eight rooms joined by doorways, then spread out
@@ -110,7 +112,7 @@ def _howard_base(**kw) -> ScenarioConfig:
         odometry_rate=10.0,
         odom_v_std=0.01,
         odom_w_std=0.02,
-        slip_std=0.15,
+        slip_std=0.25,
         laser_beams=24,
         laser_max_range=8.0,
         laser_fov_deg=360.0,
