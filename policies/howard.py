@@ -297,7 +297,7 @@ def plot_howard(dispersal: dict[str, Any] | None, circuit: dict[str, Any] | None
     from matplotlib.figure import Figure
 
     panels = [(k, r) for k, r in (("dispersal", dispersal), ("circuit", circuit)) if r]
-    fig = Figure(figsize=(6.5 * max(len(panels), 1), 4.2), dpi=100)
+    fig = Figure(figsize=(7.0 * max(len(panels), 1), 4.2), dpi=100)
     FigureCanvasAgg(fig)
     for j, (name, res) in enumerate(panels):
         ax = fig.add_subplot(1, len(panels), j + 1)
@@ -309,19 +309,24 @@ def plot_howard(dispersal: dict[str, Any] | None, circuit: dict[str, Any] | None
                      ls="--", label="mean distance between robots")
             ax2.set_ylabel("mean distance between robots (m)", color="tab:gray")
             ax.set_title("dispersal: 20 robots spread out of one room", fontsize=10)
+            handles = ax.get_legend_handles_labels()[0] + ax2.get_legend_handles_labels()[0]
+            ax.legend(handles=handles, loc="upper left", fontsize=8)
         else:
             for k, (robot, ts) in enumerate(res["sightings_s"].items()):
                 ax.axvline(ts, color="tab:green", lw=0.8, ls=":",
-                           label="first sighting" if k == 0 else None)
-                ax.text(ts, ax.get_ylim()[1] * 0.95, str(robot), fontsize=7, color="tab:green")
+                           label="first sighting of robot (number)" if k == 0 else None)
+                ax.annotate(str(robot), (ts, 0.0), xycoords=("data", "axes fraction"),
+                            xytext=(2, 3), textcoords="offset points", fontsize=8,
+                            color="tab:green")
             if np.isfinite(res["closure_time_s"]):
                 ax.axvline(res["closure_time_s"], color="tab:red", lw=1.2, ls="--",
                            label="loop closure (robot 0 seen again)")
             ax.set_title("circuit: one robot drives past six stationary ones", fontsize=10)
+            ax.legend(loc="upper right", fontsize=8)
         ax.set_xlabel("time (s)")
         ax.set_ylabel("mean relative range error (m)")
         ax.grid(alpha=0.3)
-        ax.legend(loc="upper left", fontsize=8)
+    fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, bbox_inches="tight")
