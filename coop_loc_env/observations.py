@@ -6,7 +6,10 @@ Layout of an agent's observation (float32, every entry clipped to [-10, 10]):
 block                  size                        content
 =====================  ==========================  ===========================================
 belief                 ``belief_size``             the estimator backend's features, zero-padded
-                                                   (EKF: ``estimation.gaussian_features``)
+                                                   (EKF: ``estimation.gaussian_features``; MLE:
+                                                   the same 10 plus the estimated relative poses
+                                                   of the K nearest teammates, 6 per slot, see
+                                                   ``coop_loc_env.mle_backend``)
 gps                    2                           fix held (0/1), satellites in view / 12
 inclinometer           2                           last pitch and roll (rad)
 range                  ``laser_obs_bins``          min-pooled ranges / max range (1 = nothing)
