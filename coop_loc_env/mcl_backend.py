@@ -3,8 +3,9 @@
 Each MCL robot keeps its own particle set (:class:`estimators.particle_filter.ParticleFilter`)
 in a known map built from the scenario's layout. Per env step and robot:
 
-1. resample if needed (low-variance, with augmented-MCL random particles and
-   KLD-sampling of the count between ``n_min`` and ``n_particles``, the maximum);
+1. resample when the effective sample size falls below half the count
+   (low-variance, with random particles injected and KLD-sampling of the count
+   between ``n_min`` and ``n_particles``, the maximum);
 2. predict with the step's odometry sub-steps (one composed motion);
 3. weight by the range scan: the likelihood-field model for a laser, the beam
    model with wide cones for a sonar (``cone_half_width = 0.5 * sonar_fov / sonar_beams``,
@@ -75,7 +76,7 @@ HIST_CELL = 1.0  # m, edge of one egocentric histogram cell
 HEADING_BINS = 8
 SONAR_LOOKUP_BINS = 180
 LOCKOUT_DISTANCE = 2.5  # m (Fox et al.)
-RESET_OBSERVER_STD = 1.0  # m: only confident observers seed a target (detection reset)
+RESET_STD = 1.0  # m: confident observers (position std below) seed uncertain targets (above)
 _GRID_CACHE: OrderedDict[tuple, OccupancyGrid] = OrderedDict()
 _GRID_CACHE_SIZE = 16
 
@@ -146,10 +147,27 @@ def known_map(world: World, sensor: str, resolution: float) -> OccupancyGrid:
         origin=(-resolution, -resolution), circles=circles, segments=segments,
         polygons=polygons, border=True,
     )
+    # Cells whose centre lies outside the world (where the size is not a multiple
+    # of the resolution) are walls too.
+    ny, nx = grid.shape
+    centres = grid.cell_to_world(np.stack(np.meshgrid(np.arange(nx), np.arange(ny)), axis=-1))
+    outside = (
+        (centres[..., 0] < 0) | (centres[..., 0] > size[0])
+        | (centres[..., 1] < 0) | (centres[..., 1] > size[1])
+    )
+    grid = OccupancyGrid(grid.occupied | outside, resolution, grid.origin)
     _GRID_CACHE[key] = grid
     while len(_GRID_CACHE) > _GRID_CACHE_SIZE:
         _GRID_CACHE.popitem(last=False)
     return grid
+
+
+def _position_std(pf: ParticleFilter) -> float:
+    """RMS per-axis position standard deviation (m) of a particle belief."""
+    w = pf.weights
+    xy = pf.particles[:, :2]
+    mean = w @ xy
+    return float(np.sqrt(0.5 * (w @ ((xy - mean) ** 2)).sum()))
 
 
 class MCLBackend:
@@ -251,7 +269,12 @@ class MCLBackend:
             if not active[g]:
                 continue
             pf = self.filters[i]
-            pf.resample_if_needed()
+            # Resample only when the weights degenerate (not on every step, as
+            # ParticleFilter.resample_if_needed does while injection is on): every
+            # resampling lets symmetric modes drift, so fewer keep them alive longer.
+            # Random particles are injected at these resamplings.
+            if pf.ess < pf.config.resample_ess_fraction * pf.n_particles:
+                pf.resample()
             odo = readings.odometry[:, g]
             pf.predict_odometry_sequence(odo[:, 0], odo[:, 1], dt_sub)
             if self._has_range[i] and readings.range_mask[g]:
@@ -296,14 +319,17 @@ class MCLBackend:
         by draws of the observer's particles pushed through the detection model,
         each with the target's mean weight; the density-tree reweighting that
         follows then decides between them and the target's own hypotheses. Only
-        done when the observer's position std is below ``RESET_OBSERVER_STD``:
-        a lost observer's detection implies no compact region worth seeding.
+        done when the observer's position std is below ``RESET_STD`` (a lost
+        observer's detection implies no compact region worth seeding) and the
+        target's is above it (a confident target keeps the paper's protection
+        against false positives: a detection far from all its particles leaves
+        its belief unchanged, whereas seeded particles would win any such
+        comparison).
         Without it the transfer can only reweight particles the target already
         has, and a target whose set collapsed onto a wrong mode of a symmetric
         map has none near the truth (sensor resetting, Lenser and Veloso 2000).
         """
-        cov = observer.belief().cov
-        if np.sqrt(0.5 * (cov[0, 0] + cov[1, 1])) > RESET_OBSERVER_STD:
+        if _position_std(observer) > RESET_STD or _position_std(target) <= RESET_STD:
             return
         n = target.n_particles
         m = int(round(self.reset_fraction * n))

@@ -63,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--duration", type=float, default=None,
                    help="simulated seconds per episode (default: the scenario's max_cycles)")
     p.add_argument("--json", type=Path, default=None, help="write the figures here")
-    p.add_argument("--plot-dir", type=Path, default=Path("outputs"),
+    p.add_argument("--plot-dir", type=str, default="outputs",
                    help="where to save the error-vs-time plots ('' to skip)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
@@ -84,8 +84,8 @@ def main(argv: list[str] | None = None) -> int:
                 **{c: {k: res[c][k] for k in KEYS} for c in CONDITIONS},
                 "reduction_pct": res["reduction_pct"],
             }
-            if str(args.plot_dir):
-                path = plot_error_vs_time(res["curves"], args.plot_dir / "fox_hallway.png",
+            if args.plot_dir:
+                path = plot_error_vs_time(res["curves"], Path(args.plot_dir) / "fox_hallway.png",
                                           "symmetric hallway: mean particle spread, 8 robots")
                 print(f"  wrote {path}")
         if args.experiment in ("hexagon", "all"):
@@ -98,8 +98,8 @@ def main(argv: list[str] | None = None) -> int:
                 "reduction_pct": res["reduction_pct"],
                 "by_sensor": res["by_sensor"],
             }
-            if str(args.plot_dir):
-                path = plot_error_vs_time(res["curves"], args.plot_dir / "fox_hexagon.png",
+            if args.plot_dir:
+                path = plot_error_vs_time(res["curves"], Path(args.plot_dir) / "fox_hexagon.png",
                                           "hexagon: mean particle spread per sensor type")
                 print(f"  wrote {path}")
     except ValueError as err:

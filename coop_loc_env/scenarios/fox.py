@@ -17,9 +17,8 @@ several simulated minutes stay cheap; sensors fire once per step.
   120 degree turns; two laser-only features (``visible_to=("laser",)``, like
   thin poles a sonar misses) sit at opposite corners, symmetric under 180
   degree turns. A sonar robot alone cannot tell three poses apart, a laser
-  robot two; together (through detections) they can. The features are not
-  solid (robots pass through them), so a robot never bumps into something
-  its own sensor cannot see.
+  robot two; together (through detections) they can. The features are solid:
+  a robot may bump into one its own sensor cannot see (and slides off it).
 """
 
 from __future__ import annotations
@@ -135,11 +134,12 @@ def symmetric_hallway() -> ScenarioConfig:
 
 
 HEX_EDGE = 8.0  # m
+HEX_WORLD = (16.0, 14.0)  # m: the hexagon is 16 m x 13.86 m; whole metres keep the grid symmetric
 
 
 def hexagon_vertices(edge: float = HEX_EDGE) -> list[tuple[float, float]]:
-    """Corners of the flat-topped hexagon filling the world box, counter-clockwise from east."""
-    cx, cy = edge, edge * math.sqrt(3) / 2
+    """Corners of the flat-topped hexagon centred in the world, counter-clockwise from east."""
+    cx, cy = HEX_WORLD[0] / 2, HEX_WORLD[1] / 2
     return [
         (cx + edge * math.cos(k * math.pi / 3), cy + edge * math.sin(k * math.pi / 3))
         for k in range(6)
@@ -147,25 +147,27 @@ def hexagon_vertices(edge: float = HEX_EDGE) -> list[tuple[float, float]]:
 
 
 def hexagon_obstacles(edge: float = HEX_EDGE) -> tuple[Obstacle, ...]:
-    """Corner triangles outside the hexagon, and the sonar-only / laser-only features."""
-    w, h = 2 * edge, edge * math.sqrt(3)
+    """Walls outside the hexagon, and the sonar-only / laser-only features."""
+    w, h = HEX_WORLD
     v = hexagon_vertices(edge)
-    corners = (
-        Obstacle("wall", "polygon", vertices=((0.0, 0.0), v[4], v[3])),
-        Obstacle("wall", "polygon", vertices=((w, 0.0), v[0], v[5])),
-        Obstacle("wall", "polygon", vertices=((w, h), v[1], v[0])),
-        Obstacle("wall", "polygon", vertices=((0.0, h), v[3], v[2])),
+    outside = (
+        Obstacle("wall", "polygon", vertices=((0.0, 0.0), (v[4][0], 0.0), v[4], v[3])),
+        Obstacle("wall", "polygon", vertices=((v[5][0], 0.0), (w, 0.0), v[0], v[5])),
+        Obstacle("wall", "polygon", vertices=(v[0], (w, h), (v[1][0], h), v[1])),
+        Obstacle("wall", "polygon", vertices=(v[3], v[2], (v[2][0], h), (0.0, h))),
+        _rect(v[4][0], 0.0, v[5][0], v[4][1]),  # thin strips along the flat edges
+        _rect(v[2][0], v[2][1], v[1][0], h),
     )
-    cx, cy = edge, h / 2
-    apothem = h / 2
+    cx, cy = w / 2, h / 2
+    apothem = edge * math.sqrt(3) / 2
     features = []
-    # sonar-only: at the middle of every other edge (30, 150, 270 degrees), 1 m from the wall
+    # sonar-only: at the middle of every other edge (30, 150, 270 degrees), near the wall
     for deg in (30.0, 150.0, 270.0):
         a = math.radians(deg)
-        r = apothem - 1.0
+        r = apothem - 0.75  # 0.25 m gap to the wall: too narrow for a robot
         features.append(
             Obstacle("rock", "circle", center=(cx + r * math.cos(a), cy + r * math.sin(a)),
-                     radius=0.5, visible_to=("sonar",), solid=False)
+                     radius=0.5, visible_to=("sonar",))
         )
     # laser-only: two thin poles 2 m in from opposite corners (0 and 180 degrees)
     for deg in (0.0, 180.0):
@@ -173,9 +175,9 @@ def hexagon_obstacles(edge: float = HEX_EDGE) -> tuple[Obstacle, ...]:
         r = edge - 2.0
         features.append(
             Obstacle("rock", "circle", center=(cx + r * math.cos(a), cy + r * math.sin(a)),
-                     radius=0.2, visible_to=("laser",), solid=False)
+                     radius=0.2, visible_to=("laser",))
         )
-    return corners + tuple(features)
+    return outside + tuple(features)
 
 
 def hexagon() -> ScenarioConfig:
@@ -184,7 +186,7 @@ def hexagon() -> ScenarioConfig:
         name="hexagon",
         n_robots=8,
         team=(_fox_robot("sonar"), _fox_robot("laser")),
-        world_size=(2 * HEX_EDGE, HEX_EDGE * math.sqrt(3)),
+        world_size=HEX_WORLD,
         obstacles=hexagon_obstacles(),
         max_cycles=600,
         **_common(),
