@@ -77,6 +77,9 @@ HEADING_BINS = 8
 SONAR_LOOKUP_BINS = 180
 LOCKOUT_DISTANCE = 2.5  # m (Fox et al.)
 RESET_STD = 1.0  # m: confident observers (position std below) seed uncertain targets (above)
+CONFLICT_M = 1.0  # m: detection vs confident target disagreement / agreement tolerance
+CONFLICT_MIN_S = 2.0  # s: two conflicts this far apart at least ...
+CONFLICT_WINDOW_S = 60.0  # s: ... and at most confirm each other
 _GRID_CACHE: OrderedDict[tuple, OccupancyGrid] = OrderedDict()
 _GRID_CACHE_SIZE = 16
 
@@ -231,6 +234,8 @@ class MCLBackend:
         self.filters: list[ParticleFilter] = []
         self.rng = np.random.default_rng(0)
         self.transfers_applied = np.zeros(len(self.robots), dtype=int)
+        self._t = 0
+        self._conflicts: dict[int, list] = {}
 
     # ------------------------------------------------------------------ reset
     def _sensor(self, i: int) -> str:
@@ -256,6 +261,8 @@ class MCLBackend:
             self.filters.append(pf)
         self.transfer.reset()
         self.transfers_applied[:] = 0
+        self._t = 0
+        self._conflicts = {}
         if self._sonar.any():  # build the shared range table now, not inside the first step
             self._grids["sonar"].range_table(cfg.sonar_max_range, SONAR_LOOKUP_BINS)
 
@@ -265,6 +272,7 @@ class MCLBackend:
         cfg = self.cfg
         dt_sub = cfg.dt / cfg.odometry_substeps
         stats = {"range_updates": 0, "detections_applied": 0, "detections_ignored": 0}
+        self._t += 1
         for i, g in enumerate(self.robots):
             if not active[g]:
                 continue
@@ -301,7 +309,7 @@ class MCLBackend:
                 if self.reset_fraction > 0 and not self.transfer.lockout.is_locked(
                     a, b, observer.odometer
                 ):
-                    self._detection_reset(rec, observer, target)
+                    self._detection_reset(ib, rec, observer, target)
                 res = self.transfer.apply(rec, observer, target, self.rng)
                 if res.applied:
                     stats["detections_applied"] += 1
@@ -311,7 +319,7 @@ class MCLBackend:
         return stats
 
     def _detection_reset(
-        self, rec: RobotDetection, observer: ParticleFilter, target: ParticleFilter
+        self, ib: int, rec: RobotDetection, observer: ParticleFilter, target: ParticleFilter
     ) -> None:
         """Seed the target with poses the detection implies, when the observer is confident.
 
@@ -324,12 +332,17 @@ class MCLBackend:
         target's is above it (a confident target keeps the paper's protection
         against false positives: a detection far from all its particles leaves
         its belief unchanged, whereas seeded particles would win any such
-        comparison).
+        comparison) -- unless the target is confidently wrong, which shows as
+        a confirmed conflict (:meth:`_confirmed_conflict`).
         Without it the transfer can only reweight particles the target already
         has, and a target whose set collapsed onto a wrong mode of a symmetric
         map has none near the truth (sensor resetting, Lenser and Veloso 2000).
         """
-        if _position_std(observer) > RESET_STD or _position_std(target) <= RESET_STD:
+        if _position_std(observer) > RESET_STD:
+            return
+        if _position_std(target) <= RESET_STD and not self._confirmed_conflict(
+            ib, rec, observer, target
+        ):
             return
         n = target.n_particles
         m = int(round(self.reset_fraction * n))
@@ -347,6 +360,39 @@ class MCLBackend:
         parts[slots] = seeds
         weights[slots] = 1.0 / n
         target.set_particles(parts, weights)
+
+    def _confirmed_conflict(
+        self, ib: int, rec: RobotDetection, observer: ParticleFilter, target: ParticleFilter
+    ) -> bool:
+        """Whether a confident target's disagreement with detections is confirmed.
+
+        A detection from a confident observer conflicts with a confident target
+        when the position it implies is more than ``CONFLICT_M`` from the
+        target's mean. A single conflict may be a false positive; it is
+        confirmed when an earlier conflict (from ``CONFLICT_MIN_S`` to
+        ``CONFLICT_WINDOW_S`` ago) implied a position whose distance from this
+        one matches, within ``CONFLICT_M``, the distance the target's own belief
+        moved meanwhile (false positives imply unrelated positions; a target
+        locked onto a rotated copy of the map moves the same distances).
+        """
+        mean_o = observer.mean_pose()
+        implied = mean_o[:2] + rec.range * np.array(
+            [np.cos(mean_o[2] + rec.bearing), np.sin(mean_o[2] + rec.bearing)]
+        )
+        mean_t = target.mean_pose()[:2]
+        if np.hypot(*(implied - mean_t)) <= CONFLICT_M:
+            return False
+        now = self._t * self.cfg.dt
+        history = [c for c in self._conflicts.get(ib, []) if now - c[2] <= CONFLICT_WINDOW_S]
+        confirmed = any(
+            now - t0 >= CONFLICT_MIN_S
+            and abs(np.hypot(*(implied - p0)) - np.hypot(*(mean_t - m0))) <= CONFLICT_M
+            for p0, m0, t0 in history
+        )
+        self._conflicts[ib] = [*history, (implied, mean_t, now)]
+        if confirmed:
+            self._conflicts[ib] = []
+        return confirmed
 
     def _range_update(self, i: int, row: np.ndarray) -> None:
         cfg = self.cfg

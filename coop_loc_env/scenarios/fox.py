@@ -107,14 +107,15 @@ def _common() -> dict:
             # (see MCLBackend._detection_reset); 0 gives the paper's pure transfer.
             "mcl_detection_reset": 0.1,
             # 16 sonar beams treated as independent are overconfident: temper them
-            # (exponent 0.1) so that symmetric modes are not dropped too early, and
-            # inject few random particles (0.5 %), without the augmented-MCL boost
-            # that other robots in the sonar's view would keep triggering.
+            # (exponent 0.1) so that symmetric modes are not dropped too early; inject
+            # few random particles (0.5 %, up to 10 % when the scans stop matching:
+            # augmented MCL, which lets a robot locked onto a rotated copy of the
+            # map recover when it reaches the feature that breaks the symmetry).
             "mcl": {
                 "likelihood_exponent": 0.1,
                 "beam_sigma": 0.5,
                 "random_fraction": 0.005,
-                "augmented": False,
+                "max_inject_fraction": 0.1,
             },
         },
     )
