@@ -1,15 +1,16 @@
 """Compare policies on one scenario: means with 95 % confidence intervals, a table and a bar plot.
 
-Used by ``scripts/evaluate.py --compare fsm,random,PATH.zip``. Every policy runs
-the same seeded episodes (episode ``k`` seeded ``seed + k``); policies are the
-specs of :func:`policies.runner.make_policy` plus ``wander``
-(:class:`policies.fox.WanderPolicy`). Figures per episode are those of
-:mod:`policies.runner` plus ``time_to_localize_s``: per robot, the first time
-its spread (MCL: ``info["particle_spread"]``, the weighted mean particle
-distance from the truth; otherwise ``sqrt(var_x + var_y)`` of the belief) falls below
-``spread_threshold`` (1.5 m), averaged over the robots; a robot that never
-gets there counts the episode length (a censored, optimistic value, flagged by
-``localized_fraction``, the fraction of robots that got there).
+Used by ``scripts/evaluate.py --compare fsm,random,PATH.zip``. Every policy
+runs the same seeded episodes (episode ``k`` seeded ``seed + k``); policies
+are the specs of :func:`policies.runner.make_policy` plus ``wander``
+(:class:`policies.fox.WanderPolicy`) and ``still`` (:class:`StandStillPolicy`).
+Figures per episode are those of :mod:`policies.runner` plus
+``time_to_localize_s``: per robot, the first time its spread falls below
+1.5 m (MCL: ``info["particle_spread"]``, the weighted mean particle distance
+from the truth; otherwise ``sqrt(var_x + var_y)`` of the belief), averaged
+over the robots; a robot that never gets there counts the episode length (a
+censored, optimistic value, flagged by ``localized_fraction``, the fraction
+of robots that got there).
 
 The 95 % interval of a mean over ``n`` episodes is ``mean +/- t(0.975, n-1) *
 s / sqrt(n)`` (Student t, ``s`` the sample standard deviation).
@@ -48,8 +49,26 @@ def parse_policy_list(text: str) -> list[str]:
     return specs
 
 
+class StandStillPolicy:
+    """Every robot stands still (zero action): the reference for how low the error gets
+    without moving."""
+
+    name = "still"
+
+    def reset(self, env, seed: int | None = None) -> None:
+        """Bind to ``env``."""
+        self.env = env
+
+    def act(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """A zero action per live agent."""
+        return {a: np.zeros(2, dtype=np.float32) for a in self.env.agents}
+
+
 def resolve_policy(spec: str):
-    """:func:`policies.runner.make_policy`, plus ``"wander"`` (``policies.fox.WanderPolicy``)."""
+    """:func:`policies.runner.make_policy`, plus ``"wander"`` (``policies.fox.WanderPolicy``)
+    and ``"still"`` (:class:`StandStillPolicy`)."""
+    if spec == "still":
+        return StandStillPolicy()
     if spec == "wander":
         from policies.fox import WanderPolicy
 

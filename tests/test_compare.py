@@ -87,3 +87,10 @@ def test_compare_records_mcl_particle_spread_and_runs_wander():
     assert rec["steps"] == 3
     # global localization from a uniform belief: not localized after 1.5 s
     assert rec["localized_fraction"] == 0.0 and rec["time_to_localize_s"] == pytest.approx(1.5)
+
+
+def test_still_policy_covers_less_than_random():
+    data = compare("outdoor_terrain", ["still", "random"], 1, seed=2,
+                   overrides={"max_cycles": 30, "n_robots": 2}, progress=False)
+    still, rand = (data["episodes"][s][0] for s in ("still", "random"))
+    assert still["collisions"] == 0 and still["coverage"] < rand["coverage"]
