@@ -77,6 +77,7 @@ HEADING_BINS = 8
 SONAR_LOOKUP_BINS = 180
 LOCKOUT_DISTANCE = 2.5  # m (Fox et al.)
 RESET_STD = 1.0  # m: confident observers (position std below) seed uncertain targets (above)
+GLOBAL_INIT_FACTOR = 4  # global localization starts with this many times n_particles
 CONFLICT_M = 1.0  # m: detection vs confident target disagreement / agreement tolerance
 CONFLICT_MIN_S = 2.0  # s: two conflicts this far apart at least ...
 CONFLICT_WINDOW_S = 60.0  # s: ... and at most confirm each other
@@ -256,7 +257,12 @@ class MCLBackend:
             pf = ParticleFilter(
                 self._grids[t], np.random.default_rng(int(seeds[i])), self.mcl_config[t]
             )
-            if not cfg.global_localization:
+            if cfg.global_localization:
+                # Dense first set: every symmetric copy of the true pose gets
+                # particles near it; KLD-sampling cuts it to n_particles at the
+                # first resampling.
+                pf.init_uniform(GLOBAL_INIT_FACTOR * pf.config.n_particles)
+            else:
                 pf.init_gaussian(start[i], cov)
             self.filters.append(pf)
         self.transfer.reset()
