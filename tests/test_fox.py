@@ -1,0 +1,209 @@
+"""Fox et al. scenarios, the detection path of the MCL backend, and the experiment library."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+import coop_loc_env
+from coop_loc_env.mcl_backend import known_map
+from coop_loc_env.sensors import Detections
+from estimators.geometry import relative_pose, wrap_angle
+from policies.fox import (
+    plot_error_vs_time,
+    run_fox_episode,
+    run_hallway_experiment,
+    summarize_times,
+    time_to_localize,
+)
+
+
+def test_hallway_is_symmetric_but_for_the_bay():
+    env = coop_loc_env.parallel_env("symmetric_hallway")
+    cfg = env.config
+    assert cfg.n_robots == 8 and cfg.global_localization and cfg.estimator == "mcl"
+    assert all(cfg.robot_spec(i).range_sensor == "sonar" for i in range(8))
+    assert not any(cfg.robot_spec(i).has_gps or cfg.robot_spec(i).has_compass for i in range(8))
+    occ = known_map(env.world, "sonar", 0.25).occupied
+    assert occ.shape[0] == occ.shape[1]
+    rotated = np.rot90(occ)
+    differ = np.argwhere(rotated != occ)
+    assert len(differ) > 0  # the bay breaks the quarter-turn symmetry ...
+    # ... and nothing else does: every difference is the bay or its rotated copy
+    mirror = np.argwhere(np.rot90(occ, 2) != occ)
+    assert len(mirror) == len(differ)
+    bay_cells = int((~occ[40:42, 10:27]).sum())  # the bay's free rows at mid height
+    assert bay_cells > 0
+
+
+def test_hexagon_features_and_symmetry():
+    env = coop_loc_env.parallel_env("hexagon")
+    cfg = env.config
+    sensors = [cfg.robot_spec(i).range_sensor for i in range(cfg.n_robots)]
+    assert sensors.count("sonar") == 4 and sensors.count("laser") == 4
+    laser = known_map(env.world, "laser", 0.25).occupied
+    sonar = known_map(env.world, "sonar", 0.25).occupied
+    # the laser's map is exactly symmetric under a half turn (two indistinguishable poses)
+    np.testing.assert_array_equal(laser, laser[::-1, ::-1])
+    assert not np.array_equal(sonar, sonar[::-1, ::-1])
+    # sonar-only features sit 120 degrees apart around the centre
+    feats = [o for o in env.world.layout.obstacles if o.visible_to == ("sonar",)]
+    ang = np.sort([np.arctan2(o.center[1] - 7.0, o.center[0] - 8.0) for o in feats])
+    np.testing.assert_allclose(np.diff(ang), 2 * np.pi / 3, atol=1e-9)
+    # hexagon edges are 8 m
+    from coop_loc_env.scenarios.fox import hexagon_vertices
+
+    v = np.array(hexagon_vertices())
+    np.testing.assert_allclose(np.hypot(*(np.roll(v, -1, 0) - v).T), 8.0)
+
+
+@pytest.mark.parametrize("scenario", ["symmetric_hallway", "hexagon"])
+def test_robots_start_in_free_space(scenario):
+    env = coop_loc_env.parallel_env(scenario, n_particles=50)
+    grid = known_map(env.world, "laser", 0.25)
+    for seed in range(5):
+        env.reset(seed=seed)
+        assert grid.is_free(env.world.poses[:, :2]).all()
+
+
+def _detection_step(env, observer: int, target: int, repeat: int = 1):
+    """Feed ``repeat`` noise-free detections of ``target`` by ``observer`` to the backend."""
+    backend = env.backends[0]
+    readings = env.last_readings
+    poses = env.world.poses
+    z = relative_pose(poses[observer], poses[target])
+    det = Detections(
+        observer=np.array([observer]), target=np.array([target]), z=z[None],
+        cov=np.diag([0.3, 0.04, 0.1])[None] ** 2, genuine=np.array([True]),
+    )
+    quiet = dataclasses.replace(
+        readings, odometry=np.zeros_like(readings.odometry),
+        range_mask=np.zeros_like(readings.range_mask), detections=det,
+    )
+    for _ in range(repeat):
+        backend.step(quiet, np.ones(env.config.n_robots, dtype=bool))
+
+
+def test_detection_from_a_localized_robot_localizes_a_lost_one():
+    env = coop_loc_env.parallel_env("symmetric_hallway", n_particles=500)
+    env.reset(seed=0)
+    env.step({a: np.zeros(2, dtype=np.float32) for a in env.agents})
+    backend = env.backends[0]
+    backend.transfer.reset()
+    poses = env.world.poses
+    backend.filters[0].init_gaussian(poses[0], np.diag([0.05, 0.05, 0.01]))
+    target = backend.filters[1]
+    before = target.particle_spread(poses[1])
+    assert before > 3.0
+    used = int(backend.transfers_applied[1])
+    _detection_step(env, 0, 1)
+    after = target.particle_spread(poses[1])
+    assert after < 1.5, (before, after)
+    assert backend.transfers_applied[1] == used + 1
+
+
+def test_pure_transfer_without_reset_and_the_lockout(monkeypatch):
+    env = coop_loc_env.parallel_env(
+        "symmetric_hallway", n_particles=500,
+        extras={"mcl_resolution": 0.25, "mcl_detection_reset": 0.0},
+    )
+    env.reset(seed=0)
+    env.step({a: np.zeros(2, dtype=np.float32) for a in env.agents})
+    backend = env.backends[0]
+    assert backend.reset_fraction == 0.0
+
+    def never(*args):
+        raise AssertionError("detection reset called with mcl_detection_reset = 0")
+
+    monkeypatch.setattr(backend, "_detection_reset", never)
+    poses = env.world.poses
+    backend.filters[0].init_gaussian(poses[0], np.diag([0.05, 0.05, 0.01]))
+    backend.transfer.reset()
+    used = int(backend.transfers_applied[1])
+    _detection_step(env, 0, 1)
+    assert backend.transfers_applied[1] == used + 1
+    # the paper's lockout: the same pair is ignored until the observer moved 2.5 m
+    _detection_step(env, 0, 1)
+    assert backend.transfers_applied[1] == used + 1
+
+
+def test_a_single_false_detection_leaves_a_confident_robot_alone():
+    env = coop_loc_env.parallel_env("symmetric_hallway", n_particles=500)
+    env.reset(seed=0)
+    env.step({a: np.zeros(2, dtype=np.float32) for a in env.agents})
+    backend = env.backends[0]
+    poses = env.world.poses.copy()
+    backend.filters[0].init_gaussian(poses[0], np.diag([0.05, 0.05, 0.01]))
+    backend.filters[1].init_gaussian(poses[1], np.diag([0.05, 0.05, 0.01]))
+    backend.transfer.reset()
+    env.world.poses[1, :2] = poses[0, :2] + [3.0, 0.0]  # the detector "sees" it elsewhere
+    _detection_step(env, 0, 1)
+    env.world.poses[:] = poses
+    assert backend.filters[1].particle_spread(poses[1]) < 0.5
+
+
+def test_time_to_localize_and_summary():
+    spread = np.array([[5.0, 9.0, 1.0], [1.4, 8.0, 2.0], [0.5, 7.0, 1.2]])
+    t, reached = time_to_localize(spread, dt=0.5)
+    np.testing.assert_allclose(t, [1.0, 1.5, 0.5])
+    np.testing.assert_array_equal(reached, [True, False, True])
+    s = summarize_times(t, reached)
+    assert s["mean_s"] == pytest.approx(1.0) and s["not_localized"] == 1 and s["robots"] == 3
+    assert s["std_s"] == pytest.approx(0.5)
+    with pytest.raises(ValueError, match="spread"):
+        time_to_localize(np.zeros(3), dt=0.5)
+    with pytest.raises(ValueError, match="dt"):
+        time_to_localize(spread, dt=0.0)
+
+
+def test_fox_episode_is_deterministic_and_shaped():
+    kw = dict(duration_s=4.0, n_particles=60)
+    a = run_fox_episode("hexagon", 3, True, **kw)
+    b = run_fox_episode("hexagon", 3, True, **kw)
+    assert a["spread_m"].shape == (8, 8) and a["time_s"][-1] == pytest.approx(4.0)
+    np.testing.assert_array_equal(a["spread_m"], b["spread_m"])
+    assert a["sensor"] == ["sonar", "laser"] * 4
+    with pytest.raises(ValueError, match="mcl"):
+        run_fox_episode("outdoor_terrain", 0, True, duration_s=1.0, estimator="ekf")
+
+
+def test_hallway_experiment_and_plot(tmp_path):
+    res = run_hallway_experiment([0], duration_s=2.0, progress=False, n_particles=60)
+    for cond in ("without_detections", "with_detections"):
+        assert set(res[cond]) == {"mean_s", "std_s", "not_localized", "robots"}
+        assert res[cond]["robots"] == 8
+    alone, coop = res["without_detections"]["mean_s"], res["with_detections"]["mean_s"]
+    assert res["reduction_pct"] == pytest.approx(100 * (1 - coop / alone))
+    path = plot_error_vs_time(res["curves"], tmp_path / "p.png")
+    assert path.stat().st_size > 1000
+
+
+def test_reproduce_fox_script_writes_json(tmp_path):
+    import importlib.util
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "scripts" / "reproduce_fox.py"
+    spec = importlib.util.spec_from_file_location("reproduce_fox", script)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    out = tmp_path / "fox.json"
+    rc = mod.main(["--seeds", "1", "--hexagon-seeds", "1", "--duration", "1.5", "--no-progress",
+                   "--json", str(out), "--plot-dir", str(tmp_path), "--set", "n_particles=40"])
+    assert rc == 0
+    data = json.loads(out.read_text())
+    for exp in ("hallway", "hexagon"):
+        for cond in ("without_detections", "with_detections"):
+            assert set(data[exp][cond]) == {"mean_s", "std_s", "not_localized"}
+        assert isinstance(data[exp]["reduction_pct"], float)
+    assert set(data["hexagon"]["by_sensor"]) == {"sonar", "laser"}
+    assert (tmp_path / "fox_hallway.png").exists() and (tmp_path / "fox_hexagon.png").exists()
+    assert mod.main(["--seeds", "0"]) == 2
+
+
+def test_wrap_helper_sanity():
+    # relative_pose / wrap_angle conventions the detection tests rely on
+    z = relative_pose(np.array([0.0, 0.0, np.pi / 2]), np.array([0.0, 2.0, np.pi]))
+    np.testing.assert_allclose(z, [2.0, 0.0, wrap_angle(np.pi / 2)], atol=1e-12)
