@@ -9,7 +9,10 @@ belief                 ``belief_size``             the estimator backend's featu
                                                    (EKF: ``estimation.gaussian_features``; MLE:
                                                    the same 10 plus the estimated relative poses
                                                    of the K nearest teammates, 6 per slot, see
-                                                   ``coop_loc_env.mle_backend``)
+                                                   ``coop_loc_env.mle_backend``; MCL: 48
+                                                   values, the same 10 first, then particle
+                                                   statistics and histograms, layout in
+                                                   ``particle_filter.belief_feature_names``)
 gps                    2                           fix held (0/1), satellites in view / 12
 inclinometer           2                           last pitch and roll (rad)
 range                  ``laser_obs_bins``          min-pooled ranges / max range (1 = nothing)
