@@ -129,7 +129,7 @@ def symmetric_hallway() -> ScenarioConfig:
         team=(_fox_robot("sonar"),),
         world_size=(HALLWAY_SIZE, HALLWAY_SIZE),
         obstacles=hallway_obstacles(),
-        max_cycles=600,
+        max_cycles=1200,  # 600 s, the horizon of the paper's Fig. 12(b)
         **_common(),
     )
 
