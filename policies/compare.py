@@ -193,6 +193,27 @@ def _run(scenario: str, policy, n_episodes: int, seed: int, overrides: dict[str,
     return out
 
 
+def merge_reports(reports: list[dict[str, Any]]) -> dict[str, Any]:
+    """One report from several :func:`compare` reports of disjoint policies on the same
+    scenario, episodes and seed (e.g. policies run in parallel processes)."""
+    if not reports:
+        raise ValueError("merge_reports needs at least one report, got []")
+    first = reports[0]
+    out = {**first, "policies": [], "summary": {}, "episodes": {}}
+    for rep in reports:
+        for key in ("scenario", "n_episodes", "seed", "overrides"):
+            if rep.get(key) != first.get(key):
+                raise ValueError(f"cannot merge reports with different {key}: "
+                                 f"{first.get(key)!r} vs {rep.get(key)!r}")
+        for spec in rep["policies"]:
+            if spec in out["summary"]:
+                raise ValueError(f"policy {spec!r} is in more than one report")
+            out["policies"].append(spec)
+            out["summary"][spec] = rep["summary"][spec]
+            out["episodes"][spec] = rep["episodes"][spec]
+    return out
+
+
 def policy_label(spec: str) -> str:
     """A short label: the name, or ``parent/stem`` of a model path."""
     p = Path(spec)

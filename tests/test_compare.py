@@ -9,7 +9,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from policies.compare import compare, mean_ci, parse_policy_list, time_to_localize
+from policies.compare import (
+    compare,
+    format_compare_table,
+    mean_ci,
+    merge_reports,
+    parse_policy_list,
+    time_to_localize,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -94,3 +101,10 @@ def test_still_policy_covers_less_than_random():
                    overrides={"max_cycles": 30, "n_robots": 2}, progress=False)
     still, rand = (data["episodes"][s][0] for s in ("still", "random"))
     assert still["collisions"] == 0 and still["coverage"] < rand["coverage"]
+    # the same comparison run as two reports and merged gives the same table
+    kw = dict(n_episodes=1, seed=2, overrides={"max_cycles": 30, "n_robots": 2}, progress=False)
+    parts = [compare("outdoor_terrain", [s], **kw) for s in ("still", "random")]
+    merged = merge_reports(parts)
+    assert format_compare_table(merged) == format_compare_table(data)
+    with pytest.raises(ValueError, match="more than one report"):
+        merge_reports([parts[0], parts[0]])
