@@ -260,8 +260,9 @@ class MCLBackend:
             if cfg.global_localization:
                 # Dense first set: every symmetric copy of the true pose gets
                 # particles near it; KLD-sampling cuts it to n_particles at the
-                # first resampling.
-                pf.init_uniform(GLOBAL_INIT_FACTOR * pf.config.n_particles)
+                # first resampling (a fixed-size filter keeps n_particles).
+                factor = GLOBAL_INIT_FACTOR if pf.config.adaptive else 1
+                pf.init_uniform(factor * pf.config.n_particles)
             else:
                 pf.init_gaussian(start[i], cov)
             self.filters.append(pf)
