@@ -70,6 +70,19 @@ def gaussian_features(
     )
 
 
+def noisy_start(
+    cfg: ScenarioConfig, true_poses: np.ndarray, robots: np.ndarray, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """Initial belief of ``robots``: a draw around the true start and its std ``(3,)``.
+
+    Every backend starts from this (``init_pos_std``, ``init_heading_std``), as a
+    robot that was told roughly where it starts; the std is floored at 1e-3.
+    """
+    std = np.array([cfg.init_pos_std, cfg.init_pos_std, cfg.init_heading_std])
+    start = true_poses[robots] + rng.standard_normal((len(robots), 3)) * std
+    return start, np.maximum(std, 1e-3)
+
+
 GAUSSIAN_FEATURE_NAMES = (
     "x_norm",
     "y_norm",
@@ -103,12 +116,8 @@ class EKFBackend:
 
     def reset(self, true_poses: np.ndarray, rng: np.random.Generator) -> None:
         """Start each filter at a noisy draw around the true pose."""
-        cfg = self.cfg
-        k = len(self.robots)
-        std = np.array([cfg.init_pos_std, cfg.init_pos_std, cfg.init_heading_std])
-        mean = true_poses[self.robots] + rng.standard_normal((k, 3)) * std
-        cov = np.diag(np.maximum(std, 1e-3) ** 2)
-        self.ekf = PoseEKF(mean, cov, gate_prob=cfg.gate_prob)
+        mean, std = noisy_start(self.cfg, true_poses, self.robots, rng)
+        self.ekf = PoseEKF(mean, np.diag(std**2), gate_prob=self.cfg.gate_prob)
 
     def step(self, readings: Readings, active: np.ndarray) -> dict[str, int]:
         """Fuse one step of readings; returns counts of accepted/rejected updates."""

@@ -49,7 +49,7 @@ from collections import OrderedDict
 import numpy as np
 
 from coop_loc_env.config import ScenarioConfig
-from coop_loc_env.estimation import register_backend
+from coop_loc_env.estimation import noisy_start, register_backend
 from coop_loc_env.sensors import Readings
 from coop_loc_env.world import World
 from estimators.detection_transfer import (
@@ -246,9 +246,8 @@ class MCLBackend:
         """New filters: uniform (global localization) or Gaussian around a noisy start."""
         cfg = self.cfg
         k = len(self.robots)
-        std = np.array([cfg.init_pos_std, cfg.init_pos_std, cfg.init_heading_std])
-        start = true_poses[self.robots] + rng.standard_normal((k, 3)) * std
-        cov = np.diag(np.maximum(std, 1e-3) ** 2)
+        start, std = noisy_start(cfg, true_poses, self.robots, rng)
+        cov = np.diag(std**2)
         seeds = rng.integers(2**63, size=k + 1)
         self.rng = np.random.default_rng(int(seeds[-1]))
         self.filters = []

@@ -37,7 +37,12 @@ from __future__ import annotations
 import numpy as np
 
 from coop_loc_env.config import ScenarioConfig
-from coop_loc_env.estimation import GAUSSIAN_FEATURE_NAMES, gaussian_features, register_backend
+from coop_loc_env.estimation import (
+    GAUSSIAN_FEATURE_NAMES,
+    gaussian_features,
+    noisy_start,
+    register_backend,
+)
 from coop_loc_env.sensors import Readings
 from coop_loc_env.world import World
 from estimators.mle_online import TeamMLE
@@ -129,13 +134,11 @@ class MLEBackend:
     def reset(self, true_poses: np.ndarray, rng: np.random.Generator) -> None:
         """A fresh pose graph; each robot's first pose gets a prior around a noisy start."""
         cfg = self.cfg
-        k = len(self.robots)
-        std = np.array([cfg.init_pos_std, cfg.init_pos_std, cfg.init_heading_std])
-        start = true_poses[self.robots] + rng.standard_normal((k, 3)) * std
+        start, std = noisy_start(cfg, true_poses, self.robots, rng)
         self.mle = TeamMLE(
-            k,
+            len(self.robots),
             initial_poses=start,
-            initial_std=np.maximum(std, 1e-3),
+            initial_std=std,
             anchor=None,
             odometry_std=(cfg.odom_v_std, cfg.odom_w_std),
             motion_window=MOTION_WINDOW_S,
