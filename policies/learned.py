@@ -5,17 +5,17 @@ evaluation during training uses it) or loads a saved ``.zip``; one network
 acts for every live agent (parameter sharing), deterministically, one batched
 forward pass per step. :func:`load_learned_policy` loads ``DIR/final_model.zip``
 (or any SB3 zip, the algorithm detected from the file), the same file
-``scripts/evaluate.py --policy PATH`` loads through :func:`policies.runner.make_policy`.
+``scripts/evaluate.py --policy PATH`` loads through :func:`policies.runner.make_policy`
+(as :class:`SB3Policy`).
 """
 
 from __future__ import annotations
 
+import zipfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-from policies.runner import SB3Policy
 
 
 class LearnedPolicy:
@@ -55,6 +55,41 @@ class LearnedPolicy:
         actions, _ = self.model.predict(batch, deterministic=self.deterministic)
         actions = np.clip(np.asarray(actions, dtype=np.float32).reshape(len(agents), -1), -1, 1)
         return dict(zip(agents, actions, strict=True))
+
+
+class SB3Policy(LearnedPolicy):
+    """A saved stable-baselines3 model shared by every agent (parameter sharing).
+
+    Args:
+        path: the ``.zip`` written by ``model.save``.
+        algo: ``"PPO"``, ``"SAC"``, ``"TD3"`` or ``"A2C"``; detected from the
+            file when ``None``.
+    """
+
+    def __init__(self, path: str | Path, algo: str | None = None) -> None:
+        path = Path(path)
+        if not path.is_file():
+            raise ValueError(f"policy file {str(path)!r} does not exist")
+        import stable_baselines3 as sb3
+
+        algo = (algo or detect_sb3_algo(path)).upper()
+        if not hasattr(sb3, algo):
+            raise ValueError(f"unknown stable-baselines3 algorithm {algo!r} for {str(path)!r}")
+        self.algo = algo
+        super().__init__(getattr(sb3, algo).load(str(path), device="cpu"), name=path.stem)
+
+
+def detect_sb3_algo(path: str | Path) -> str:
+    """The algorithm a stable-baselines3 ``.zip`` was saved from (``"PPO"`` when unsure)."""
+    try:
+        with zipfile.ZipFile(path) as zf:
+            data = zf.read("data").decode("utf-8", errors="replace")
+    except (zipfile.BadZipFile, KeyError, OSError) as err:
+        raise ValueError(f"{str(path)!r} is not a stable-baselines3 model zip: {err}") from err
+    for algo in ("sac", "td3", "a2c", "ppo"):
+        if f"stable_baselines3.{algo}." in data:
+            return algo.upper()
+    return "PPO"
 
 
 def load_learned_policy(path: str | Path) -> SB3Policy:

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import ast
 import json
-import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -27,70 +26,10 @@ import numpy as np
 import coop_loc_env
 from policies.baselines import Policy, RandomPolicy, SeekTeammatePolicy
 from policies.fsm import FSMPolicy
+from policies.learned import SB3Policy, detect_sb3_algo  # noqa: F401 (re-exported)
 
 FIGURES = ("localization_error_m", "coverage", "map_rmse_m", "collisions", "tip_overs")
 POLICY_NAMES = ("fsm", "random", "seek")
-
-
-class SB3Policy:
-    """A saved stable-baselines3 model shared by every agent (parameter sharing).
-
-    Each live agent's observation is fed to the same network; actions are
-    deterministic and clipped to ``[-1, 1]``.
-
-    Args:
-        path: the ``.zip`` written by ``model.save``.
-        algo: ``"PPO"``, ``"SAC"``, ``"TD3"`` or ``"A2C"``; detected from the
-            file when ``None``.
-    """
-
-    def __init__(self, path: str | Path, algo: str | None = None) -> None:
-        path = Path(path)
-        if not path.is_file():
-            raise ValueError(f"policy file {str(path)!r} does not exist")
-        import stable_baselines3 as sb3
-
-        algo = (algo or detect_sb3_algo(path)).upper()
-        if not hasattr(sb3, algo):
-            raise ValueError(f"unknown stable-baselines3 algorithm {algo!r} for {str(path)!r}")
-        self.algo = algo
-        self.model = getattr(sb3, algo).load(str(path), device="cpu")
-        self.name = path.stem
-        self.env = None
-
-    def reset(self, env, seed: int | None = None) -> None:
-        """Bind to ``env``; checks the observation size matches the model's."""
-        expected = self.model.observation_space.shape
-        got = env.observation_space(env.possible_agents[0]).shape
-        if expected != got:
-            raise ValueError(
-                f"model {self.name!r} expects observations of shape {expected}, the env "
-                f"gives {got}: use the same scenario/config overrides as in training"
-            )
-        self.env = env
-
-    def act(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        """One batched forward pass over the live agents."""
-        agents = list(self.env.agents)
-        if not agents:
-            return {}
-        batch = np.stack([obs[a] for a in agents])
-        actions, _ = self.model.predict(batch, deterministic=True)
-        actions = np.clip(np.asarray(actions, dtype=np.float32).reshape(len(agents), -1), -1, 1)
-        return dict(zip(agents, actions, strict=True))
-
-
-def detect_sb3_algo(path: str | Path) -> str:
-    """The algorithm a stable-baselines3 ``.zip`` was saved from (``"PPO"`` when unsure)."""
-    try:
-        with zipfile.ZipFile(path) as zf:
-            data = zf.read("data").decode("utf-8", errors="replace")
-    except (zipfile.BadZipFile, KeyError, OSError) as err:
-        raise ValueError(f"{str(path)!r} is not a stable-baselines3 model zip: {err}") from err
-    for algo in ("sac", "td3", "a2c", "ppo"):
-        if f"stable_baselines3.{algo}." in data:
-            return algo.upper()
-    return "PPO"
 
 
 def make_policy(spec: str) -> Policy:
