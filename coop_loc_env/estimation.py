@@ -83,6 +83,18 @@ def noisy_start(
     return start, np.maximum(std, 1e-3)
 
 
+def team_odometry(
+    cfg: ScenarioConfig, readings: Readings, robots: np.ndarray, active: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """The step's odometry of ``robots``: ``(v, w)`` each ``(substeps, k)``, zero for robots
+    no longer active, and the substep length in seconds."""
+    odo = readings.odometry[:, robots]
+    act = active[robots]
+    v = np.where(act, odo[..., 0], 0.0)
+    w = np.where(act, odo[..., 1], 0.0)
+    return v, w, cfg.dt / cfg.odometry_substeps
+
+
 GAUSSIAN_FEATURE_NAMES = (
     "x_norm",
     "y_norm",
@@ -124,11 +136,7 @@ class EKFBackend:
         cfg = self.cfg
         ekf = self.ekf
         g = self.robots
-        act = active[g]
-        dt_sub = cfg.dt / cfg.odometry_substeps
-        odo = readings.odometry[:, g]  # (substeps, k, 2)
-        v = np.where(act, odo[..., 0], 0.0)
-        w = np.where(act, odo[..., 1], 0.0)
+        v, w, dt_sub = team_odometry(cfg, readings, g, active)
         # Encoder noise plus the wheel slip the robot's maker specifies, inflated by
         # ``ekf_process_noise_scale`` to cover what the model leaves out.
         scale = cfg.ekf_process_noise_scale

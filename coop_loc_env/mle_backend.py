@@ -42,6 +42,7 @@ from coop_loc_env.estimation import (
     gaussian_features,
     noisy_start,
     register_backend,
+    team_odometry,
 )
 from coop_loc_env.sensors import Readings
 from coop_loc_env.world import World
@@ -152,10 +153,7 @@ class MLEBackend:
         cfg = self.cfg
         g = self.robots
         act = active[g]
-        dt_sub = cfg.dt / cfg.odometry_substeps
-        odo = readings.odometry[:, g]  # (substeps, k, 2)
-        v = np.where(act, odo[..., 0], 0.0)
-        w = np.where(act, odo[..., 1], 0.0)
+        v, w, dt_sub = team_odometry(cfg, readings, g, active)
         self.mle.add_odometry_team(
             v, w, dt_sub,
             std_v=np.hypot(cfg.odom_v_std, cfg.slip_std * v),
