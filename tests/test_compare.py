@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,15 +15,6 @@ from policies.compare import (
     parse_policy_list,
     time_to_localize,
 )
-
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _evaluate_main():
-    spec = importlib.util.spec_from_file_location("evaluate", ROOT / "scripts" / "evaluate.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod.main
 
 
 def test_mean_ci_is_the_student_t_interval():
@@ -57,11 +46,12 @@ def test_parse_policy_list_rejects_bad_lists():
             parse_policy_list(bad)
 
 
-def test_evaluate_compare_prints_one_table_and_saves_plot_and_json(tmp_path, capsys):
+def test_evaluate_compare_prints_one_table_and_saves_plot_and_json(tmp_path, capsys, script_main):
     out = tmp_path / "cmp.json"
-    rc = _evaluate_main()(["--compare", "fsm,random", "--episodes", "3", "--max-cycles", "15",
-                           "--set", "n_robots=2", "--seed", "4", "--json", str(out),
-                           "--plot-dir", str(tmp_path), "--no-progress"])
+    evaluate = script_main("evaluate")
+    rc = evaluate(["--compare", "fsm,random", "--episodes", "3", "--max-cycles", "15",
+                   "--set", "n_robots=2", "--seed", "4", "--json", str(out),
+                   "--plot-dir", str(tmp_path), "--no-progress"])
     assert rc == 0
     text = capsys.readouterr().out
     assert "mean [95 % CI] over 3 episodes (seeds 4..6)" in text
@@ -75,7 +65,7 @@ def test_evaluate_compare_prints_one_table_and_saves_plot_and_json(tmp_path, cap
         assert s["mean"] == pytest.approx(np.mean(errs))
         assert s["low"] < s["mean"] < s["high"]
     assert (tmp_path / "outdoor_terrain_compare.png").stat().st_size > 10_000
-    assert _evaluate_main()(["--compare", "fsm,nonsense", "--no-progress"]) == 2
+    assert evaluate(["--compare", "fsm,nonsense", "--no-progress"]) == 2
     assert "unknown policy 'nonsense'" in capsys.readouterr().err
 
 

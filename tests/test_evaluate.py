@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,19 +17,10 @@ from policies.runner import (
     summarize,
 )
 
-ROOT = Path(__file__).resolve().parents[1]
 
-
-def _evaluate_main():
-    spec = importlib.util.spec_from_file_location("evaluate", ROOT / "scripts" / "evaluate.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod.main
-
-
-def test_evaluate_writes_valid_json_and_plots(tmp_path, capsys):
+def test_evaluate_writes_valid_json_and_plots(tmp_path, capsys, script_main):
     out = tmp_path / "eval.json"
-    rc = _evaluate_main()(
+    rc = script_main("evaluate")(
         ["--scenario", "outdoor_terrain", "--policy", "fsm", "--episodes", "2", "--max-cycles",
          "40", "--seed", "5", "--json", str(out), "--plot-dir", str(tmp_path), "--set",
          "n_robots=2", "--no-progress"]
@@ -55,8 +44,8 @@ def test_evaluate_writes_valid_json_and_plots(tmp_path, capsys):
     assert "team localization error (m)" in table and "+/-" in table
 
 
-def test_evaluate_rejects_bad_input(capsys):
-    main = _evaluate_main()
+def test_evaluate_rejects_bad_input(capsys, script_main):
+    main = script_main("evaluate")
     assert main(["--policy", "nonsense", "--episodes", "1", "--no-progress"]) == 2
     assert "unknown policy 'nonsense'" in capsys.readouterr().err
     assert main(["--set", "n_robots=0", "--episodes", "1", "--no-progress"]) == 2
@@ -112,18 +101,15 @@ def test_saved_sb3_model_is_a_policy(tmp_path):
         make_policy(str(tmp_path / "missing.zip"))
 
 
-def test_render_episode_saves_gif(tmp_path):
+def test_render_episode_saves_gif(tmp_path, script_main):
     import imageio.v2 as imageio
 
-    spec = importlib.util.spec_from_file_location("render_episode",
-                                                  ROOT / "scripts" / "render_episode.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    main = script_main("render_episode")
     out = tmp_path / "ep.gif"
-    assert mod.main(["--policy", "seek", "--max-cycles", "20", "--every", "10", "--out",
+    assert main(["--policy", "seek", "--max-cycles", "20", "--every", "10", "--out",
                      str(out), "--set", "n_robots=2", "--no-progress"]) == 0
     frames = imageio.mimread(out)
     assert len(frames) == 3  # after reset, step 10, step 20
     assert frames[0].ndim == 3 and frames[0].shape[2] in (3, 4)
     assert not np.array_equal(frames[0], frames[-1])
-    assert mod.main(["--every", "0", "--no-progress"]) == 2
+    assert main(["--every", "0", "--no-progress"]) == 2
