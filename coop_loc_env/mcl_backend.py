@@ -128,6 +128,16 @@ def detection_reset_fraction(cfg: ScenarioConfig) -> float:
     return float(f)
 
 
+def global_init_factor(cfg: ScenarioConfig) -> int:
+    """``extras["mcl_global_init_factor"]``: how many times ``n_particles`` the first,
+    uniform particle set of global localization holds (``GLOBAL_INIT_FACTOR`` by default;
+    KLD-sampling cuts it at the first resampling, so only adaptive filters use it)."""
+    f = cfg.extras.get("mcl_global_init_factor", GLOBAL_INIT_FACTOR)
+    if isinstance(f, bool) or not isinstance(f, int) or f < 1:
+        raise ValueError(f"extras['mcl_global_init_factor'] must be an int >= 1, got {f!r}")
+    return f
+
+
 def known_map(world: World, sensor: str, resolution: float) -> OccupancyGrid:
     """The occupancy grid a ``sensor`` (``"laser"``/``"sonar"``) robot localizes in (cached).
 
@@ -232,6 +242,7 @@ class MCLBackend:
             )
         )
         self.reset_fraction = detection_reset_fraction(cfg)
+        self.init_factor = global_init_factor(cfg)
         self.filters: list[ParticleFilter] = []
         self.rng = np.random.default_rng(0)
         self.transfers_applied = np.zeros(len(self.robots), dtype=int)
@@ -260,7 +271,7 @@ class MCLBackend:
                 # Dense first set: every symmetric copy of the true pose gets
                 # particles near it; KLD-sampling cuts it to n_particles at the
                 # first resampling (a fixed-size filter keeps n_particles).
-                factor = GLOBAL_INIT_FACTOR if pf.config.adaptive else 1
+                factor = self.init_factor if pf.config.adaptive else 1
                 pf.init_uniform(factor * pf.config.n_particles)
             else:
                 pf.init_gaussian(start[i], cov)

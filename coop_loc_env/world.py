@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 import pymunk
+import pymunk.batch
 
 from coop_loc_env.config import Obstacle, ScenarioConfig
 from coop_loc_env.raycast import RayScene
@@ -19,6 +20,8 @@ from coop_loc_env.terrain import HeightField
 
 ROBOT_COLLISION_TYPE = 1
 _WALL_RADIUS = 0.05
+_VELOCITIES = pymunk.batch.BodyFields.VELOCITY | pymunk.batch.BodyFields.ANGULAR_VELOCITY
+_POSE_FIELDS = pymunk.batch.BodyFields.POSITION | pymunk.batch.BodyFields.ANGLE
 
 
 def _count_contact(arbiter: pymunk.Arbiter, space: pymunk.Space, data: dict) -> None:
@@ -213,6 +216,36 @@ class World:
             space.add(body, shape)
             self.bodies.append(body)
         self.space = space
+        self._angles = self.poses[:, 2].copy()
+        self._make_batch_buffers()
+
+    def _make_batch_buffers(self) -> None:
+        """Buffers for pymunk's batch API (rebuilt after unpickling: they hold C pointers).
+
+        The velocity buffer has one row per body pymunk iterates (the robots
+        first, in order, then the static body), per substep, plus a final
+        all-zero row that stops the robots.
+        """
+        probe = pymunk.batch.Buffer()
+        pymunk.batch.get_space_bodies(self.space, _POSE_FIELDS, probe)
+        n_bodies = len(probe.float_buf()) // (3 * 8)
+        self._velocity_buffer = np.zeros((self.cfg.odometry_substeps + 1, n_bodies, 3))
+        self._velocity_rows = []
+        for row in self._velocity_buffer:
+            self._velocity_rows.append(pymunk.batch.Buffer())
+            self._velocity_rows[-1].set_float_buf(row)
+        self._state_batch = pymunk.batch.Buffer()
+
+    def __getstate__(self) -> dict:
+        state = self.__dict__.copy()
+        for key in ("_velocity_buffer", "_velocity_rows", "_state_batch"):
+            state.pop(key, None)
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        if self.space is not None:
+            self._make_batch_buffers()
 
     def _start_poses(self, rng: np.random.Generator) -> np.ndarray:
         cfg = self.cfg
@@ -257,21 +290,31 @@ class World:
         cfg = self.cfg
         n_sub = cfg.odometry_substeps
         dt = cfg.dt / n_sub
+        n = len(v_cmd)
         before = self.contacts["counts"].copy()
-        slip = 1.0 + cfg.slip_std * rng.standard_normal((n_sub, len(v_cmd), 2))
-        v = np.where(active, v_cmd, 0.0)
-        w = np.where(active, w_cmd, 0.0)
-        for k in range(n_sub):
-            vk = v * slip[k, :, 0]
-            wk = w * slip[k, :, 1]
-            for i, body in enumerate(self.bodies):
-                th = body.angle
-                body.velocity = (vk[i] * np.cos(th), vk[i] * np.sin(th))
-                body.angular_velocity = wk[i]
-            self.space.step(dt)
-        for i, body in enumerate(self.bodies):
-            body.velocity = (0.0, 0.0)
-            x, y = body.position
-            self.poses[i] = (x, y, body.angle)
+        slip = 1.0 + cfg.slip_std * rng.standard_normal((n_sub, n, 2))
+        vk = np.where(active, v_cmd, 0.0) * slip[:, :, 0]  # (substeps, n)
+        wk = np.where(active, w_cmd, 0.0) * slip[:, :, 1]
+        # Bodies have infinite moment: contacts never change their turn rate, so the
+        # heading at each substep's start is known in advance (summed in pymunk's order).
+        steps = np.empty((n_sub + 1, n))
+        steps[0] = self._angles
+        steps[1:] = wk * dt
+        heading = np.cumsum(steps, axis=0)
+        vel = self._velocity_buffer
+        vel[:-1, :n, 0] = vk * np.cos(heading[:-1])
+        vel[:-1, :n, 1] = vk * np.sin(heading[:-1])
+        vel[:-1, :n, 2] = wk
+        set_bodies, space = pymunk.batch.set_space_bodies, self.space
+        for row in self._velocity_rows[:-1]:
+            set_bodies(space, _VELOCITIES, row)
+            space.step(dt)
+        set_bodies(space, _VELOCITIES, self._velocity_rows[-1])  # stop the robots
+        batch = self._state_batch
+        batch.clear()
+        pymunk.batch.get_space_bodies(space, _POSE_FIELDS, batch)
+        state = np.frombuffer(batch.float_buf(), dtype=np.float64).reshape(-1, 3)[:n]
+        self.poses[:] = state
+        self._angles = state[:, 2].copy()  # unwrapped, as pymunk keeps them
         self.poses[:, 2] = (self.poses[:, 2] + np.pi) % (2 * np.pi) - np.pi
         return self.contacts["counts"] - before

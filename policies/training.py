@@ -20,7 +20,15 @@ loads), and runs PPO (default) or SAC with:
 * an optional wall-clock limit ``max_wall_s`` (training stops there, the
   model is saved as usual);
 * the final model at ``DIR/final_model.zip`` and the run's settings at
-  ``DIR/train_config.json``.
+  ``DIR/train_config.json``;
+* ``reward_mode="localize"``: the env's rewards replaced by minus the time to
+  localize (:class:`policies.vec_env.TimeToLocalizeReward`, weights
+  ``localize_step_reward``, ``localize_team_weight``, ``localize_collision_weight``);
+* ``bc_from``: before PPO, behaviour cloning of a scripted teacher
+  (:mod:`policies.imitation`; ``bc_episodes`` seeded episodes from
+  ``BC_SEED``, ``bc_epochs``, exploration ``bc_log_std``); the critic is fitted
+  to the teacher's returns too when rewards are not normalized. The clone is
+  saved as ``DIR/bc_model.zip``; the wall-clock limit counts the cloning.
 
 "env steps" here are SB3 timesteps: one per agent slot per step, so one
 parallel-env step of a 3-robot team counts 3.
@@ -38,9 +46,10 @@ from typing import Any
 
 import numpy as np
 
+from policies.imitation import behaviour_clone, collect_demonstrations, make_teacher
 from policies.learned import LearnedPolicy
 from policies.runner import make_policy, run_episode
-from policies.vec_env import ParallelEnvVecEnv, make_env_fn
+from policies.vec_env import REWARD_MODES, ParallelEnvVecEnv, TimeToLocalizeReward, make_env_fn
 
 ALGOS = ("PPO", "SAC")
 REWARD_KEYS = (
@@ -51,6 +60,7 @@ REWARD_KEYS = (
     "tip_over_penalty",
 )
 EVAL_SEED = 100_000  # evaluation episodes use seeds EVAL_SEED + k, apart from training seeds
+BC_SEED = 200_000  # behaviour-cloning demonstrations use seeds BC_SEED + k
 
 
 @dataclass
@@ -89,6 +99,15 @@ class TrainConfig:
     progress_bar: bool = True
     normalize_reward: bool = True
     verbose: int = 0
+    clip_range: float = 0.2
+    reward_mode: str = "env"
+    localize_step_reward: float = 0.1
+    localize_team_weight: float = 0.0
+    localize_collision_weight: float = 0.0
+    bc_from: str | None = None
+    bc_episodes: int = 10
+    bc_epochs: int = 30
+    bc_log_std: float = -1.0
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming a bad field."""
@@ -113,6 +132,34 @@ class TrainConfig:
             raise ValueError(f"learning_rate must be > 0, got {self.learning_rate!r}")
         if not self.net_arch or any(int(h) < 1 for h in self.net_arch):
             raise ValueError(f"net_arch must be positive layer sizes, got {self.net_arch!r}")
+        if not 0 < self.clip_range <= 1:
+            raise ValueError(f"clip_range must be in (0, 1], got {self.clip_range!r}")
+        if self.reward_mode not in REWARD_MODES:
+            raise ValueError(f"reward_mode must be one of {REWARD_MODES}, "
+                             f"got {self.reward_mode!r}")
+        TimeToLocalizeReward.check_kwargs(**self.reward_kwargs())
+        if self.bc_from is not None:
+            if self.algo.upper() != "PPO":
+                raise ValueError(f"bc_from needs algo PPO, got {self.algo!r}")
+            if self.resume:
+                raise ValueError("bc_from and resume exclude each other")
+            make_teacher(self.bc_from)  # fail early on a bad spec
+            for key in ("bc_episodes", "bc_epochs"):
+                value = getattr(self, key)
+                if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                    raise ValueError(f"{key} must be a positive integer, got {value!r}")
+
+    def reward_kwargs(self) -> dict[str, float]:
+        """Keyword arguments of :class:`~policies.vec_env.TimeToLocalizeReward`."""
+        return {"step_reward": self.localize_step_reward,
+                "team_weight": self.localize_team_weight,
+                "collision_weight": self.localize_collision_weight}
+
+    def env_fn(self):
+        """The factory of one training env (reward-wrapped when ``reward_mode="localize"``)."""
+        kwargs = self.reward_kwargs() if self.reward_mode == "localize" else None
+        return make_env_fn(self.scenario, reward_mode=self.reward_mode, reward_kwargs=kwargs,
+                           **self.env_overrides())
 
     def env_overrides(self) -> dict[str, Any]:
         """The env config overrides of this run (``estimator`` included when set)."""
@@ -126,9 +173,7 @@ def make_vec_env(cfg: TrainConfig):
     """The training ``VecEnv``: slots per agent, reward-normalized when asked."""
     from stable_baselines3.common.vec_env import VecNormalize
 
-    venv = ParallelEnvVecEnv(
-        make_env_fn(cfg.scenario, **cfg.env_overrides()), n_envs=cfg.n_envs, n_procs=cfg.n_procs
-    )
+    venv = ParallelEnvVecEnv(cfg.env_fn(), n_envs=cfg.n_envs, n_procs=cfg.n_procs)
     if cfg.normalize_reward:
         venv = VecNormalize(venv, norm_obs=False, norm_reward=True, gamma=cfg.gamma)
     return venv
@@ -147,7 +192,7 @@ def make_model(cfg: TrainConfig, venv, tensorboard_log: str | None):
     if algo == "PPO":
         return sb3.PPO(
             "MlpPolicy", venv, n_steps=cfg.n_steps, batch_size=cfg.batch_size,
-            n_epochs=cfg.n_epochs, ent_coef=cfg.ent_coef,
+            n_epochs=cfg.n_epochs, ent_coef=cfg.ent_coef, clip_range=cfg.clip_range,
             policy_kwargs=dict(net_arch=dict(pi=arch, vf=arch)), **common,
         )
     return sb3.SAC(
@@ -171,7 +216,7 @@ def evaluate_figures(
     return {k: float(np.mean([ep[k] for ep in eps])) for k in keys}
 
 
-def _callbacks(cfg: TrainConfig, out: Path):
+def _callbacks(cfg: TrainConfig, out: Path, deadline: float | None = None):
     from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
 
     class BaselineEvalCallback(BaseCallback):
@@ -220,10 +265,11 @@ def _callbacks(cfg: TrainConfig, out: Path):
             name_prefix="model", save_vecnormalize=True,
         ))
     class WallClockLimit(BaseCallback):
-        """Stop training once ``max_wall_s`` seconds have passed since it started."""
+        """Stop training at ``deadline`` (``max_wall_s`` after ``train`` began)."""
 
         def _on_training_start(self) -> None:
-            self.deadline = time.perf_counter() + cfg.max_wall_s
+            self.deadline = (deadline if deadline is not None
+                             else time.perf_counter() + cfg.max_wall_s)
 
         def _on_step(self) -> bool:
             return time.perf_counter() < self.deadline
@@ -296,18 +342,35 @@ def _vecnormalize_of(ckpt: Path) -> Path | None:
     return next((c for c in candidates if c.is_file()), None)
 
 
+def warm_start(cfg: TrainConfig, model) -> dict[str, Any]:
+    """Behaviour-clone ``cfg.bc_from`` into ``model`` (PPO) on the training env; returns
+    the demonstration and fit figures (the critic is fitted only without reward
+    normalization, whose scale it could not know)."""
+    demos = collect_demonstrations(cfg.env_fn(), make_teacher(cfg.bc_from), cfg.bc_episodes,
+                                   BC_SEED, gamma=cfg.gamma)
+    fit = behaviour_clone(model, demos, epochs=cfg.bc_epochs, log_std=cfg.bc_log_std,
+                          value=not cfg.normalize_reward, seed=cfg.seed)
+    return {"teacher": cfg.bc_from, "episodes": demos["episodes"],
+            "team_steps": demos["steps"], "collect_wall_s": demos["wall_s"],
+            "mean_return": float(demos["returns"].mean()), **fit}
+
+
 def train(cfg: TrainConfig) -> dict[str, Any]:
     """Run the training described by ``cfg``; returns a summary (paths, timings, evals).
 
     The summary holds ``final_model`` (path), ``timesteps`` (total, counting a
-    resumed run's earlier steps), ``wall_s``, ``steps_per_s`` and ``evals``
-    (the periodic evaluation records).
+    resumed run's earlier steps), ``wall_s`` (the RL phase), ``total_wall_s``
+    (from the call, cloning included), ``steps_per_s``, ``bc`` (the
+    behaviour-cloning figures, or ``None``) and ``evals`` (the periodic
+    evaluation records).
     """
     import stable_baselines3 as sb3
     import torch
 
     cfg.validate()
     torch.set_num_threads(1)
+    t0 = time.perf_counter()
+    deadline = None if cfg.max_wall_s is None else t0 + cfg.max_wall_s
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
     config = dataclasses.asdict(cfg)
@@ -328,7 +391,11 @@ def train(cfg: TrainConfig) -> dict[str, Any]:
         else:
             model = make_model(cfg, venv, tb)
             reset = True
-        callbacks, evaluator = _callbacks(cfg, out)
+        bc = None
+        if cfg.bc_from is not None:
+            bc = warm_start(cfg, model)
+            model.save(str(out / "bc_model.zip"))
+        callbacks, evaluator = _callbacks(cfg, out, deadline)
         sb3_bar = cfg.progress_bar and _has_rich()
         if cfg.progress_bar and not sb3_bar:
             callbacks.append(_tqdm_progress(cfg.timesteps))
@@ -350,6 +417,8 @@ def train(cfg: TrainConfig) -> dict[str, Any]:
         "final_model": str(final),
         "timesteps": int(model.num_timesteps),
         "wall_s": wall,
+        "total_wall_s": time.perf_counter() - t0,
+        "bc": bc,
         "steps_per_s": done / wall if wall > 0 else float("nan"),
         "evals": evaluator.history if evaluator is not None else [],
         "baseline": evaluator.baseline if evaluator is not None else None,

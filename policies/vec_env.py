@@ -56,10 +56,126 @@ EnvFn = Callable[[], Any]
 _COMMANDS = ("step", "reset", "get_attr", "set_attr", "env_method")
 
 
-def make_env_fn(scenario: str = "outdoor_terrain", **overrides: Any) -> EnvFn:
-    """A picklable factory of ``coop_loc_env.parallel_env(scenario, **overrides)``."""
+REWARD_MODES = ("env", "localize")
+
+
+def make_env_fn(
+    scenario: str = "outdoor_terrain",
+    reward_mode: str = "env",
+    reward_kwargs: dict[str, Any] | None = None,
+    **overrides: Any,
+) -> EnvFn:
+    """A picklable factory of ``coop_loc_env.parallel_env(scenario, **overrides)``.
+
+    ``reward_mode="localize"`` wraps the env in :class:`TimeToLocalizeReward`
+    (``reward_kwargs`` are its keyword arguments); ``"env"`` keeps the env's rewards.
+    """
+    if reward_mode not in REWARD_MODES:
+        raise ValueError(f"reward_mode must be one of {REWARD_MODES}, got {reward_mode!r}")
     coop_loc_env.make_config(scenario, **overrides)  # fail early, naming the bad key/value
+    if reward_mode == "localize":
+        TimeToLocalizeReward.check_kwargs(**(reward_kwargs or {}))
+        return partial(_localize_env, scenario, dict(reward_kwargs or {}), overrides)
     return partial(coop_loc_env.parallel_env, scenario, **overrides)
+
+
+def _localize_env(scenario: str, reward_kwargs: dict[str, Any], overrides: dict[str, Any]):
+    return TimeToLocalizeReward(coop_loc_env.parallel_env(scenario, **overrides), **reward_kwargs)
+
+
+class TimeToLocalizeReward:
+    """A ParallelEnv wrapper whose per-robot reward is minus the time to localize.
+
+    Robot ``i`` is *localized* from the first step its ``info["particle_spread"]``
+    (MCL; the Gaussian ``sqrt(var_x + var_y)`` otherwise) falls below
+    ``threshold`` (1.5 m, the metric of :mod:`policies.compare`). Its reward per step:
+
+        ``-step_reward * ((1 - team_weight) * [i not localized]
+        + team_weight * (fraction of the team not localized))
+        - collision_weight * new contacts``
+
+    so with ``team_weight = 0`` an episode's undiscounted return is
+    ``-step_reward`` times the robot's steps to localize (what the evaluation
+    measures), and ``team_weight > 0`` also pays a localized robot for its
+    teammates (whom it can help through detections). The rewards use the true
+    pose (through the spread); the observations are the env's, untouched.
+    Everything else is forwarded to the wrapped env.
+    """
+
+    def __init__(
+        self,
+        env,
+        step_reward: float = 0.1,
+        team_weight: float = 0.0,
+        collision_weight: float = 0.0,
+        threshold: float = 1.5,
+    ) -> None:
+        self.check_kwargs(step_reward, team_weight, collision_weight, threshold)
+        self.env = env
+        self.step_reward = float(step_reward)
+        self.team_weight = float(team_weight)
+        self.collision_weight = float(collision_weight)
+        self.threshold = float(threshold)
+        self.localized = np.zeros(len(env.possible_agents), dtype=bool)
+
+    @staticmethod
+    def check_kwargs(
+        step_reward: float = 0.1,
+        team_weight: float = 0.0,
+        collision_weight: float = 0.0,
+        threshold: float = 1.5,
+    ) -> None:
+        """Raise ``ValueError`` naming a bad argument."""
+        if not step_reward > 0:
+            raise ValueError(f"step_reward must be > 0, got {step_reward!r}")
+        if not 0 <= team_weight <= 1:
+            raise ValueError(f"team_weight must be in [0, 1], got {team_weight!r}")
+        if not collision_weight >= 0:
+            raise ValueError(f"collision_weight must be >= 0, got {collision_weight!r}")
+        if not threshold > 0:
+            raise ValueError(f"threshold must be > 0, got {threshold!r}")
+
+    def __getattr__(self, name: str) -> Any:
+        if name == "env":  # not yet set (unpickling): avoid recursion
+            raise AttributeError(name)
+        return getattr(self.env, name)
+
+    @staticmethod
+    def spread(info: dict) -> float:
+        """The robot's spread (m): ``particle_spread``, else ``sqrt(var_x + var_y)``."""
+        if "particle_spread" in info:
+            return float(info["particle_spread"])
+        cov = np.asarray(info["pose_cov"])
+        return float(np.sqrt(cov[0, 0] + cov[1, 1]))
+
+    def _update(self, infos: dict[str, dict]) -> None:
+        index = self.env.agent_name_mapping
+        for agent, info in infos.items():
+            if self.spread(info) < self.threshold:
+                self.localized[index[agent]] = True
+
+    def reset(self, seed: int | None = None, options: dict | None = None):
+        """Reset the env; no robot counts as localized at the start."""
+        obs, infos = self.env.reset(seed=seed, options=options)
+        self.localized[:] = False
+        return obs, infos
+
+    def step(self, actions: dict[str, Any]):
+        """Step the env and replace its rewards."""
+        obs, _, terms, truncs, infos = self.env.step(actions)
+        self._update(infos)
+        index = self.env.agent_name_mapping
+        team_lost = float(np.mean(~self.localized))
+        rewards = {}
+        for agent, info in infos.items():
+            lost = float(not self.localized[index[agent]])
+            r = -self.step_reward * ((1 - self.team_weight) * lost + self.team_weight * team_lost)
+            rewards[agent] = r - self.collision_weight * float(info.get("collisions", 0))
+        return obs, rewards, terms, truncs, infos
+
+    def close(self) -> None:
+        """Close the wrapped env."""
+        self.env.close()
 
 
 class EnvCopies:

@@ -23,6 +23,7 @@ import sys
 
 from policies.runner import parse_overrides
 from policies.training import ALGOS, TrainConfig, train
+from policies.vec_env import REWARD_MODES
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -64,6 +65,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-wall-minutes", type=float, default=None,
                    help="stop training after this many minutes of wall time")
     p.add_argument("--no-reward-norm", action="store_true", help="no VecNormalize on rewards")
+    p.add_argument("--clip-range", type=float, default=d.clip_range, help="PPO clip range")
+    p.add_argument("--reward", dest="reward_mode", default=d.reward_mode, choices=REWARD_MODES,
+                   help="env: the env's rewards; localize: minus the time to localize "
+                        "(spread < 1.5 m, policies.vec_env.TimeToLocalizeReward)")
+    p.add_argument("--localize-step-reward", type=float, default=d.localize_step_reward,
+                   help="--reward localize: penalty per step not yet localized")
+    p.add_argument("--localize-team-weight", type=float, default=d.localize_team_weight,
+                   help="--reward localize: weight in [0, 1] of the team's not-localized "
+                        "fraction")
+    p.add_argument("--localize-collision-weight", type=float,
+                   default=d.localize_collision_weight,
+                   help="--reward localize: penalty per new contact")
+    p.add_argument("--bc-from", default=None, metavar="TEACHER",
+                   help="behaviour-clone this teacher before PPO: wander, wander:SPEED, fsm, ...")
+    p.add_argument("--bc-episodes", type=int, default=d.bc_episodes,
+                   help="teacher episodes to clone (seeds from policies.training.BC_SEED)")
+    p.add_argument("--bc-epochs", type=int, default=d.bc_epochs)
+    p.add_argument("--bc-log-std", type=float, default=d.bc_log_std,
+                   help="log standard deviation of the actions after cloning")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     return p
 
@@ -88,7 +108,11 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         checkpoint_freq=args.checkpoint_freq, resume=args.resume,
         progress_bar=not args.no_progress,
         max_wall_s=None if args.max_wall_minutes is None else 60.0 * args.max_wall_minutes,
-        normalize_reward=not args.no_reward_norm,
+        normalize_reward=not args.no_reward_norm, clip_range=args.clip_range,
+        reward_mode=args.reward_mode, localize_step_reward=args.localize_step_reward,
+        localize_team_weight=args.localize_team_weight,
+        localize_collision_weight=args.localize_collision_weight, bc_from=args.bc_from,
+        bc_episodes=args.bc_episodes, bc_epochs=args.bc_epochs, bc_log_std=args.bc_log_std,
     )
 
 
@@ -105,8 +129,15 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
+    if summary["bc"]:
+        bc = summary["bc"]
+        print(f"behaviour cloning of {bc['teacher']}: {bc['episodes']} episodes "
+              f"({bc['samples']} samples) collected in {bc['collect_wall_s']:.0f} s, fitted in "
+              f"{bc['wall_s']:.0f} s (action MSE {bc['action_mse']:.4f}, value MSE "
+              f"{bc['value_mse']:.4f})")
     print(f"trained {summary['timesteps']} agent steps in {summary['wall_s']:.0f} s "
-          f"({summary['steps_per_s']:.0f} steps/s); final model: {summary['final_model']}")
+          f"({summary['steps_per_s']:.0f} steps/s), {summary['total_wall_s']:.0f} s in all; "
+          f"final model: {summary['final_model']}")
     for ev in summary["evals"]:
         print(f"  eval at {ev['timesteps']:.0f}: error {ev['localization_error_m']:.3f} m, "
               f"coverage {ev['coverage']:.4f}")

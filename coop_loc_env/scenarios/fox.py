@@ -154,6 +154,26 @@ def hexagon_vertices(edge: float = HEX_EDGE) -> list[tuple[float, float]]:
     ]
 
 
+SONAR_FEATURE_DEG = (30.0, 150.0, 270.0)  # three-fold: a sonar robot keeps three poses
+SONAR_BLOCK = (2.5, 1.0)  # m, length along the wall and depth into the room
+LASER_FEATURE_DEG = (0.0, 180.0)  # two-fold: a laser robot keeps two poses
+LASER_PILLAR = (1.0, 1.0)  # m, square pillars ...
+LASER_PILLAR_R = 3.5  # m, ... this far (inner face) from the centre
+
+
+def _block(cx: float, cy: float, deg: float, r_out: float, length: float, depth: float
+           ) -> tuple[tuple[float, float], ...]:
+    """A ``length`` x ``depth`` rectangle facing the centre, its outer face ``r_out`` from it
+    in direction ``deg`` (counter-clockwise vertices)."""
+    a = math.radians(deg)
+    u = (math.cos(a), math.sin(a))  # outward
+    t = (-u[1], u[0])  # along the face
+    pts = []
+    for r, s in ((r_out - depth, -1), (r_out - depth, 1), (r_out, 1), (r_out, -1)):
+        pts.append((cx + r * u[0] + s * length / 2 * t[0], cy + r * u[1] + s * length / 2 * t[1]))
+    return tuple(pts)
+
+
 def hexagon_obstacles(edge: float = HEX_EDGE) -> tuple[Obstacle, ...]:
     """Walls outside the hexagon, and the sonar-only / laser-only features."""
     w, h = HEX_WORLD
@@ -167,24 +187,17 @@ def hexagon_obstacles(edge: float = HEX_EDGE) -> tuple[Obstacle, ...]:
         _rect(v[2][0], v[2][1], v[1][0], h),
     )
     cx, cy = w / 2, h / 2
-    apothem = edge * math.sqrt(3) / 2
     features = []
-    # sonar-only: at the middle of every other edge (30, 150, 270 degrees), near the wall
-    for deg in (30.0, 150.0, 270.0):
-        a = math.radians(deg)
-        r = apothem - 0.75  # 0.25 m gap to the wall: too narrow for a robot
-        features.append(
-            Obstacle("rock", "circle", center=(cx + r * math.cos(a), cy + r * math.sin(a)),
-                     radius=0.5, visible_to=("sonar",))
-        )
-    # laser-only: two thin poles 2 m in from opposite corners (0 and 180 degrees)
-    for deg in (0.0, 180.0):
-        a = math.radians(deg)
-        r = edge - 2.0
-        features.append(
-            Obstacle("rock", "circle", center=(cx + r * math.cos(a), cy + r * math.sin(a)),
-                     radius=0.2, visible_to=("laser",))
-        )
+    # sonar-only: a block against the middle of every other edge (30, 150, 270 degrees)
+    for deg in SONAR_FEATURE_DEG:
+        features.append(Obstacle("wall", "polygon", visible_to=("sonar",),
+                                 vertices=_block(cx, cy, deg, edge * math.sqrt(3) / 2,
+                                                 *SONAR_BLOCK)))
+    # laser-only: two pillars on the line through opposite corners (0 and 180 degrees)
+    for deg in LASER_FEATURE_DEG:
+        features.append(Obstacle("wall", "polygon", visible_to=("laser",),
+                                 vertices=_block(cx, cy, deg, LASER_PILLAR_R + LASER_PILLAR[1],
+                                                 *LASER_PILLAR)))
     return outside + tuple(features)
 
 
