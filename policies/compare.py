@@ -65,14 +65,21 @@ class StandStillPolicy:
 
 
 def resolve_policy(spec: str):
-    """:func:`policies.runner.make_policy`, plus ``"wander"`` (``policies.fox.WanderPolicy``)
-    and ``"still"`` (:class:`StandStillPolicy`)."""
+    """:func:`policies.runner.make_policy`, plus ``"wander"`` / ``"wander:SPEED"``
+    (``policies.fox.WanderPolicy``, default speed 0.6) and ``"still"``
+    (:class:`StandStillPolicy`)."""
     if spec == "still":
         return StandStillPolicy()
-    if spec == "wander":
+    if spec == "wander" or str(spec).startswith("wander:"):
         from policies.fox import WanderPolicy
 
-        return WanderPolicy()
+        _, _, arg = str(spec).partition(":")
+        if not arg:
+            return WanderPolicy()
+        try:
+            return WanderPolicy(float(arg))
+        except ValueError as err:
+            raise ValueError(f"policy {spec!r}: wander:SPEED needs a speed in (0, 1]") from err
     return make_policy(spec)
 
 
@@ -191,6 +198,37 @@ def _run(scenario: str, policy, n_episodes: int, seed: int, overrides: dict[str,
             bar.close()
         env.close()
     return out
+
+
+def paired_difference(report: dict[str, Any], a: str, b: str,
+                      figure: str = "time_to_localize_s", level: float = 0.95
+                      ) -> dict[str, float]:
+    """Mean and Student-t interval of ``figure(a) - figure(b)`` over the episodes both
+    policies ran on the same seeds (a paired comparison: the seed's start poses are
+    shared, so their variance cancels); also ``n``."""
+    ea, eb = report["episodes"][a], report["episodes"][b]
+    if len(ea) != len(eb):
+        raise ValueError(f"{a!r} and {b!r} ran different numbers of episodes: "
+                         f"{len(ea)} vs {len(eb)}")
+    d = np.array([x[figure] for x in ea], dtype=float) - np.array([y[figure] for y in eb],
+                                                                  dtype=float)
+    m, lo, hi = mean_ci(d, level)
+    return {"mean": m, "low": lo, "high": hi, "n": len(d)}
+
+
+def format_paired(report: dict[str, Any], reference: str,
+                  figure: str = "time_to_localize_s") -> str:
+    """Lines ``policy - reference: mean [low, high]`` of :func:`paired_difference` for every
+    other policy of ``report``."""
+    lines = [f"paired difference in {LABELS[figure]} vs {policy_label(reference)} "
+             f"(same seeds, 95 % CI):"]
+    for spec in report["policies"]:
+        if spec == reference:
+            continue
+        d = paired_difference(report, spec, reference, figure)
+        lines.append(f"  {policy_label(spec)}: {d['mean']:+.4g} [{d['low']:+.4g}, "
+                     f"{d['high']:+.4g}]")
+    return "\n".join(lines)
 
 
 def merge_reports(reports: list[dict[str, Any]]) -> dict[str, Any]:

@@ -22,7 +22,9 @@ beside the true height field.
 unless ``--episodes`` says otherwise) and prints one table of means with 95 %
 confidence intervals (plus the time to localize, spread < 1.5 m), saves a bar
 plot ``SCENARIO_compare.png`` in ``--plot-dir`` (default ``outputs``) and the
-report as JSON with ``--json`` (see :mod:`policies.compare`).
+report as JSON with ``--json`` (see :mod:`policies.compare`), and the paired
+difference (same seeds) in time to localize of every other policy vs the
+first listed one. ``wander`` or ``wander:SPEED`` is the Fox et al. wander policy.
 """
 
 from __future__ import annotations
@@ -89,12 +91,20 @@ def main(argv: list[str] | None = None) -> int:
 
 def _compare(args: argparse.Namespace, overrides: dict) -> int:
     """The ``--compare`` mode (raises ``ValueError`` on bad input)."""
-    from policies.compare import compare, format_compare_table, parse_policy_list, plot_compare
+    from policies.compare import (
+        compare,
+        format_compare_table,
+        format_paired,
+        parse_policy_list,
+        plot_compare,
+    )
 
     specs = parse_policy_list(args.compare)
     n = 20 if args.episodes is None else args.episodes
     data = compare(args.scenario, specs, n, args.seed, overrides, progress=not args.no_progress)
     print(format_compare_table(data))
+    if len(specs) > 1 and n > 1:
+        print(format_paired(data, specs[0], "time_to_localize_s"))
     if n < 20:
         print(f"note: {n} episodes; the acceptance figures use >= 20")
     if args.json is not None:
