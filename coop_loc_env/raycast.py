@@ -13,7 +13,8 @@ class RayScene:
 
     ``circle_*`` and ``segment_*`` arrays describe obstacles; ``*_mask`` holds
     one boolean column per sensor channel (0 = laser, 1 = sonar, 2 = camera /
-    line of sight) saying whether that channel sees the shape.
+    line of sight) saying whether that channel sees the shape. ``bounds``,
+    when given, adds the walls of the world box (rays start inside it).
     """
 
     circle_centers: np.ndarray  # (C, 2)
@@ -22,6 +23,7 @@ class RayScene:
     seg_a: np.ndarray  # (S, 2)
     seg_b: np.ndarray  # (S, 2)
     seg_mask: np.ndarray  # (S, 3) bool
+    bounds: tuple[float, float] | None = None  # world box [0, w] x [0, h]: walls seen by all
 
 
 CHANNEL = {"laser": 0, "sonar": 1, "sight": 2}
@@ -108,4 +110,191 @@ def cast(
         seg = ray_segments(origins, dirs, scene.seg_a[sm], scene.seg_b[sm]).min(1)
         hit_extra = np.where(seg < best, -1, hit_extra)
         best = np.minimum(best, seg)
+    if scene.bounds is not None:
+        wall = ray_box(origins, dirs, scene.bounds)
+        hit_extra = np.where(wall < best, -1, hit_extra)
+        best = np.minimum(best, wall)
     return best, hit_extra
+
+
+class FanCaster:
+    """Casts fixed fans of rays from moving robots, visiting only the circles each ray can hit.
+
+    Each ray belongs to a robot and has a fixed angle in that robot's frame.
+    Per cast, every (robot, circle) pair within range gives the bearing
+    interval the circle covers; the rays inside it are found by a binary
+    search over the robot's rays sorted by angle, so the work grows with the
+    number of actual ray-circle crossings rather than rays x circles.
+    Segments are tested against every ray of the channel.
+
+    Args:
+        scene: the static geometry.
+        channel: sensor channel (``CHANNEL``) whose visibility mask applies.
+        ray_robot: ``(R,)`` robot index of each ray.
+        ray_angle: ``(R,)`` ray angle in the robot frame (rad).
+        max_range: ``(R,)`` range beyond which hits are not needed.
+    """
+
+    def __init__(
+        self,
+        scene: RayScene,
+        channel: int,
+        ray_robot: np.ndarray,
+        ray_angle: np.ndarray,
+        max_range: np.ndarray,
+    ) -> None:
+        cm = scene.circle_mask[:, channel]
+        self.centers = scene.circle_centers[cm]
+        self.radii = scene.circle_radii[cm]
+        sm = scene.seg_mask[:, channel]
+        self.seg_a, self.seg_b = scene.seg_a[sm], scene.seg_b[sm]
+        self.bounds = scene.bounds
+        self.ray_robot = np.asarray(ray_robot, dtype=np.intp)
+        self.ray_angle = np.asarray(ray_angle, dtype=float)
+        self.robots, self.ray_slot = np.unique(self.ray_robot, return_inverse=True)
+        self.dense_limit = 20_000  # rays x circles up to which testing all pairs is cheaper
+        counts = np.bincount(self.ray_slot)
+        robot_major = bool(np.all(np.diff(self.ray_slot) >= 0))
+        same_fan = len(counts) > 0 and bool(np.all(counts == counts[0]))
+        self.fans = (len(counts), int(counts[0]), 2) if robot_major and same_fan else None
+        self._own_key: tuple[int, int] | None = None
+        self._own = (np.zeros(0, np.intp), np.zeros(0, np.intp))
+        wrapped = (self.ray_angle + np.pi) % (2 * np.pi)  # in [0, 2 pi)
+        key = self.ray_robot * _KEY_STRIDE + wrapped
+        self.order = np.argsort(key, kind="stable")
+        self.sorted_key = key[self.order]
+        reach = np.zeros(self.ray_robot.max() + 1 if len(self.ray_robot) else 0)
+        np.maximum.at(reach, self.ray_robot, np.asarray(max_range, dtype=float))
+        self.reach = reach[self.robots]
+
+    def cast(
+        self,
+        poses: np.ndarray,
+        extra_centers: np.ndarray | None = None,
+        extra_radii: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Distance along each ray (``inf`` on a miss), in the constructor's ray order.
+
+        Args:
+            poses: ``(n, 3)`` robot poses (rows indexed by ``ray_robot``).
+            extra_centers, extra_radii: moving circles (the robots) ``(E, 2)``, ``(E,)``;
+                the circle with a ray's own robot index is skipped.
+        """
+        rays = len(self.ray_robot)
+        dist = np.full(rays, np.inf)
+        if rays == 0:
+            return dist
+        heading = poses[self.ray_robot, 2] + self.ray_angle
+        dirs = np.exp(1j * heading).view(np.float64).reshape(rays, 2)  # (cos, sin)
+        origins = poses[self.ray_robot, :2]
+        centers, radii, n_static = self.centers, self.radii, len(self.radii)
+        if extra_centers is not None and len(extra_centers):
+            centers = np.concatenate([centers, extra_centers])
+            radii = np.concatenate([radii, extra_radii])
+        if len(radii) * rays <= self.dense_limit:
+            self._dense_circles(poses, centers, radii, n_static, dirs, origins, dist)
+        else:
+            self._cast_circles(poses, centers, radii, n_static, dirs, origins, dist)
+        if len(self.seg_a):
+            np.minimum(dist, ray_segments(origins, dirs, self.seg_a, self.seg_b).min(1), out=dist)
+        if self.bounds is not None:
+            np.minimum(dist, ray_box(origins, dirs, self.bounds), out=dist)
+        return dist
+
+    def _dense_circles(self, poses, centers, radii, n_static, dirs, origins, dist) -> None:
+        """Every ray against every circle, in few array operations (small teams).
+
+        Along a ray ``o + t u`` a circle ``(c, r)`` is hit at ``t = b - sqrt(b^2 - q)``
+        with ``b = u.(c - o)`` and ``q = |c - o|^2 - r^2``; the nearest hit in front is
+        the largest positive ``1 / t`` (NaN where the ray misses, ignored by ``fmax``).
+        Rays start outside every circle but their own robot's, which is skipped.
+        """
+        rel = centers.T[None] - poses[self.robots, :2, None]  # (robots, 2, circles)
+        q = (rel * rel).sum(1)
+        q -= radii * radii
+        if len(radii) > n_static:
+            own = self._own_circles(len(radii), n_static)
+            q[own[0], own[1]] = np.inf
+        if self.fans is not None:  # every robot has the same fan, rays robot-major
+            b = np.matmul(dirs.reshape(self.fans), rel)  # (robots, rays, circles)
+            q = q[:, None, :]
+        else:
+            b = np.einsum("rk,rkc->rc", dirs, rel[self.ray_slot])
+            q = q[self.ray_slot]
+        with np.errstate(invalid="ignore"):
+            disc = b * b
+            disc -= q
+            np.sqrt(disc, out=disc)
+            b -= disc
+            np.reciprocal(b, out=b)
+            inv = np.fmax.reduce(b, axis=-1).reshape(-1)
+        hit = inv > 0
+        dist[hit] = 1.0 / inv[hit]
+
+    def _own_circles(self, n_circles: int, n_static: int) -> tuple[np.ndarray, np.ndarray]:
+        """(row, column) in the (robots, circles) table of each robot's own body."""
+        key = (n_circles, n_static)
+        if self._own_key != key:
+            rows, extra = np.nonzero(self.robots[:, None] == np.arange(n_circles - n_static))
+            self._own = (rows, n_static + extra)
+            self._own_key = key
+        return self._own
+
+    def _cast_circles(self, poses, centers, radii, n_static, dirs, origins, dist) -> None:
+        rob = self.robots
+        xy = poses[rob, :2]
+        dx = centers[None, :, 0] - xy[:, 0:1]  # (robots, circles)
+        dy = centers[None, :, 1] - xy[:, 1:2]
+        d2 = dx * dx + dy * dy
+        near = d2 < (self.reach[:, None] + radii) ** 2
+        if len(radii) > n_static:  # a robot's rays skip its own body
+            own = np.nonzero(rob[:, None] == np.arange(len(radii) - n_static)[None])
+            near[own[0], n_static + own[1]] = False
+        pr, pc = np.nonzero(near)
+        if len(pr) == 0:
+            return
+        d = np.sqrt(d2[pr, pc])
+        r = radii[pc]
+        half = np.arcsin(np.minimum(r / np.maximum(d, 1e-12), 1.0))
+        half[d <= r] = np.pi  # inside the circle: every ray exits through it
+        bearing = np.arctan2(dy[pr, pc], dx[pr, pc]) - poses[rob[pr], 2] + np.pi
+        bearing %= 2 * np.pi  # in [0, 2 pi), as the sorted keys
+        base = rob[pr] * _KEY_STRIDE
+        lo, hi = bearing - half, bearing + half
+        # Up to three pieces: the interval clipped to [0, 2 pi) and its wrapped-around ends.
+        lo_k = np.concatenate([np.maximum(lo, 0.0), lo + 2 * np.pi, np.zeros_like(lo)])
+        hi_k = np.concatenate(
+            [np.minimum(hi, 2 * np.pi), np.full_like(hi, 2 * np.pi), hi - 2 * np.pi]
+        )
+        base3 = np.concatenate([base, base, base])
+        start = np.searchsorted(self.sorted_key, base3 + lo_k, side="left")
+        stop = np.searchsorted(self.sorted_key, base3 + hi_k, side="right")
+        count = np.maximum(stop - start, 0)
+        total = int(count.sum())
+        if total == 0:
+            return
+        piece = np.repeat(np.arange(len(count)), count)
+        offset = np.arange(total) - np.repeat(np.cumsum(count) - count, count)
+        ray = self.order[start[piece] + offset]
+        pair = piece % len(pr)
+        fx = origins[ray, 0] - centers[pc[pair], 0]
+        fy = origins[ray, 1] - centers[pc[pair], 1]
+        b = fx * dirs[ray, 0] + fy * dirs[ray, 1]
+        c = d2[pr[pair], pc[pair]] - r[pair] ** 2
+        disc = b * b - c
+        sq = np.sqrt(np.maximum(disc, 0.0))
+        t = np.where(c > 0, -b - sq, -b + sq)
+        t[(disc < 0) | (t < 0)] = np.inf
+        np.minimum.at(dist, ray, t)
+
+
+_KEY_STRIDE = 8.0  # > 2 pi: separates robots in the sorted ray keys
+
+
+def ray_box(origins: np.ndarray, dirs: np.ndarray, size: tuple[float, float]) -> np.ndarray:
+    """Distance from points inside ``[0, w] x [0, h]`` along ``dirs`` to the box's walls."""
+    wall = np.where(dirs > 0, size, 0.0)
+    wall -= origins
+    with np.errstate(divide="ignore"):
+        wall /= dirs
+    return np.abs(wall, out=wall).min(1)

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from coop_loc_env.config import ScenarioConfig
-from coop_loc_env.raycast import CHANNEL, cast
+from coop_loc_env.raycast import CHANNEL, FanCaster, cast
 from coop_loc_env.world import World
 from estimators.geometry import wrap_angle
 
@@ -118,10 +118,12 @@ class SensorSuite:
         self._ray_beam = np.array(beams, dtype=int)
         self._ray_angle = np.array(angles, dtype=float)
         laser = np.array(lasers, dtype=bool)
+        ray_range = self.range_max[self._ray_robot] if len(rows) else np.zeros(0)
         self._ray_groups = [
-            (CHANNEL[name], np.nonzero(laser == is_laser)[0])
+            (sel, FanCaster(self.world.layout.scene, CHANNEL[name], self._ray_robot[sel],
+                            self._ray_angle[sel], ray_range[sel]))
             for name, is_laser in (("laser", True), ("sonar", False))
-            if (laser == is_laser).any()
+            if len(sel := np.nonzero(laser == is_laser)[0])
         ]
         self._one_ray_per_beam = len(set(zip(rows, beams, strict=True))) == len(rows)
         n = self.cfg.n_robots
@@ -243,20 +245,9 @@ class SensorSuite:
         """Range scans of every robot with a range sensor, in one vectorized cast."""
         n = len(poses)
         rob = self._ray_robot
-        ang = poses[rob, 2] + self._ray_angle
-        dirs = np.stack([np.cos(ang), np.sin(ang)], axis=1)
-        origins = poses[rob, :2]
         dist = np.empty(len(rob))
-        for channel, sel in self._ray_groups:
-            dist[sel], _ = cast(
-                self.world.layout.scene,
-                origins[sel],
-                dirs[sel],
-                channel,
-                extra_centers=poses[:, :2],
-                extra_radii=self._robot_radii,
-                extra_exclude=rob[sel],
-            )
+        for sel, caster in self._ray_groups:
+            dist[sel] = caster.cast(poses, poses[:, :2], self._robot_radii)
         ranges = np.full((n, self.max_beams), np.inf)
         if self._one_ray_per_beam:
             ranges[rob, self._ray_beam] = dist

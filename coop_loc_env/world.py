@@ -61,8 +61,9 @@ class Layout:
     def clearance(self, points: np.ndarray) -> np.ndarray:
         """Distance from each point to the nearest solid obstacle surface."""
         points = np.asarray(points, dtype=float).reshape(-1, 2)
-        best = np.full(len(points), np.inf)
         s = self.scene
+        w, h = s.bounds
+        best = np.minimum(points, (w, h) - points).min(1)  # the world's walls
         if len(s.circle_radii):
             d = np.linalg.norm(points[:, None] - s.circle_centers[None], axis=2) - s.circle_radii
             best = np.minimum(best, d.min(1))
@@ -132,9 +133,7 @@ def _scatter(
 
 
 def _ray_scene(cfg: ScenarioConfig, obstacles: list[Obstacle]) -> RayScene:
-    w, h = cfg.world_size
-    corners = [(0.0, 0.0), (w, 0.0), (w, h), (0.0, h)]
-    segs = [(corners[i], corners[(i + 1) % 4], (True, True, True)) for i in range(4)]
+    segs = []
     circles = []
     for o in obstacles:
         mask = ("laser" in o.visible_to, "sonar" in o.visible_to, True)
@@ -152,6 +151,7 @@ def _ray_scene(cfg: ScenarioConfig, obstacles: list[Obstacle]) -> RayScene:
         seg_a=np.array([s[0] for s in segs], dtype=float).reshape(-1, 2),
         seg_b=np.array([s[1] for s in segs], dtype=float).reshape(-1, 2),
         seg_mask=np.array([s[2] for s in segs], dtype=bool).reshape(-1, 3),
+        bounds=(float(cfg.world_size[0]), float(cfg.world_size[1])),
     )
 
 

@@ -43,3 +43,58 @@ def test_cast_excludes_own_robot_and_reports_robot_hits():
     # The sonar channel does not see the circle (mask), so a ray past robot 1 misses.
     far = cast(scene, np.array([[0.0, 2.0]]), np.array([[1.0, 0.0]]), 1)[0]
     assert np.isinf(far[0])
+
+
+@pytest.mark.parametrize("dense_limit", [0, 10**9])
+@pytest.mark.parametrize("seed", range(5))
+def test_fan_caster_matches_brute_force_cast(seed, dense_limit):
+    """Culled fans give the same nearest hits as testing every ray against every shape."""
+    from coop_loc_env.raycast import FanCaster
+
+    rng = np.random.default_rng(seed)
+    n_circles, n_robots = 40, 6
+    scene = RayScene(
+        circle_centers=rng.uniform(0, 20, (n_circles, 2)),
+        circle_radii=rng.uniform(0.1, 1.5, n_circles),
+        circle_mask=rng.random((n_circles, 3)) < 0.7,
+        seg_a=rng.uniform(0, 20, (3, 2)), seg_b=rng.uniform(0, 20, (3, 2)),
+        seg_mask=np.ones((3, 3), bool),
+        bounds=(20.0, 20.0),
+    )
+    spots = rng.uniform(0.5, 19.5, (400, 2))
+    gap = np.linalg.norm(spots[:, None] - scene.circle_centers[None], axis=2) - scene.circle_radii
+    spots = spots[gap.min(1) > 0.4]  # robots stand outside obstacles
+    poses = np.column_stack([spots[:n_robots], rng.uniform(-4, 4, n_robots)])
+    if dense_limit == 0:  # the culled path also handles a robot inside a circle
+        poses[0, :2] = scene.circle_centers[0]
+    # Mixed fans: 30 beams over 180 deg, and 8 x 3 sub-rays all around (wrapping past +-pi).
+    ray_robot = np.concatenate([np.repeat([0, 1, 2], 30), np.repeat([3, 4, 5], 24)])
+    laser = np.tile(np.linspace(-np.pi / 2, np.pi / 2, 30), 3)
+    sonar = np.tile((np.arange(24) // 3) * np.pi / 4 + (np.arange(24) % 3 - 1) * 0.3 - np.pi, 3)
+    ray_angle = np.concatenate([laser, sonar])
+    radii = np.full(n_robots, 0.35)
+    for channel in (0, 1):
+        fan = FanCaster(scene, channel, ray_robot, ray_angle, np.full(len(ray_robot), 1e3))
+        fan.dense_limit = dense_limit
+        got = fan.cast(poses, poses[:, :2], radii)
+        heading = poses[ray_robot, 2] + ray_angle
+        dirs = np.stack([np.cos(heading), np.sin(heading)], 1)
+        want, _ = cast(scene, poses[ray_robot, :2], dirs, channel, poses[:, :2], radii, ray_robot)
+        np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9)
+
+
+def test_fan_caster_ignores_circles_beyond_its_range_but_not_walls():
+    from coop_loc_env.raycast import FanCaster
+
+    scene = RayScene(
+        circle_centers=np.array([[8.0, 5.0]]), circle_radii=np.array([1.0]),
+        circle_mask=np.ones((1, 3), bool),
+        seg_a=np.zeros((0, 2)), seg_b=np.zeros((0, 2)), seg_mask=np.zeros((0, 3), bool),
+        bounds=(10.0, 10.0),
+    )
+    pose = np.array([[2.0, 5.0, 0.0]])
+    near = FanCaster(scene, 0, np.array([0]), np.array([0.0]), np.array([10.0]))
+    far = FanCaster(scene, 0, np.array([0]), np.array([0.0]), np.array([3.0]))
+    near.dense_limit = far.dense_limit = 0  # the culled path
+    assert near.cast(pose)[0] == pytest.approx(5.0)
+    assert far.cast(pose)[0] == pytest.approx(8.0)  # the wall at x = 10
