@@ -244,31 +244,36 @@ class CoopLocParallelEnv(ParallelEnv):
             raise ValueError(
                 f"actions must be a dict agent -> action, got {type(actions).__name__}"
             )
-        unknown = [a for a in actions if a not in self.agent_name_mapping]
-        if unknown:
-            raise ValueError(f"unknown agent(s) {unknown} in actions; agents: {self.agents}")
-        done = [a for a in actions if a not in self.agents]
-        if done:
-            raise ValueError(f"agent(s) {done} are done and cannot act until reset()")
-        missing = [a for a in self.agents if a not in actions]
-        if missing:
-            raise ValueError(f"missing actions for agents {missing}")
-        out = np.zeros((self.config.n_robots, 2))
-        rows = [self.agent_name_mapping[a] for a in actions]
+        if list(actions) == self.agents == self.possible_agents:  # the usual case, in order
+            rows = None
+        else:
+            unknown = [a for a in actions if a not in self.agent_name_mapping]
+            if unknown:
+                raise ValueError(f"unknown agent(s) {unknown} in actions; agents: {self.agents}")
+            done = [a for a in actions if a not in self.agents]
+            if done:
+                raise ValueError(f"agent(s) {done} are done and cannot act until reset()")
+            missing = [a for a in self.agents if a not in actions]
+            if missing:
+                raise ValueError(f"missing actions for agents {missing}")
+            rows = [self.agent_name_mapping[a] for a in actions]
         try:
             stacked = np.asarray(list(actions.values()), dtype=float)
         except (TypeError, ValueError):
             stacked = None
-        if (
-            stacked is None
-            or stacked.shape != (len(rows), 2)
-            or not np.isfinite(stacked).all()
-            or (np.abs(stacked) > 1.0 + ACTION_TOLERANCE).any()
-        ):
+        # abs <= bound is False for NaN and inf too: one test covers all three.
+        if stacked is None or stacked.shape != (len(actions), 2) or not (
+            np.abs(stacked) <= 1.0 + ACTION_TOLERANCE
+        ).all():
             for agent, action in actions.items():  # find and name the bad one
                 self._check_action(agent, action)
-        out[rows] = stacked
-        return np.clip(out, -1.0, 1.0)
+        if rows is None:
+            out = stacked
+        else:
+            out = np.zeros((self.config.n_robots, 2))
+            out[rows] = stacked
+        np.maximum(out, -1.0, out=out)
+        return np.minimum(out, 1.0, out=out)
 
     @staticmethod
     def _check_action(agent: str, action: Any) -> None:
@@ -305,40 +310,51 @@ class CoopLocParallelEnv(ParallelEnv):
 
     def _infos(self, tipped: np.ndarray, new_contacts: np.ndarray) -> dict[str, dict]:
         cfg = self.config
-        poses = self.world.poses
-        err_xy = np.hypot(*(self._est_mean[:, :2] - poses[:, :2]).T)
-        err_th = np.abs(wrap_angle(self._est_mean[:, 2] - poses[:, 2]))
+        poses = self.world.poses.copy()  # each agent's info holds rows of fresh copies
+        est = self._est_mean.copy()
+        cov = self._est_cov.copy()
+        err_xy = np.hypot(est[:, 0] - poses[:, 0], est[:, 1] - poses[:, 1])
+        err_th = np.abs(wrap_angle(est[:, 2] - poses[:, 2]))
         readings = self._last_readings
         extra: dict[int, dict] = {}
         for backend in self.backends:
             if hasattr(backend, "extra_info"):
-                for i, entries in backend.extra_info(poses).items():
+                for i, entries in backend.extra_info(self.world.poses).items():
                     extra.setdefault(int(i), {}).update(entries)
         coverage = self.mapper.coverage()
         map_rmse = self.mapper.map_rmse()
-        new_cells = self._new_cells
+        terms = np.stack([
+            -cfg.reward_localization_weight * err_xy - cfg.reward_heading_weight * err_th,
+            cfg.reward_coverage_weight * self._new_cells,
+            -cfg.collision_penalty * new_contacts,
+            -cfg.tip_over_penalty * tipped,
+        ], axis=1).tolist()
+        n = cfg.n_robots
+        if readings is not None:
+            fix, sats = readings.gps_mask.tolist(), readings.satellites.tolist()
+        else:
+            fix, sats = [False] * n, [0] * n
+        columns = zip(
+            self.possible_agents, terms, err_xy.tolist(), err_th.tolist(), fix, sats,
+            new_contacts.tolist(), self._tipped.tolist(), self._new_cells.tolist(), strict=True,
+        )
         infos = {}
-        for agent in self.possible_agents:
-            i = self.agent_name_mapping[agent]
-            terms = {
-                "localization": -cfg.reward_localization_weight * float(err_xy[i])
-                - cfg.reward_heading_weight * float(err_th[i]),
-                "coverage": cfg.reward_coverage_weight * float(new_cells[i]),
-                "collision": -cfg.collision_penalty * float(new_contacts[i]),
-                "tip_over": -cfg.tip_over_penalty * float(tipped[i]),
-            }
+        for i, (agent, (loc, covg, coll, tip), exy, eth, gps, nsat, hits, tipped_over, cells) in (
+            enumerate(columns)
+        ):
             infos[agent] = {
-                "true_pose": poses[i].copy(),
-                "est_pose": self._est_mean[i].copy(),
-                "pose_cov": self._est_cov[i].copy(),
-                "position_error": float(err_xy[i]),
-                "heading_error": float(err_th[i]),
-                "reward_terms": terms,
-                "gps_fix": bool(readings.gps_mask[i]) if readings is not None else False,
-                "satellites": int(readings.satellites[i]) if readings is not None else 0,
-                "collisions": int(new_contacts[i]),
-                "tipped_over": bool(self._tipped[i]),
-                "new_cells": int(new_cells[i]),
+                "true_pose": poses[i],
+                "est_pose": est[i],
+                "pose_cov": cov[i],
+                "position_error": exy,
+                "heading_error": eth,
+                "reward_terms": {"localization": loc, "coverage": covg, "collision": coll,
+                                 "tip_over": tip},
+                "gps_fix": bool(gps),
+                "satellites": int(nsat),
+                "collisions": int(hits),
+                "tipped_over": bool(tipped_over),
+                "new_cells": int(cells),
                 "coverage": coverage,
                 "map_rmse": map_rmse,
                 **extra.get(i, {}),

@@ -27,6 +27,7 @@ class HeightField:
         xs = np.linspace(0.0, self.width, nx)
         ys = np.linspace(0.0, self.height, ny)
         self.xs, self.ys = xs, ys
+        self._corner_tables: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         gx, gy = np.meshgrid(xs, ys, indexing="xy")
         z = np.zeros_like(gx)
         for _ in range(cfg.terrain_hills):
@@ -51,20 +52,30 @@ class HeightField:
         self.tip_over_slope = np.deg2rad(cfg.tip_over_slope_deg)
         self.steep = self.slope > self.tip_over_slope
 
-    def _cells(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        p = np.asarray(points, dtype=float).reshape(-1, 2)
-        fx = np.clip(p[:, 0] / self.resolution, 0, len(self.xs) - 1.000001)
-        fy = np.clip(p[:, 1] / self.resolution, 0, len(self.ys) - 1.000001)
-        ix, iy = fx.astype(int), fy.astype(int)
-        return ix, iy, fx - ix, fy - iy
-
     def _bilinear(self, grid: np.ndarray, points: np.ndarray) -> np.ndarray:
-        ix, iy, tx, ty = self._cells(points)
-        g00 = grid[iy, ix]
-        g10 = grid[iy, ix + 1]
-        g01 = grid[iy + 1, ix]
-        g11 = grid[iy + 1, ix + 1]
-        return (g00 * (1 - tx) + g10 * tx) * (1 - ty) + (g01 * (1 - tx) + g11 * tx) * ty
+        """Bilinear interpolation of ``grid`` (row = y) at ``points (k, 2)``, clamped to the grid."""
+        p = np.asarray(points, dtype=float).reshape(-1, 2)
+        nx, ny = len(self.xs), len(self.ys)
+        f = p * (1.0 / self.resolution)
+        np.maximum(f, 0.0, out=f)
+        np.minimum(f, (nx - 1.000001, ny - 1.000001), out=f)
+        cell = f.astype(np.intp)
+        frac = f - cell
+        corners = self._corners(grid)[cell[:, 1] * (nx - 1) + cell[:, 0]]  # (k, 4)
+        tx, ty = frac[:, 0], frac[:, 1]
+        low = corners[:, 0] + tx * (corners[:, 1] - corners[:, 0])
+        high = corners[:, 2] + tx * (corners[:, 3] - corners[:, 2])
+        return low + ty * (high - low)
+
+    def _corners(self, grid: np.ndarray) -> np.ndarray:
+        """``(cells, 4)`` table of each cell's corner values (00, 10, 01, 11), cached per grid."""
+        key = id(grid)
+        table = self._corner_tables.get(key)
+        if table is None or table[0] is not grid:
+            corners = np.stack([grid[:-1, :-1], grid[:-1, 1:], grid[1:, :-1], grid[1:, 1:]], -1)
+            table = (grid, corners.reshape(-1, 4))
+            self._corner_tables[key] = table
+        return table[1]
 
     def elevation(self, points: np.ndarray) -> np.ndarray:
         """Height at ``points (k, 2)``."""

@@ -49,6 +49,11 @@ __all__ = [
 ]
 
 _LOG_SQRT_2PI = 0.5 * np.log(2.0 * np.pi)
+# For float32 0 <= x < 2**23, x + _MAGIC rounds x to an integer k and has the bits
+# _MAGIC_BITS + k. The likelihood table's width w has w + 1 divisible by 256, which
+# makes _MAGIC_BITS * (w + 1) vanish modulo 2**32 (_MAGIC_BITS = 75 * 2**24).
+_MAGIC = np.float32(2**23)
+_MAGIC_BITS = int(np.array(_MAGIC).view(np.int32))
 
 
 class _LFField(NamedTuple):
@@ -654,14 +659,21 @@ class ParticleFilter:
             ) + cfg.lf_z_rand / max_range
             loglik = cfg.likelihood_exponent * np.log(lik)
             inside = np.pad(~self.grid.occupied, pad, constant_values=False)
+            # Widen to w with w + 1 divisible by 256 (see _MAGIC); the extra columns on
+            # the right are never gathered.
+            nyp, nxp = dist.shape
+            extra = (nxp // 256 + 1) * 256 - 1 - nxp
+            loglik = np.pad(loglik, ((0, 0), (0, extra)), mode="edge")
+            inside = np.pad(inside, ((0, 0), (0, extra)), constant_values=False)
+            nxp += extra
             penalty = np.where(inside, 0.0, cfg.occupied_loglik)
             table = np.concatenate([loglik.ravel(), penalty.ravel()]).astype(np.float32)
-            nyp, nxp = dist.shape
             ox, oy = self.grid.origin
-            corner = np.array([[ox - pad * res], [oy - pad * res]])
+            corner = np.array([[ox - (pad - 0.5) * res], [oy - (pad - 0.5) * res]])
             # half a cell outside the map on each side (the cells next to the map)
-            lo = np.full((2, 1), (pad - 0.5) * res, dtype=np.float32)
-            hi = np.array([[nxp - pad + 0.5], [nyp - pad + 0.5]]).astype(np.float32) * res
+            lo = np.full((2, 1), (pad - 1.0) * res, dtype=np.float32)
+            ny, nx = self.grid.shape
+            hi = np.array([[pad + nx], [pad + ny]]).astype(np.float32) * res
             return _LFField(table, pad, nxp, nyp, nxp * nyp, lo, hi, 1.0 / res, reach, corner)
 
         lf = self.grid.memo(shared_key, build)
@@ -702,7 +714,7 @@ class ParticleFilter:
         # rows nb and 2 nb + 1 are the particle itself (they gather the penalty).
         mat, unit, mat_r = self._beam_matrix(angles, lf)
         np.multiply(unit, ranges[:, None], out=mat_r, casting="unsafe")
-        a4, ecell, cells, gath = self._lf_buffers(nb, n)
+        a4, ecell = self._lf_buffers(nb, n)
         h = a4[2]  # scratch: overwritten below
         np.copyto(h, st[2], casting="unsafe")
         np.cos(h, out=a4[0])
@@ -710,17 +722,23 @@ class ParticleFilter:
         # Particle positions in metres from the padded table's corner (subtracted in
         # float64 first: maps may sit at UTM-size coordinates), clamped to one cell
         # around the map so that no endpoint leaves the table (clamped particles sit
-        # outside the map and get the penalty anyway).
+        # outside the map and get the penalty anyway). ``corner`` is shifted by half
+        # a cell so that rounding the coordinates to the nearest integer floors them.
         xy = a4[2:]
         np.subtract(st[:2], lf.corner, out=xy, casting="unsafe")
         np.maximum(xy, lf.lo, out=xy)
         np.minimum(xy, lf.hi, out=xy)
         np.matmul(mat, a4, out=ecell)
-        np.copyto(cells, ecell, casting="unsafe")  # coordinates are >= 0: truncation is floor
-        flat = cells[nb1:]
+        # Round to integers in place: adding 2**23 leaves the integer in the float32
+        # mantissa, so the int32 view holds _MAGIC_BITS + cell coordinate; in
+        # (_MAGIC_BITS + iy) * nxp + _MAGIC_BITS + ix the constant wraps to 0 in int32.
+        ecell += _MAGIC
+        bits = ecell.view(np.int32)
+        flat = bits[nb1:]
         flat *= lf.nxp
-        flat += cells[:nb1]
-        flat[nb] += lf.offset
+        flat += bits[:nb1]
+        flat[nb] += lf.offset  # the particle's own cell: the penalty grid
+        gath = ecell[:nb1]  # the x rows are spent: gather into them
         lf.table.take(flat, out=gath, mode="clip")  # in range by construction
         loglik = np.add.reduce(gath, axis=0)
         return self._apply_loglik(loglik, nb * self.config.likelihood_exponent)
@@ -752,18 +770,17 @@ class ParticleFilter:
             unit[1, :, 1] = np.cos(angles)
             unit *= lf.inv_res
             mat_r = mat[:, :2].reshape(2, nb + 1, 2)[:, :nb]
-            assert np.shares_memory(mat_r, mat)
             if len(self._mats) > 64:  # bound the cache (varying max-range dropouts)
                 self._mats.clear()
             bufs = self._mats[key] = (mat, unit, mat_r)
         return bufs
 
-    def _lf_buffers(self, nb: int, n: int) -> tuple[np.ndarray, ...]:
+    def _lf_buffers(self, nb: int, n: int) -> tuple[np.ndarray, np.ndarray]:
         """Reusable work arrays of the likelihood-field update for ``nb`` beams, ``n`` particles.
 
-        ``(a4, ecell, cells, gath)``: ``(4, n)`` float32 ``[cos; sin; x; y]``,
-        ``(2 nb + 2, n)`` float32 endpoint cell coordinates, the same as
-        indices, ``(nb + 1, n)`` float32 gathered table values.
+        ``(a4, ecell)``: ``(4, n)`` float32 ``[cos; sin; x; y]`` and
+        ``(2 nb + 2, n)`` float32 endpoint cell coordinates (reused for the
+        indices and the gathered values).
         """
         key = (nb, n)
         bufs = self._lfb.get(key)
@@ -773,8 +790,6 @@ class ParticleFilter:
             bufs = self._lfb[key] = (
                 np.empty((4, n), dtype=np.float32),
                 np.empty((2 * nb + 2, n), dtype=np.float32),
-                np.empty((2 * nb + 2, n), dtype=np.int32),
-                np.empty((nb + 1, n), dtype=np.float32),
             )
         return bufs
 

@@ -25,7 +25,6 @@ import numpy as np
 
 import coop_loc_env
 from policies.baselines import wander
-from policies.view import ViewBuilder
 
 LOCALIZED_M = 1.5  # Fox et al.: a robot is localized when its error is below 1.5 m
 CONDITIONS = ("without_detections", "with_detections")
@@ -43,10 +42,27 @@ __all__ = [
 ]
 
 
+class _ScanView:
+    """A robot's own last range scan, one entry per beam (what :func:`wander` reads)."""
+
+    def __init__(self, ranges: np.ndarray, angles: np.ndarray, max_range: float) -> None:
+        self.ranges = ranges
+        self.angles = angles
+        self.max_range = max_range
+
+    def min_range(self, lo: float, hi: float) -> float:
+        """Nearest return (m) of the beams pointing into the robot-frame sector ``[lo, hi]``."""
+        sel = (self.angles >= lo) & (self.angles <= hi)
+        return float(self.ranges[sel].min()) if sel.any() else self.max_range
+
+
 class WanderPolicy:
     """Drive forward at ``speed``; turn in place toward the freer side when blocked.
 
-    Uses each robot's own (min-pooled) range readings only. Seeded per episode.
+    Uses each robot's own range scan only, beam by beam (``env.last_readings``
+    with ``env.sensors.beam_angles``; the observation's range bins min-pool the
+    beams of a team's longest scan, which misplaces a sonar's 16 beams in a
+    team that also has 30-beam lasers). Seeded per episode.
     """
 
     name = "wander"
@@ -56,20 +72,29 @@ class WanderPolicy:
             raise ValueError(f"speed must be in (0, 1], got {speed!r}")
         self.speed = float(speed)
         self.env = None
-        self._views: ViewBuilder | None = None
         self.rng = np.random.default_rng(0)
 
     def reset(self, env, seed: int | None = None) -> None:
         """Bind to ``env`` (already reset) and reseed."""
         self.env = env
-        self._views = ViewBuilder(env)
         self.rng = np.random.default_rng(seed)
+        sensors = env.sensors
+        self._angles = [np.asarray(a, dtype=float) for a in sensors.beam_angles]
+        self._rmax = np.asarray(sensors.range_max, dtype=float)
+        # before the first scan every beam reads max range
+        self._scans = [np.full(len(a), r) for a, r in zip(self._angles, self._rmax, strict=True)]
+
+    def _view(self, i: int) -> _ScanView:
+        readings = self.env.last_readings
+        if readings is not None and readings.range_mask[i]:
+            row = np.asarray(readings.ranges[i][: len(self._angles[i])], dtype=float)
+            self._scans[i] = np.where(np.isfinite(row), row, self._rmax[i])
+        return _ScanView(self._scans[i], self._angles[i], float(self._rmax[i]))
 
     def act(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         """One wander action per live agent."""
-        return {
-            a: wander(self._views.view(a, obs[a]), self.rng, self.speed) for a in self.env.agents
-        }
+        index = self.env.agent_name_mapping
+        return {a: wander(self._view(index[a]), self.rng, self.speed) for a in self.env.agents}
 
 
 def time_to_localize(

@@ -155,10 +155,9 @@ def hexagon_vertices(edge: float = HEX_EDGE) -> list[tuple[float, float]]:
 
 
 SONAR_FEATURE_DEG = (30.0, 150.0, 270.0)  # three-fold: a sonar robot keeps three poses
-SONAR_BLOCK = (2.5, 1.0)  # m, length along the wall and depth into the room
-LASER_FEATURE_DEG = (0.0, 180.0)  # two-fold: a laser robot keeps two poses
-LASER_PILLAR = (1.0, 1.0)  # m, square pillars ...
-LASER_PILLAR_R = 3.5  # m, ... this far (inner face) from the centre
+SONAR_BLOCK = (2.5, 0.75)  # m, length along the wall and depth into the room
+LASER_CORNERS = (0, 3)  # corners at 0 and 180 degrees: a laser robot keeps two poses
+LASER_CHAMFER = 2.0  # m along each edge (the cut is 1 m deep)
 
 
 def _block(cx: float, cy: float, deg: float, r_out: float, length: float, depth: float
@@ -193,11 +192,15 @@ def hexagon_obstacles(edge: float = HEX_EDGE) -> tuple[Obstacle, ...]:
         features.append(Obstacle("wall", "polygon", visible_to=("sonar",),
                                  vertices=_block(cx, cy, deg, edge * math.sqrt(3) / 2,
                                                  *SONAR_BLOCK)))
-    # laser-only: two pillars on the line through opposite corners (0 and 180 degrees)
-    for deg in LASER_FEATURE_DEG:
-        features.append(Obstacle("wall", "polygon", visible_to=("laser",),
-                                 vertices=_block(cx, cy, deg, LASER_PILLAR_R + LASER_PILLAR[1],
-                                                 *LASER_PILLAR)))
+    # laser-only: the corners at 0 and 180 degrees cut off (a chamfer LASER_CHAMFER m along
+    # each edge), so a laser robot sees a flat face there instead of a corner
+    for k in LASER_CORNERS:
+        c, prev, nxt = v[k], v[(k - 1) % 6], v[(k + 1) % 6]
+        f = LASER_CHAMFER / edge
+        features.append(Obstacle("wall", "polygon", visible_to=("laser",), vertices=(
+            c, (c[0] + f * (nxt[0] - c[0]), c[1] + f * (nxt[1] - c[1])),
+            (c[0] + f * (prev[0] - c[0]), c[1] + f * (prev[1] - c[1])),
+        )))
     return outside + tuple(features)
 
 
