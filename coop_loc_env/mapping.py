@@ -70,6 +70,10 @@ class TeamMapper:
         self.drivable = drivable.reshape(self.map.shape)
         self._drivable_flat = drivable
         self._n_drivable = max(int(drivable.sum()), 1)
+        self._truth_flat = self.true_height.ravel()
+        self._sq_error = 0.0  # running sum of squared map errors over mapped cells
+        self._covered = 0  # mapped drivable cells
+        self.map.merge_listener = self._on_merge
         self._pitch = np.zeros(n)
         self._dt_sub = cfg.dt / cfg.odometry_substeps
         self.last_new_cells = np.zeros(n, dtype=np.int64)
@@ -87,6 +91,8 @@ class TeamMapper:
         """
         z0 = self.world.terrain.elevation(np.asarray(true_poses)[:, :2])
         self.map.reset(initial_elevation=z0, initial_var=INITIAL_ELEVATION_VAR)
+        self._sq_error = 0.0
+        self._covered = 0
         self._pitch[:] = 0.0
         n = self.cfg.n_robots
         zeros = np.zeros(n)
@@ -133,16 +139,28 @@ class TeamMapper:
         self.last_new_cells = new
         return new
 
+    def _on_merge(
+        self, cells: np.ndarray, before: np.ndarray, after: np.ndarray, was_mapped: np.ndarray
+    ) -> None:
+        """Keep the squared-error sum and the covered count up to date (``merge_listener``)."""
+        truth = self._truth_flat[cells]
+        err_after = after - truth
+        err_before = np.where(was_mapped, before - truth, 0.0)
+        self._sq_error += float(err_after @ err_after - err_before @ err_before)
+        self._covered += int(np.count_nonzero(self._drivable_flat[cells[~was_mapped]]))
+
     def coverage(self) -> float:
         """Fraction of drivable cells that hold a measured elevation."""
-        mapped = self.map.mapped.ravel()
-        return float(np.count_nonzero(mapped & self._drivable_flat)) / self._n_drivable
+        return self._covered / self._n_drivable
 
     def map_rmse(self) -> float:
-        """RMSE (m) of the mapped cells against the true height field; NaN when none mapped."""
+        """RMSE (m) of the mapped cells against the true height field; NaN when none mapped.
+
+        Kept as a running sum over merges (equal to ``TerrainMap.rmse`` up to rounding).
+        """
         if self.map.n_mapped == 0:
             return float("nan")
-        return self.map.rmse(self.true_height)
+        return float(np.sqrt(max(self._sq_error, 0.0) / self.map.n_mapped))
 
     def patches(self, est_mean: np.ndarray, size_cells: int) -> np.ndarray:
         """Egocentric patches ``(n, 3, S, S)`` around the estimated poses.

@@ -61,6 +61,7 @@ class ObservationBuilder:
         self.incl = np.zeros((n, 2))
         self.range = np.ones((n, cfg.laser_obs_bins))
         self.det = np.zeros((n, 6 * cfg.max_detections_obs))
+        self._det_written = False
 
     def _names(self, belief_names: tuple[str, ...]) -> list[str]:
         cfg = self.cfg
@@ -86,24 +87,29 @@ class ObservationBuilder:
         self.incl[:] = 0.0
         self.range[:] = 1.0
         self.det[:] = 0.0
+        self._det_written = False
 
     def ingest(self, readings: Readings, max_range: np.ndarray) -> None:
         """Latch the sensor features of one step."""
         cfg = self.cfg
-        gps_step = readings.satellites.any() or readings.gps_mask.any()
-        if gps_step:
+        if readings.satellites.any() or readings.gps_mask.any():  # a DGPS step
             self.gps[:, 0] = readings.gps_mask
             self.gps[:, 1] = readings.satellites / 12.0
         m = readings.inclinometer_mask
-        self.incl[m, 0] = readings.pitch[m]
-        self.incl[m, 1] = readings.roll[m]
-        m = readings.range_mask
         if m.any():
-            scans = readings.ranges[m] / max_range[m, None]
-            self.range[m] = _pool(np.nan_to_num(scans, nan=1.0), cfg.laser_obs_bins)
+            self.incl[m, 0] = readings.pitch[m]
+            self.incl[m, 1] = readings.roll[m]
+        m = readings.range_mask
+        if m.all():
+            self.range[:] = _pool(readings.ranges / max_range[:, None], cfg.laser_obs_bins)
+        elif m.any():
+            self.range[m] = _pool(readings.ranges[m] / max_range[m, None], cfg.laser_obs_bins)
         det = readings.detections
-        self.det[:] = 0.0
+        if self._det_written:
+            self.det[:] = 0.0
+            self._det_written = False
         if len(det):
+            self._det_written = True
             order = np.lexsort((det.z[:, 0], det.observer))
             slot = np.zeros(cfg.n_robots, dtype=int)
             for k in order:
@@ -157,5 +163,7 @@ def _pool_starts(beams: int, bins: int) -> np.ndarray:
 
 
 def _pool(scans: np.ndarray, bins: int) -> np.ndarray:
-    """Min-pool each row of ``scans (k, beams)`` into ``bins`` columns."""
-    return np.minimum.reduceat(scans, _pool_starts(scans.shape[1], bins), axis=1)
+    """Min-pool each row of ``scans (k, beams)`` into ``bins`` columns; NaN pads read 1."""
+    pooled = np.fmin.reduceat(scans, _pool_starts(scans.shape[1], bins), axis=1)
+    pooled[pooled != pooled] = 1.0  # a bin of padding only
+    return pooled

@@ -58,6 +58,8 @@ and rendering, not for every step.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 from scipy.interpolate import griddata
 from scipy.spatial import QhullError
@@ -95,6 +97,12 @@ class TerrainMap:
         min_var: variance floor, so confidences stay finite.
         weights: ``"paper"`` (satellite-count fusion weights) or ``"kalman"``
             (variance-optimal gain); see :func:`~estimators.terrain_fusion.fuse_elevation`.
+
+    Attributes:
+        merge_listener: optional ``f(cells, before, after, was_mapped)`` called
+            after every merge into the team map with the flat indices of the
+            cells written, their elevations before and after, and whether they
+            were mapped before (lets a caller keep running statistics of the map).
     """
 
     def __init__(
@@ -114,6 +122,7 @@ class TerrainMap:
     ) -> None:
         if int(n_robots) != n_robots or n_robots < 1:
             raise ValueError(f"n_robots must be a positive integer, got {n_robots!r}")
+        self.merge_listener: Callable[..., None] | None = None
         if not np.isfinite(resolution) or resolution <= 0:
             raise ValueError(f"resolution must be > 0, got {resolution!r}")
         width, height = (float(s) for s in size)
@@ -409,8 +418,12 @@ class TerrainMap:
     ) -> np.ndarray:
         """Merge samples into the team map; return newly mapped cells per robot id."""
         was_unmapped = self._conf[flat] <= 0
+        before = self._elev[flat] if self.merge_listener is not None else None
         idx = self._keep_best(self._elev, self._conf, flat, vals, conf)
         newly = idx[was_unmapped[idx]]
+        if self.merge_listener is not None:
+            cells = flat[idx]
+            self.merge_listener(cells, before[idx], self._elev[cells], ~was_unmapped[idx])
         self.newly_mapped_cells = int(newly.size)
         self.n_mapped += self.newly_mapped_cells
         return np.bincount(owner[newly], minlength=self.n_robots)

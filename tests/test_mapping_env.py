@@ -52,6 +52,21 @@ def test_map_rmse_matches_terrain_map_and_is_small_on_flat_ground():
     assert infos["robot_0"]["map_rmse"] < 0.1
 
 
+def test_running_map_metrics_equal_a_full_recount_on_hills():
+    """map_rmse and coverage are kept incrementally; they must equal recomputing them."""
+    env = coop_loc_env.parallel_env(n_robots=3, max_cycles=120)
+    env.reset(seed=5)
+    rng = np.random.default_rng(5)
+    for _ in range(120):
+        if not env.agents:
+            break
+        _, _, _, _, infos = env.step({a: rng.uniform(-1, 1, 2) for a in env.agents})
+        info = next(iter(infos.values()))
+        terrain_map, mapper = env.terrain_map, env.mapper
+        assert info["map_rmse"] == pytest.approx(terrain_map.rmse(mapper.true_height), rel=1e-9)
+        assert info["coverage"] == pytest.approx(terrain_map.coverage(mapper.drivable), rel=1e-12)
+
+
 def test_true_height_grid_orientation_matches_height_field():
     env = coop_loc_env.parallel_env(world_size=(30.0, 20.0), n_robots=1)
     env.reset(seed=0)

@@ -156,7 +156,7 @@ def hexagon_vertices(edge: float = HEX_EDGE) -> list[tuple[float, float]]:
 
 SONAR_FEATURE_DEG = (30.0, 150.0, 270.0)  # three-fold: a sonar robot keeps three poses
 SONAR_BLOCK = (2.5, 0.75)  # m, length along the wall and depth into the room
-LASER_CORNERS = (0, 3)  # corners at 0 and 180 degrees: a laser robot keeps two poses
+LASER_CORNERS = (0, 1, 3, 4)  # corners at 0, 60, 180, 240 degrees: a laser robot keeps two poses
 LASER_CHAMFER = 2.0  # m along each edge (the cut is 1 m deep)
 
 
