@@ -89,6 +89,7 @@ class SensorSuite:
         self.range_max = np.where(self.is_sonar, cfg.sonar_max_range, cfg.laser_max_range)
         self.range_std = np.where(self.is_sonar, cfg.sonar_range_std, cfg.laser_range_std)
         self._build_ray_tables()
+        self._idle: dict[str, np.ndarray] | None = None
 
     def _beams(self, sonar: bool) -> np.ndarray:
         cfg = self.cfg
@@ -157,32 +158,27 @@ class SensorSuite:
         odo = odom_cmd + rng.standard_normal(odom_cmd.shape) * np.array(
             [cfg.odom_v_std, cfg.odom_w_std]
         )
-        gps_mask = np.zeros(n, dtype=bool)
-        gps_xy = np.zeros((n, 2))
-        gps_var = np.full(n, np.inf)
-        gps_alt = np.full(n, np.nan)
-        sats = np.zeros(n, dtype=int)
+        idle = self._idle_readings(n)
+        gps_mask, gps_xy, gps_var, gps_alt, sats = (
+            idle["gps_mask"], idle["gps_xy"], idle["gps_var"], idle["gps_alt"], idle["sats"]
+        )
         if _due(step, dt, cfg.gps_rate):
             gps_mask, gps_xy, gps_var, gps_alt, sats = self._gps(poses, rng, active)
-        compass_mask = np.zeros(n, dtype=bool)
-        compass = np.zeros(n)
+        compass_mask, compass = idle["mask"], idle["zeros"]
         if _due(step, dt, cfg.compass_rate):
             compass_mask = self.has_compass & active
             compass = wrap_angle(poses[:, 2] + cfg.compass_std * rng.standard_normal(n))
-        incl_mask = np.zeros(n, dtype=bool)
-        pitch = np.zeros(n)
-        roll = np.zeros(n)
+        incl_mask, pitch, roll = idle["mask"], idle["zeros"], idle["zeros"]
         if _due(step, dt, cfg.inclinometer_rate):
             incl_mask = self.has_incl & active
             p, r = self.world.terrain.pitch_roll(poses)
             pitch = p + cfg.inclinometer_std * rng.standard_normal(n)
             roll = r + cfg.inclinometer_std * rng.standard_normal(n)
-        range_mask = np.zeros(n, dtype=bool)
-        ranges = np.full((n, self.max_beams), np.nan)
+        range_mask, ranges = idle["mask"], idle["ranges"]
         if _due(step, dt, cfg.laser_rate) and len(self._ray_robot):
             range_mask = self.has_range & active
             ranges = self._scan(poses, rng, active)
-        camera_mask = np.zeros(n, dtype=bool)
+        camera_mask = idle["mask"]
         camera: list[list[tuple[str, int, float, float]]] = [[] for _ in range(n)]
         if _due(step, dt, cfg.camera_rate) and self.has_camera.any():
             camera_mask = self.has_camera & active
@@ -208,6 +204,24 @@ class SensorSuite:
             camera=camera,
             detections=detections,
         )
+
+    def _idle_readings(self, n: int) -> dict[str, np.ndarray]:
+        """Read-only arrays standing for sensors that did not fire this step (shared)."""
+        if self._idle is None or len(self._idle["mask"]) != n:
+            idle = {
+                "mask": np.zeros(n, dtype=bool),
+                "zeros": np.zeros(n),
+                "gps_mask": np.zeros(n, dtype=bool),
+                "gps_xy": np.zeros((n, 2)),
+                "gps_var": np.full(n, np.inf),
+                "gps_alt": np.full(n, np.nan),
+                "sats": np.zeros(n, dtype=int),
+                "ranges": np.full((n, self.max_beams), np.nan),
+            }
+            for arr in idle.values():
+                arr.flags.writeable = False
+            self._idle = idle
+        return self._idle
 
     # ------------------------------------------------------------------ DGPS
     def _gps(self, poses: np.ndarray, rng: np.random.Generator, active: np.ndarray):

@@ -245,7 +245,7 @@ def low_variance_indices(weights: np.ndarray, n: int, rng: np.random.Generator) 
         raise ValueError(f"weights must be a non-empty 1D array, got shape {weights.shape}")
     if n < 0:
         raise ValueError(f"n must be >= 0, got {n}")
-    cum = np.cumsum(weights)
+    cum = np.add.accumulate(weights)
     total = cum[-1]
     if not np.isfinite(total) or total <= 0 or weights.min() < 0:
         raise ValueError(
@@ -264,11 +264,9 @@ def _lvi(cum: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
     np.ceil(below, out=below)  # >= 0 since u < 1
     np.minimum(below, n, out=below)
     below[-1] = n
+    # pointer j goes to the number of particles whose interval ends at or before it
     below_i = below.astype(np.intp)
-    counts = np.empty_like(below_i)
-    counts[0] = below_i[0]
-    np.subtract(below_i[1:], below_i[:-1], out=counts[1:])
-    return np.arange(cum.size).repeat(counts)
+    return np.add.accumulate(np.bincount(below_i, minlength=n + 1)[:n])
 
 
 def _std_normals_f32(rng: np.random.Generator, n: int) -> np.ndarray:
@@ -421,6 +419,8 @@ class ParticleFilter:
         self._lf_cache: dict[float, _LFField] = {}
         self._mats: dict[bytes, tuple] = {}  # reusable beam matrices by beam angles
         self._lfb: dict[tuple[int, int], tuple] = {}  # likelihood-field work arrays
+        self._angles_ok = b""  # bytes of the last beam angles found finite
+        self._uniform_w = np.zeros(0)
         self._cs = np.empty((3, 0), dtype=np.float32)  # reusable motion buffer
         self._sd = np.empty((3, 2), dtype=np.float32)  # motion noise scales and means
         self._state = np.zeros((3, 0))
@@ -622,8 +622,11 @@ class ParticleFilter:
         if ranges.size:
             if not ranges.min() >= 0:  # NaN fails this too
                 raise ValueError(f"ranges must be >= 0 and not NaN, got {ranges}")
-            if not math.isfinite(angles.sum()):
-                raise ValueError(f"beam angles must be finite, got {angles}")
+            key = angles.tobytes()  # scanners repeat their angles: check them once
+            if key != self._angles_ok:
+                if not math.isfinite(angles.sum()):
+                    raise ValueError(f"beam angles must be finite, got {angles}")
+                self._angles_ok = key
         return ranges, angles, max_range
 
     def _lf_field(self, max_range: float) -> _LFField:
@@ -714,17 +717,15 @@ class ParticleFilter:
         # rows nb and 2 nb + 1 are the particle itself (they gather the penalty).
         mat, unit, mat_r = self._beam_matrix(angles, lf)
         np.multiply(unit, ranges[:, None], out=mat_r, casting="unsafe")
-        a4, ecell = self._lf_buffers(nb, n)
-        h = a4[2]  # scratch: overwritten below
-        np.copyto(h, st[2], casting="unsafe")
-        np.cos(h, out=a4[0])
-        np.sin(h, out=a4[1])
+        a4, cos_h, sin_h, h, xy, ecell, bits_x, flat, gath = self._lf_buffers(nb, n)
+        np.copyto(h, st[2], casting="unsafe")  # h is scratch space in a4
+        np.cos(h, out=cos_h)
+        np.sin(h, out=sin_h)
         # Particle positions in metres from the padded table's corner (subtracted in
         # float64 first: maps may sit at UTM-size coordinates), clamped to one cell
         # around the map so that no endpoint leaves the table (clamped particles sit
         # outside the map and get the penalty anyway). ``corner`` is shifted by half
         # a cell so that rounding the coordinates to the nearest integer floors them.
-        xy = a4[2:]
         np.subtract(st[:2], lf.corner, out=xy, casting="unsafe")
         np.maximum(xy, lf.lo, out=xy)
         np.minimum(xy, lf.hi, out=xy)
@@ -733,13 +734,11 @@ class ParticleFilter:
         # mantissa, so the int32 view holds _MAGIC_BITS + cell coordinate; in
         # (_MAGIC_BITS + iy) * nxp + _MAGIC_BITS + ix the constant wraps to 0 in int32.
         ecell += _MAGIC
-        bits = ecell.view(np.int32)
-        flat = bits[nb1:]
-        flat *= lf.nxp
-        flat += bits[:nb1]
+        flat *= lf.nxp  # the y rows
+        flat += bits_x
         flat[nb] += lf.offset  # the particle's own cell: the penalty grid
-        gath = ecell[:nb1]  # the x rows are spent: gather into them
-        lf.table.take(flat, out=gath, mode="clip")  # in range by construction
+        lf.table.take(flat, out=gath, mode="clip")  # in range by construction; the x
+        # rows are spent, so the values go there
         loglik = np.add.reduce(gath, axis=0)
         return self._apply_loglik(loglik, nb * self.config.likelihood_exponent)
 
@@ -775,21 +774,26 @@ class ParticleFilter:
             bufs = self._mats[key] = (mat, unit, mat_r)
         return bufs
 
-    def _lf_buffers(self, nb: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+    def _lf_buffers(self, nb: int, n: int) -> tuple[np.ndarray, ...]:
         """Reusable work arrays of the likelihood-field update for ``nb`` beams, ``n`` particles.
 
-        ``(a4, ecell)``: ``(4, n)`` float32 ``[cos; sin; x; y]`` and
-        ``(2 nb + 2, n)`` float32 endpoint cell coordinates (reused for the
-        indices and the gathered values).
+        ``(a4, cos_h, sin_h, h, xy, ecell, bits_x, flat, gath)``: ``a4`` the
+        ``(4, n)`` float32 ``[cos; sin; x; y]`` and views of its rows (``h`` is
+        scratch space in the ``x`` row); ``ecell`` the ``(2 nb + 2, n)`` float32
+        endpoint cell coordinates, its int32 view split into the ``x`` and
+        ``y`` rows, and the float32 ``x`` rows that receive the gathered values.
         """
         key = (nb, n)
         bufs = self._lfb.get(key)
         if bufs is None:
             if len(self._lfb) > 8:  # adaptive particle counts vary: keep a few
                 self._lfb.clear()
+            a4 = np.empty((4, n), dtype=np.float32)
+            ecell = np.empty((2 * nb + 2, n), dtype=np.float32)
+            bits = ecell.view(np.int32)
             bufs = self._lfb[key] = (
-                np.empty((4, n), dtype=np.float32),
-                np.empty((2 * nb + 2, n), dtype=np.float32),
+                a4, a4[0], a4[1], a4[2], a4[2:], ecell, bits[: nb + 1], bits[nb + 1:],
+                ecell[: nb + 1],
             )
         return bufs
 
@@ -941,12 +945,20 @@ class ParticleFilter:
         else:
             n = self._weights.size
             n_inj = int(rng.binomial(n, p_inj)) if p_inj > 0 else 0
-            idx = _lvi(self._weights.cumsum(), n - n_inj, rng)
+            idx = _lvi(np.add.accumulate(self._weights), n - n_inj, rng)
             state = self._state.take(idx, axis=1)
         if n_inj:
             state = np.concatenate([state, self._uniform_poses(n_inj)], axis=1)
         self._state = state
-        self._weights = np.full(n, 1.0 / n)
+        self._weights = self._uniform_weights(n)
+
+    def _uniform_weights(self, n: int) -> np.ndarray:
+        """Weights ``1 / n`` (a shared read-only array: weights are never changed in place)."""
+        w = self._uniform_w
+        if w.size != n:
+            w = self._uniform_w = np.full(n, 1.0 / n)
+            w.flags.writeable = False
+        return w
 
     def resample_if_needed(self) -> bool:
         """Resample when ESS < ``resample_ess_fraction * N`` or injection is due; report it."""
@@ -967,7 +979,7 @@ class ParticleFilter:
         """
         cfg = self.config
         n_max = cfg.n_max
-        idx = _lvi(np.cumsum(self._weights), n_max, self.rng)
+        idx = _lvi(np.add.accumulate(self._weights), n_max, self.rng)
         idx = idx[self.rng.permutation(n_max)]
         st = np.take(self._state, idx, axis=1)
         st[2] = wrap_angle(st[2])
