@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from coop_loc_env.config import ScenarioConfig
-from coop_loc_env.raycast import CHANNEL, FanCaster, cast
+from coop_loc_env.raycast import CHANNEL, FanCaster, ray_circles, ray_segments
 from coop_loc_env.world import World
 from estimators.geometry import wrap_angle
 
@@ -90,6 +90,14 @@ class SensorSuite:
         self.range_std = np.where(self.is_sonar, cfg.sonar_range_std, cfg.laser_range_std)
         self._build_ray_tables()
         self._idle: dict[str, np.ndarray] | None = None
+        self._pairs: tuple | None = None
+        scene, sight = world.layout.scene, CHANNEL["sight"]
+        self._sight_shapes = (
+            scene.circle_centers[scene.circle_mask[:, sight]],
+            scene.circle_radii[scene.circle_mask[:, sight]],
+            scene.seg_a[scene.seg_mask[:, sight]],
+            scene.seg_b[scene.seg_mask[:, sight]],
+        )
 
     def _beams(self, sonar: bool) -> np.ndarray:
         cfg = self.cfg
@@ -281,14 +289,12 @@ class SensorSuite:
         n = len(poses)
         ooi = self.world.layout.ooi_centers
         targets = np.concatenate([ooi, poses[:, :2]], axis=0)
-        kinds = ["ooi"] * len(ooi) + ["robot"] * n
-        ids = list(range(len(ooi))) + list(range(n))
+        kinds, ids, pair_i, pair_j = self._camera_pairs(len(ooi), n)
         fov = np.deg2rad(cfg.camera_fov_deg)
         px = fov / cfg.camera_width_px
         out: list[list[tuple[str, int, float, float]]] = [[] for _ in range(n)]
-        obs_i, tgt_j = np.nonzero(mask[:, None] & np.ones((1, len(targets)), dtype=bool))
-        keep = ~((tgt_j >= len(ooi)) & (tgt_j - len(ooi) == obs_i))
-        obs_i, tgt_j = obs_i[keep], tgt_j[keep]
+        keep = mask[pair_i]
+        obs_i, tgt_j = pair_i[keep], pair_j[keep]
         d = targets[tgt_j] - poses[obs_i, :2]
         dist = np.hypot(d[:, 0], d[:, 1])
         bearing = wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - poses[obs_i, 2])
@@ -305,6 +311,16 @@ class SensorSuite:
                 out[i].append((kinds[j], ids[j], float(b), float(max(r, 0.1))))
         return out
 
+    def _camera_pairs(self, n_ooi: int, n: int):
+        """Target kinds and ids, and every (observer, target) pair but a robot and itself."""
+        if self._pairs is None or self._pairs[0] != (n_ooi, n):
+            kinds = ["ooi"] * n_ooi + ["robot"] * n
+            ids = list(range(n_ooi)) + list(range(n))
+            obs_i, tgt_j = np.nonzero(np.ones((n, n_ooi + n), dtype=bool))
+            keep = ~((tgt_j >= n_ooi) & (tgt_j - n_ooi == obs_i))
+            self._pairs = ((n_ooi, n), (kinds, ids, obs_i[keep], tgt_j[keep]))
+        return self._pairs[1]
+
     def _line_of_sight(
         self,
         origins: np.ndarray,
@@ -314,8 +330,12 @@ class SensorSuite:
     ) -> np.ndarray:
         """Whether nothing static blocks the segment from each origin to its target."""
         d = (targets - origins) / np.maximum(dist, 1e-9)[:, None]
-        hit, _ = cast(self.world.layout.scene, origins, d, CHANNEL["sight"])
-        # The target itself may be a circle in the scene (an OOI): allow hits at its surface.
+        centers, radii, seg_a, seg_b = self._sight_shapes
+        hit = ray_circles(origins, d, centers, radii).min(1, initial=np.inf)
+        if len(seg_a):
+            np.minimum(hit, ray_segments(origins, d, seg_a, seg_b).min(1), out=hit)
+        # Both ends lie inside the world, so its walls never block. The target itself
+        # may be a circle in the scene (an OOI): allow hits at its surface.
         return hit >= dist - 0.6
 
     # ------------------------------------------------------------------ robot detector
