@@ -145,9 +145,10 @@ class TeamMapper:
         """Keep the squared-error sum and the covered count up to date (``merge_listener``)."""
         truth = self._truth_flat[cells]
         err_after = after - truth
-        err_before = np.where(was_mapped, before - truth, 0.0)
+        err_before = before - truth
+        err_before *= was_mapped
         self._sq_error += float(err_after @ err_after - err_before @ err_before)
-        self._covered += int(np.count_nonzero(self._drivable_flat[cells[~was_mapped]]))
+        self._covered += int(np.count_nonzero(self._drivable_flat[cells] > was_mapped))
 
     def coverage(self) -> float:
         """Fraction of drivable cells that hold a measured elevation."""
