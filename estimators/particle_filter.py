@@ -49,11 +49,15 @@ __all__ = [
 ]
 
 _LOG_SQRT_2PI = 0.5 * np.log(2.0 * np.pi)
-# For float32 0 <= x < 2**23, x + _MAGIC rounds x to an integer k and has the bits
-# _MAGIC_BITS + k. The likelihood table's width w has w + 1 divisible by 256, which
-# makes _MAGIC_BITS * (w + 1) vanish modulo 2**32 (_MAGIC_BITS = 75 * 2**24).
+# For float32 0 <= x < 2**23, x + _MAGIC rounds x to an integer k (ties to even) and
+# has the bits _MAGIC_BITS + k. The likelihood table's width w has w + 1 divisible by
+# 256, which makes _MAGIC_BITS * (w + 1) vanish modulo 2**32 (_MAGIC_BITS = 75 * 2**24).
 _MAGIC = np.float32(2**23)
 _MAGIC_BITS = int(np.array(_MAGIC).view(np.int32))
+assert _MAGIC_BITS * 256 % 2**32 == 0
+# The likelihood-field table holds log-likelihoods divided by this: a scan's sum then
+# stays within float32 exp's range for common scans (powered back in float64).
+_LF_POWER = 4
 
 
 class _LFField(NamedTuple):
@@ -62,11 +66,13 @@ class _LFField(NamedTuple):
     nxp: int  # padded grid width
     nyp: int  # padded grid height
     offset: int  # start of the penalty grid in ``table``
-    lo: np.ndarray  # (2, 1) float32: lowest allowed particle position (m from ``corner``)
-    hi: np.ndarray  # (2, 1) float32: highest allowed particle position (m from ``corner``)
+    lo: np.ndarray  # (2, 1) float32: lowest allowed particle position (state coordinates)
+    hi: np.ndarray  # (2, 1) float32: highest allowed particle position (state coordinates)
     inv_res: float  # 1 / resolution
     reach: float  # ranges are clipped to this (no endpoint can leave the table)
-    corner: np.ndarray  # (2, 1) float64 world position of the padded table's corner
+    magic: np.float32  # 2**23 + pad: rounds cell coordinates, adds the pad (see _MAGIC)
+    lmax: float  # the log-likelihood grid holds (exponent * log(p) - lmax) / _LF_POWER
+    span: float  # lmax minus the least exponent * log(p)
 
 
 @dataclass(frozen=True)
@@ -258,40 +264,15 @@ def _lvi(cum: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
     """Core of :func:`low_variance_indices` from the cumulative weights (no checks)."""
     total = cum[-1]
     u = rng.random()
-    # number of pointers strictly below each cumulative weight
+    # number of pointers strictly below each cumulative weight (rounding may push
+    # it past n, which no pointer sees)
     below = cum * (n / total)
     below -= u
     np.ceil(below, out=below)  # >= 0 since u < 1
-    np.minimum(below, n, out=below)
-    below[-1] = n
-    # pointer j goes to the number of particles whose interval ends at or before it
     below_i = below.astype(np.intp)
+    below_i[-1] = n
+    # pointer j goes to the number of particles whose interval ends at or before it
     return np.add.accumulate(np.bincount(below_i, minlength=n + 1)[:n])
-
-
-def _std_normals_f32(rng: np.random.Generator, n: int) -> np.ndarray:
-    """``(3, n)`` float32 standard normal draws by the Box-Muller transform.
-
-    Exact in distribution up to float32 rounding (uniforms on a 2**-24 grid,
-    so ``|z| <= 5.8``, a tail of probability 1e-8 left out). About twice as fast
-    as ``rng.standard_normal(dtype=np.float32)``: two uniforms per pair of
-    normals and vectorized float32 log / sqrt / cos / sin instead of the
-    ziggurat's per-draw loop.
-    """
-    m = (3 * n + 1) // 2
-    u = rng.random(2 * m, dtype=np.float32)
-    rad = u[:m]
-    np.subtract(np.float32(1.0), rad, out=rad)  # (0, 1]: log stays finite
-    np.log(rad, out=rad)
-    rad *= np.float32(-2.0)
-    np.sqrt(rad, out=rad)
-    ang = u[m:]
-    ang *= np.float32(2.0 * np.pi)
-    z = np.empty((2, m), dtype=np.float32)
-    np.cos(ang, out=z[0])
-    np.sin(ang, out=z[1])
-    z *= rad
-    return z.reshape(-1)[: 3 * n].reshape(3, n)
 
 
 def kld_sample_bound(k: np.ndarray, epsilon: float, delta: float) -> np.ndarray:
@@ -421,25 +402,50 @@ class ParticleFilter:
         self._lfb: dict[tuple[int, int], tuple] = {}  # likelihood-field work arrays
         self._angles_ok = b""  # bytes of the last beam angles found finite
         self._uniform_w = np.zeros(0)
-        self._cs = np.empty((3, 0), dtype=np.float32)  # reusable motion buffer
-        self._sd = np.empty((3, 2), dtype=np.float32)  # motion noise scales and means
-        self._state = np.zeros((3, 0))
+        self._cum: tuple[np.ndarray, np.ndarray] = (self._uniform_w, self._uniform_w)
+        self._mb: tuple = ()  # reusable motion buffers
+        self._sd = np.zeros((3, 4), dtype=np.float32)  # motion noise scales and means
+        # The state is float32 (x, y, heading) with positions relative to the centre of
+        # map cell (0, 0): float32 keeps ~1e-6 m there even for maps at UTM-size
+        # coordinates, and the likelihood field finds cells by rounding.
+        res = grid.resolution
+        self._org = np.array([[grid.origin[0] + 0.5 * res], [grid.origin[1] + 0.5 * res], [0.0]])
+        self._state = np.zeros((3, 0), dtype=np.float32)
         self._weights = np.zeros(0)
         self.init_uniform()
+
+    def __getstate__(self) -> dict:
+        # The work arrays are views into each other; pickling or deep-copying them
+        # would break them apart, so they are rebuilt instead.
+        state = self.__dict__.copy()
+        state.update(_lfb={}, _mats={}, _mb=())
+        return state
 
     # ---------------------------------------------------------------- state
     @property
     def particles(self) -> np.ndarray:
-        """``(N, 3)`` particle poses, headings wrapped to ``[-pi, pi)``.
+        """``(N, 3)`` particle poses (float64), headings wrapped to ``[-pi, pi)``.
 
-        A read-only view of the filter's state: it changes as the filter runs,
-        so copy it to keep a snapshot.
+        A read-only snapshot of the filter's state.
         """
-        if self._unwrapped_steps:
-            self._wrap_headings()
-        view = self._state.T
+        world = self._world()
+        world[2] = wrap_angle(world[2])  # exactly: float32 pi lies just beyond float64 pi
+        view = world.T
         view.flags.writeable = False
         return view
+
+    def _world(self) -> np.ndarray:
+        """``(3, N)`` float64 world poses, headings wrapped (to float32 precision)."""
+        if self._unwrapped_steps:
+            self._wrap_headings()
+        return self._state + self._org
+
+    def _from_world(self, poses: np.ndarray) -> np.ndarray:
+        """Internal float32 state of ``(3, N)`` world poses (headings wrapped here)."""
+        state = np.empty((3, poses.shape[1]), dtype=np.float32)
+        np.subtract(poses, self._org, out=state, casting="same_kind")
+        state[2] = wrap_angle(poses[2])
+        return state
 
     @property
     def weights(self) -> np.ndarray:
@@ -486,15 +492,15 @@ class ParticleFilter:
                 raise ValueError(f"weights must be non-negative with a positive finite sum, "
                                  f"got sum={total}")
             w = w / total
-        state = particles.T.copy()
-        state[2] = wrap_angle(state[2])
-        self._state = state
+        self._state = self._from_world(particles.T)
+        self._unwrapped_steps = 0
         self._weights = w
 
     def _uniform_poses(self, n: int) -> np.ndarray:
+        """``(3, n)`` internal state of poses drawn uniformly over free space."""
         xy = self.grid.sample_free(n, self.rng)
         th = self.rng.uniform(-np.pi, np.pi, size=n)
-        return np.vstack([xy.T, th])
+        return self._from_world(np.vstack([xy.T, th]))
 
     def init_uniform(self, n: int | None = None) -> None:
         """Spread ``n`` (default ``config.n_particles``) particles uniformly over free space."""
@@ -502,6 +508,7 @@ class ParticleFilter:
         if n < 1:
             raise ValueError(f"n must be >= 1, got {n}")
         self._state = self._uniform_poses(n)
+        self._unwrapped_steps = 0
         self._weights = np.full(n, 1.0 / n)
         self.w_slow = self.w_fast = 0.0
 
@@ -519,8 +526,8 @@ class ParticleFilter:
         if not np.allclose(cov, cov.T) or np.linalg.eigvalsh(cov).min() < -1e-12:
             raise ValueError(f"cov must be symmetric positive semi-definite, got {cov.tolist()}")
         draws = self.rng.multivariate_normal(mean, cov, size=n, method="eigh")
-        draws[:, 2] = wrap_angle(draws[:, 2])
-        self._state = draws.T.copy()
+        self._state = self._from_world(draws.T)
+        self._unwrapped_steps = 0
         self._weights = np.full(n, 1.0 / n)
         self.w_slow = self.w_fast = 0.0
 
@@ -539,7 +546,7 @@ class ParticleFilter:
             dy = radius * (1.0 - math.cos(dth))
         else:
             dx, dy = v * dt, 0.0
-        self.predict_delta((dx, dy, dth))
+        self._predict(dx, dy, dth)  # finite: no need to check again
 
     def predict_odometry_sequence(self, v: np.ndarray, w: np.ndarray, dt: float) -> None:
         """One prediction for several odometry sub-steps (see :func:`compose_odometry`)."""
@@ -552,11 +559,15 @@ class ParticleFilter:
         translation, not a half-turn) and perturbed per :class:`MotionNoise`.
         """
         try:
-            dx, dy, dth = (float(v) for v in delta)
+            dx, dy, dth = map(float, delta)
         except (TypeError, ValueError) as err:
             raise ValueError(f"delta must be 3 numbers, got {delta!r}") from err
         if not (math.isfinite(dx) and math.isfinite(dy) and math.isfinite(dth)):
             raise ValueError(f"delta must be finite, got {delta!r}")
+        self._predict(dx, dy, dth)
+
+    def _predict(self, dx: float, dy: float, dth: float) -> None:
+        """:meth:`predict_delta` for a checked, finite motion."""
         trans = math.hypot(dx, dy)
         if trans < 1e-9:
             rot1 = 0.0
@@ -573,31 +584,36 @@ class ParticleFilter:
         sd_t = mn.trans_trans * at + mn.trans_rot * (abs(rot1) + abs(rot2)) + mn.min_xy
         sd_r2 = mn.rot_rot * abs(rot2) + mn.rot_trans * at + mn.min_heading
         n = self._weights.size
-        # float32 noise (Box-Muller) and trigonometry: ~1e-7 relative error,
-        # several times faster than float64 ziggurat normals and trigonometry.
-        noise = _std_normals_f32(self.rng, n)
-        sd = self._sd
-        sd[0, 0], sd[1, 0], sd[2, 0] = sd_r1, sd_t, sd_r2
-        sd[0, 1], sd[1, 1], sd[2, 1] = rot1, trans, rot2
-        noise *= sd[:, :1]
-        noise += sd[:, 1:]
+        bufs = self._mb
+        if not bufs or bufs[1].shape[1] != n:
+            bufs = self._motion_buffers(n)
+        z1, noise, cs = bufs
+        # float32 noise and trigonometry: ~1e-7 relative error, several times faster
+        self.rng.standard_normal(out=z1[:3], dtype=np.float32)
+        # noise = [[sd_r1, 0, 0, rot1], [0, sd_t, 0, trans], [0, 0, sd_r2, rot2]] @ [z; 1]
+        a = self._sd
+        a[0, 0], a[1, 1], a[2, 2] = sd_r1, sd_t, sd_r2
+        a[0, 3], a[1, 3], a[2, 3] = rot1, trans, rot2
+        np.matmul(a, z1, out=noise)
         st = self._state
-        cs = self._cs
-        if cs.shape[1] != n:
-            cs = self._cs = np.empty((3, n), dtype=np.float32)
-        h1 = cs[2]
-        np.add(st[2], noise[0], out=h1, casting="unsafe")  # heading after the first turn
-        np.cos(h1, out=cs[0])
-        np.sin(h1, out=cs[1])
-        xy = cs[:2]
-        xy *= noise[1]  # translation along that heading
-        st[:2] += xy
-        noise[0] += noise[2]
-        st[2] += noise[0]
+        h = st[2]
+        h += noise[0]  # heading after the first turn
+        np.cos(h, out=cs[0])
+        np.sin(h, out=cs[1])
+        cs *= noise[1]  # translation along that heading
+        st[:2] += cs
+        h += noise[2]
         # Headings are wrapped lazily (every few steps): consumers wrap as needed.
         self._unwrapped_steps += 1
         if self._unwrapped_steps >= 8:
             self._wrap_headings()
+
+    def _motion_buffers(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """New ``(z1, noise, cs)`` float32 work arrays: ``(4, n)`` normals over a row of
+        ones, ``(3, n)`` motion noise, ``(2, n)`` translation."""
+        self._mb = (np.ones((4, n), dtype=np.float32), np.empty((3, n), dtype=np.float32),
+                    np.empty((2, n), dtype=np.float32))
+        return self._mb
 
     def _wrap_headings(self) -> None:
         st = self._state
@@ -607,8 +623,11 @@ class ParticleFilter:
     # ---------------------------------------------------------- perception
     def _scan_input(
         self, ranges: np.ndarray, angles: np.ndarray, max_range: float
-    ) -> tuple[np.ndarray, np.ndarray, float]:
-        """Validated 1D ``ranges`` and ``angles`` (ranges may exceed ``max_range``)."""
+    ) -> tuple[np.ndarray, np.ndarray, float, float]:
+        """Validated 1D ``ranges`` and ``angles`` (ranges may exceed ``max_range``).
+
+        Also returns the largest range (``-inf`` for an empty scan).
+        """
         ranges = np.asarray(ranges, dtype=float)
         angles = np.asarray(angles, dtype=float)
         if ranges.ndim != 1:
@@ -619,15 +638,23 @@ class ParticleFilter:
         max_range = float(max_range)
         if not (math.isfinite(max_range) and max_range > 0):
             raise ValueError(f"max_range must be a positive finite number, got {max_range}")
+        hi = -math.inf
         if ranges.size:
-            if not ranges.min() >= 0:  # NaN fails this too
+            if ranges.size <= 64:  # small scans: cheaper in Python than three reductions
+                rl = ranges.tolist()
+                total = sum(rl)  # NaN when any range is
+                lo, hi = min(rl), max(rl)
+            else:
+                total = lo = float(ranges.min())
+                hi = float(ranges.max())
+            if not (lo >= 0 and total == total):
                 raise ValueError(f"ranges must be >= 0 and not NaN, got {ranges}")
             key = angles.tobytes()  # scanners repeat their angles: check them once
             if key != self._angles_ok:
                 if not math.isfinite(angles.sum()):
                     raise ValueError(f"beam angles must be finite, got {angles}")
                 self._angles_ok = key
-        return ranges, angles, max_range
+        return ranges, angles, max_range, hi
 
     def _lf_field(self, max_range: float) -> _LFField:
         """Tables gathered by the likelihood-field update for ``max_range`` (cached).
@@ -636,9 +663,10 @@ class ParticleFilter:
         (a border of ``pad`` cells, ``pad >= reach / resolution``, so every
         beam endpoint of a particle inside the map lands inside the grid):
         first the tempered per-beam log-likelihood
-        ``exponent * log(z_hit N(d) + z_rand / max_range)``, then the position
-        log-penalty (0 in free map cells, ``occupied_loglik`` in occupied or
-        outside cells).
+        ``exponent * log(z_hit N(d) + z_rand / max_range)`` less its maximum
+        ``lmax`` (so a scan's sum is at most 0), then the position log-penalty
+        (0 in free map cells, ``occupied_loglik`` in occupied or outside cells),
+        both divided by ``_LF_POWER``.
         """
         key = float(max_range)
         lf = self._lf_cache.get(key)
@@ -646,7 +674,7 @@ class ParticleFilter:
             return lf
         cfg = self.config
         # Shared through the grid: all robots using this map and model share one table.
-        shared_key = ("lf", key, cfg.lf_sigma, cfg.lf_z_hit, cfg.lf_z_rand, cfg.lf_max_dist,
+        shared_key = ("lf_table", key, cfg.lf_sigma, cfg.lf_z_hit, cfg.lf_z_rand, cfg.lf_max_dist,
                       cfg.likelihood_exponent, cfg.occupied_loglik)
 
         def build() -> _LFField:
@@ -661,6 +689,9 @@ class ParticleFilter:
                 cfg.lf_sigma
             ) + cfg.lf_z_rand / max_range
             loglik = cfg.likelihood_exponent * np.log(lik)
+            lmax = float(loglik.max())
+            span = lmax - float(loglik.min())
+            loglik = (loglik - lmax) / _LF_POWER
             inside = np.pad(~self.grid.occupied, pad, constant_values=False)
             # Widen to w with w + 1 divisible by 256 (see _MAGIC); the extra columns on
             # the right are never gathered.
@@ -669,15 +700,14 @@ class ParticleFilter:
             loglik = np.pad(loglik, ((0, 0), (0, extra)), mode="edge")
             inside = np.pad(inside, ((0, 0), (0, extra)), constant_values=False)
             nxp += extra
-            penalty = np.where(inside, 0.0, cfg.occupied_loglik)
+            penalty = np.where(inside, 0.0, cfg.occupied_loglik / _LF_POWER)
             table = np.concatenate([loglik.ravel(), penalty.ravel()]).astype(np.float32)
-            ox, oy = self.grid.origin
-            corner = np.array([[ox - (pad - 0.5) * res], [oy - (pad - 0.5) * res]])
-            # half a cell outside the map on each side (the cells next to the map)
-            lo = np.full((2, 1), (pad - 1.0) * res, dtype=np.float32)
+            # the centres of the cells next to the map, in state coordinates
             ny, nx = self.grid.shape
-            hi = np.array([[pad + nx], [pad + ny]]).astype(np.float32) * res
-            return _LFField(table, pad, nxp, nyp, nxp * nyp, lo, hi, 1.0 / res, reach, corner)
+            lo = np.full((2, 1), -res, dtype=np.float32)
+            hi = (np.array([[nx], [ny]]) * res).astype(np.float32)
+            return _LFField(table, pad, nxp, nyp, nxp * nyp, lo, hi, 1.0 / res, reach,
+                            np.float32(_MAGIC + pad), lmax, span)
 
         lf = self.grid.memo(shared_key, build)
         self._lf_cache[key] = lf
@@ -685,7 +715,7 @@ class ParticleFilter:
 
     def _position_penalty(self) -> np.ndarray:
         """``occupied_loglik`` for particles in occupied cells or outside the map, else 0."""
-        free = self.grid.is_free(self._state[:2].T)
+        free = self.grid.is_free(self._world()[:2].T)
         return np.where(free, 0.0, self.config.occupied_loglik)
 
     def update_likelihood_field(
@@ -702,73 +732,70 @@ class ParticleFilter:
         then scores everything. Returns ``log sum_i w_i p(z | x_i)`` with the
         tempered likelihood and the position penalty included.
         """
-        ranges, angles, max_range = self._scan_input(ranges, angles, max_range)
+        ranges, angles, max_range, hi = self._scan_input(ranges, angles, max_range)
         lf = self._lf_field(max_range)
-        if ranges.size and not ranges.max() < max_range:
+        if hi >= max_range:
             keep = ranges < max_range
             ranges, angles = ranges[keep], angles[keep]
         if max_range > lf.reach:
             ranges = np.minimum(ranges, lf.reach)
         nb = ranges.size
-        nb1 = nb + 1
         st = self._state
         n = st.shape[1]
         # E = M @ [cos; sin; x; y] gives endpoint cell coordinates: rows ex then ey;
         # rows nb and 2 nb + 1 are the particle itself (they gather the penalty).
         mat, unit, mat_r = self._beam_matrix(angles, lf)
-        np.multiply(unit, ranges[:, None], out=mat_r, casting="unsafe")
-        a4, cos_h, sin_h, h, xy, ecell, bits_x, flat, gath = self._lf_buffers(nb, n)
-        np.copyto(h, st[2], casting="unsafe")  # h is scratch space in a4
-        np.cos(h, out=cos_h)
-        np.sin(h, out=sin_h)
-        # Particle positions in metres from the padded table's corner (subtracted in
-        # float64 first: maps may sit at UTM-size coordinates), clamped to one cell
-        # around the map so that no endpoint leaves the table (clamped particles sit
-        # outside the map and get the penalty anyway). ``corner`` is shifted by half
-        # a cell so that rounding the coordinates to the nearest integer floors them.
-        np.subtract(st[:2], lf.corner, out=xy, casting="unsafe")
-        np.maximum(xy, lf.lo, out=xy)
+        np.multiply(unit, ranges, out=mat_r, casting="unsafe")
+        a4, cos_h, sin_h, xy, ecell, bits_x, flat, gath, ones, loglik = self._lf_buffers(nb, n)
+        np.cos(st[2], out=cos_h)
+        np.sin(st[2], out=sin_h)
+        # Particle positions (metres from the centre of map cell (0, 0)), clamped to
+        # one cell around the map so that no endpoint leaves the table (clamped
+        # particles sit outside the map and get the penalty anyway).
+        np.maximum(st[:2], lf.lo, out=xy)
         np.minimum(xy, lf.hi, out=xy)
         np.matmul(mat, a4, out=ecell)
-        # Round to integers in place: adding 2**23 leaves the integer in the float32
-        # mantissa, so the int32 view holds _MAGIC_BITS + cell coordinate; in
-        # (_MAGIC_BITS + iy) * nxp + _MAGIC_BITS + ix the constant wraps to 0 in int32.
-        ecell += _MAGIC
+        # Rounded, these are map cells. Round in place: adding 2**23 + pad leaves the
+        # padded cell coordinate in the float32 mantissa, so the int32 view holds
+        # _MAGIC_BITS + padded cell; in (_MAGIC_BITS + iy) * nxp + _MAGIC_BITS + ix
+        # the constant wraps to 0 in int32.
+        ecell += lf.magic
         flat *= lf.nxp  # the y rows
         flat += bits_x
         flat[nb] += lf.offset  # the particle's own cell: the penalty grid
         lf.table.take(flat, out=gath, mode="clip")  # in range by construction; the x
         # rows are spent, so the values go there
-        loglik = np.add.reduce(gath, axis=0)
-        return self._apply_loglik(loglik, nb * self.config.likelihood_exponent)
+        loglik = np.matmul(ones, gath, out=loglik)  # sum over the beams and the penalty
+        # The scan's log-likelihood is _LF_POWER * loglik + nb * lmax, with loglik
+        # between -bound and 0.
+        cfg = self.config
+        bound = (nb * lf.span - cfg.occupied_loglik) / _LF_POWER
+        return self._apply_loglik(loglik, nb * cfg.likelihood_exponent, nb * lf.lmax, bound,
+                                  _LF_POWER)
 
     def _beam_matrix(
         self, angles: np.ndarray, lf: _LFField
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Reusable endpoint matrix of beams at robot-frame ``angles`` for table ``lf``.
 
-        Returns ``(mat, unit, mat_r)``: ``mat`` ``(2 nb + 2, 4)`` float32 with its
-        constant columns set (``1 / resolution`` on the position columns);
-        ``unit`` ``(2, nb, 2)`` the rotation rows ``[cos, -sin]`` and
-        ``[sin, cos]`` in cells per metre of range; ``mat_r`` the view of
-        ``mat``'s range-dependent entries that ``unit * ranges[:, None]``
-        fills (the particle rows keep zeros there). Cached by the angles' bytes
-        (scanners repeat their beam angles).
+        Returns ``(mat, unit, mat_r)``: ``mat`` ``(2 nb + 2, 4)`` float32
+        (Fortran order) with its constant columns set (``1 / resolution`` on the
+        position columns); ``unit`` ``(2, 2, nb)`` float32 the rotation entries
+        in cells per metre of range (columns ``[cos, sin]`` and ``[-sin, cos]``
+        of the x and y rows); ``mat_r`` the view of ``mat``'s range-dependent
+        entries that ``unit * ranges`` fills (the particle rows keep zeros
+        there). Cached by the angles' bytes (scanners repeat their beam angles).
         """
         key = (angles.tobytes(), lf.inv_res)
         bufs = self._mats.get(key)
         if bufs is None:
             nb = angles.size
-            mat = np.zeros((2 * nb + 2, 4), dtype=np.float32)
+            mat = np.zeros((2 * nb + 2, 4), dtype=np.float32, order="F")
             mat[: nb + 1, 2] = lf.inv_res
             mat[nb + 1:, 3] = lf.inv_res
-            unit = np.empty((2, nb, 2))
-            unit[0, :, 0] = np.cos(angles)
-            unit[0, :, 1] = -np.sin(angles)
-            unit[1, :, 0] = np.sin(angles)
-            unit[1, :, 1] = np.cos(angles)
-            unit *= lf.inv_res
-            mat_r = mat[:, :2].reshape(2, nb + 1, 2)[:, :nb]
+            c, s = np.cos(angles) * lf.inv_res, np.sin(angles) * lf.inv_res
+            unit = np.array([[c, s], [-s, c]], dtype=np.float32)
+            mat_r = mat[:, :2].T.reshape(2, 2, nb + 1)[:, :, :nb]
             if len(self._mats) > 64:  # bound the cache (varying max-range dropouts)
                 self._mats.clear()
             bufs = self._mats[key] = (mat, unit, mat_r)
@@ -777,11 +804,12 @@ class ParticleFilter:
     def _lf_buffers(self, nb: int, n: int) -> tuple[np.ndarray, ...]:
         """Reusable work arrays of the likelihood-field update for ``nb`` beams, ``n`` particles.
 
-        ``(a4, cos_h, sin_h, h, xy, ecell, bits_x, flat, gath)``: ``a4`` the
-        ``(4, n)`` float32 ``[cos; sin; x; y]`` and views of its rows (``h`` is
-        scratch space in the ``x`` row); ``ecell`` the ``(2 nb + 2, n)`` float32
+        ``(a4, cos_h, sin_h, xy, ecell, bits_x, flat, gath, ones, loglik)``:
+        ``a4`` the ``(4, n)`` float32 ``[cos; sin; x; y]`` and views of its
+        rows; ``ecell`` the ``(2 nb + 2, n)`` float32
         endpoint cell coordinates, its int32 view split into the ``x`` and
-        ``y`` rows, and the float32 ``x`` rows that receive the gathered values.
+        ``y`` rows, and the float32 ``x`` rows that receive the gathered values;
+        ``nb + 1`` ones and an ``(n,)`` float32 array for their sum.
         """
         key = (nb, n)
         bufs = self._lfb.get(key)
@@ -792,8 +820,8 @@ class ParticleFilter:
             ecell = np.empty((2 * nb + 2, n), dtype=np.float32)
             bits = ecell.view(np.int32)
             bufs = self._lfb[key] = (
-                a4, a4[0], a4[1], a4[2], a4[2:], ecell, bits[: nb + 1], bits[nb + 1:],
-                ecell[: nb + 1],
+                a4, a4[0], a4[1], a4[2:], ecell, bits[: nb + 1], bits[nb + 1:],
+                ecell[: nb + 1], np.ones(nb + 1, dtype=np.float32), np.empty(n, dtype=np.float32),
             )
         return bufs
 
@@ -811,7 +839,7 @@ class ParticleFilter:
             raise ValueError(f"cone_half_width must be finite and >= 0, got {cone_half_width}")
         k = self.config.beam_rays_per_cone if cone_half_width > 0 else 1
         offsets = np.linspace(-cone_half_width, cone_half_width, k) if k > 1 else np.zeros(1)
-        st = self._state
+        st = self._world()
         world = st[2][:, None, None] + angles[None, :, None] + offsets[None, None, :]
         bins = self.config.beam_lookup_bins
         if bins:
@@ -843,7 +871,7 @@ class ParticleFilter:
         Max-range readings are scored by the ``beam_z_max`` term. Returns the
         scan's log evidence like :meth:`update_likelihood_field`.
         """
-        ranges, angles, max_range = self._scan_input(ranges, angles, max_range)
+        ranges, angles, max_range, _ = self._scan_input(ranges, angles, max_range)
         cfg = self.config
         if ranges.size == 0:
             return self._apply_loglik(self._position_penalty(), 0)
@@ -869,34 +897,59 @@ class ParticleFilter:
         loglik = cfg.likelihood_exponent * np.log(p).sum(axis=1) + self._position_penalty()
         return self._apply_loglik(loglik, ranges.size * cfg.likelihood_exponent)
 
-    def _apply_loglik(self, loglik: np.ndarray, n_eff_beams: float) -> float:
-        """Multiply weights by ``exp(loglik)``; update the slow/fast averages; return log evidence.
+    def _apply_loglik(
+        self, loglik: np.ndarray, n_eff_beams: float, offset: float = 0.0,
+        bound: float = math.inf, power: int = 1,
+    ) -> float:
+        """Multiply weights by ``exp(power * loglik + offset)``; update the slow/fast averages.
 
-        ``loglik`` already holds the tempered scan log-likelihood plus the
-        position penalty. The augmented-MCL averages track
+        ``power * loglik + offset`` is the tempered scan log-likelihood plus the
+        position penalty (``power`` 1, 2 or 4 and the constant ``offset`` taken
+        out by the caller). ``bound``: the caller guarantees
+        ``-bound <= loglik <= 0``; within float32's or float64's normal range
+        ``exp(loglik)`` needs no maximum subtracted. Returns the log evidence
+        ``log sum_i w_i p(z | x_i)``. The augmented-MCL averages track
         ``exp(log_evidence / n_eff_beams)``, the per-beam geometric-mean
         likelihood, which does not depend on how many beams a scan has.
         """
         cfg = self.config
-        mx = float(loglik.max())
-        if not math.isfinite(mx):
-            raise ValueError(f"scan log-likelihood is not finite (max {mx})")
-        # float64 from here on: weight ratios far below float32's range must survive
-        w = np.subtract(loglik, mx, dtype=np.float64)
-        np.exp(w, out=w)
-        w *= self._weights
-        total = float(w.sum())
+        mx = 0.0
+        p = power
+        if bound < 80.0:  # exp(loglik) >= 2e-35 is a normal float32 (float64 after powering)
+            e = np.exp(loglik)
+            w = np.square(e, dtype=np.float64) if p > 1 else e.astype(np.float64)
+            p //= 2
+        elif bound * power < 600.0:  # exp(power * loglik) >= 3e-261 is a normal float64
+            w = np.exp(loglik, dtype=np.float64)
+        else:
+            mx = float(loglik.max())
+            if not math.isfinite(mx):
+                raise ValueError(f"scan log-likelihood is not finite (max {mx})")
+            # float64 from here on: weight ratios far below float32's range must survive
+            w = np.subtract(loglik, mx, dtype=np.float64)
+            np.exp(w, out=w)
+        while p > 1:
+            w *= w
+            p //= 2
+        uniform = self._weights is self._uniform_w  # just resampled: no need to multiply
+        if not uniform:
+            w *= self._weights
+        cum = np.add.accumulate(w)  # the total, and what resampling needs next
+        total = float(cum[-1])
         if total > 0 and math.isfinite(total):
-            log_evidence = mx + math.log(total)
+            log_evidence = offset + power * mx + math.log(total)
+            if uniform:
+                log_evidence -= math.log(w.size)
             w *= 1.0 / total
             self._weights = w
+            self._cum = (w, cum)
         else:  # underflow: redo in log space
             with np.errstate(divide="ignore"):
-                lw = np.log(self._weights) + loglik
+                lw = np.log(self._weights) + power * loglik.astype(np.float64)
             m2 = lw.max()
             e = np.exp(lw - m2)
             total = e.sum()
-            log_evidence = float(m2 + np.log(total))
+            log_evidence = float(offset + m2 + np.log(total))
             self._weights = e / total
         if n_eff_beams > 0:
             w_avg = math.exp(log_evidence / n_eff_beams)
@@ -945,12 +998,20 @@ class ParticleFilter:
         else:
             n = self._weights.size
             n_inj = int(rng.binomial(n, p_inj)) if p_inj > 0 else 0
-            idx = _lvi(np.add.accumulate(self._weights), n - n_inj, rng)
+            idx = _lvi(self._cumulative_weights(), n - n_inj, rng)
             state = self._state.take(idx, axis=1)
         if n_inj:
             state = np.concatenate([state, self._uniform_poses(n_inj)], axis=1)
         self._state = state
         self._weights = self._uniform_weights(n)
+
+    def _cumulative_weights(self) -> np.ndarray:
+        """Cumulative sums of the weights (up to a constant factor): the ones the last
+        measurement update computed while these weights are current."""
+        w, cum = self._cum
+        if w is not self._weights:  # weights are replaced, never changed in place
+            cum = np.add.accumulate(self._weights)
+        return cum
 
     def _uniform_weights(self, n: int) -> np.ndarray:
         """Weights ``1 / n`` (a shared read-only array: weights are never changed in place)."""
@@ -979,14 +1040,17 @@ class ParticleFilter:
         """
         cfg = self.config
         n_max = cfg.n_max
-        idx = _lvi(np.add.accumulate(self._weights), n_max, self.rng)
+        idx = _lvi(self._cumulative_weights(), n_max, self.rng)
         idx = idx[self.rng.permutation(n_max)]
+        if self._unwrapped_steps:
+            self._wrap_headings()
         st = np.take(self._state, idx, axis=1)
-        st[2] = wrap_angle(st[2])
+        world = st + self._org
+        world[2] = wrap_angle(world[2])
         bx, by, bt = cfg.kld_bin
-        kx = np.floor(st[0] / bx).astype(np.int64)
-        ky = np.floor(st[1] / by).astype(np.int64)
-        kt = np.floor((st[2] + np.pi) / bt).astype(np.int64)
+        kx = np.floor(world[0] / bx).astype(np.int64)
+        ky = np.floor(world[1] / by).astype(np.int64)
+        kt = np.floor((world[2] + np.pi) / bt).astype(np.int64)
         kx -= kx.min()
         ky -= ky.min()
         key = (kx * (ky.max() + 1) + ky) * (kt.max() + 1) + kt
@@ -1004,7 +1068,7 @@ class ParticleFilter:
     def mean_pose(self) -> np.ndarray:
         """Weighted mean ``(x, y, heading)`` with the circular mean heading."""
         w = self._weights
-        st = self._state
+        st = self._world()
         x = float(np.dot(w, st[0]))
         y = float(np.dot(w, st[1]))
         h = float(np.arctan2(np.dot(w, np.sin(st[2])), np.dot(w, np.cos(st[2]))))
@@ -1026,7 +1090,8 @@ class ParticleFilter:
         p = np.asarray(true_pose, dtype=float)
         if p.shape not in ((2,), (3,)) or not np.all(np.isfinite(p)):
             raise ValueError(f"true_pose must be 2 or 3 finite numbers, got {true_pose}")
-        dist = np.hypot(self._state[0] - p[0], self._state[1] - p[1])
+        st = self._world()
+        dist = np.hypot(st[0] - p[0], st[1] - p[1])
         return float(np.dot(self._weights, dist))
 
     def belief_features(
@@ -1045,7 +1110,7 @@ class ParticleFilter:
         if not np.isfinite(cell_size) or cell_size <= 0:
             raise ValueError(f"cell_size must be positive, got {cell_size}")
         w = self._weights
-        st = self._state
+        st = self._world()
         mean = self.mean_pose()
         resultant = float(np.hypot(np.dot(w, np.cos(st[2])), np.dot(w, np.sin(st[2]))))
         d = st - mean[:, None]

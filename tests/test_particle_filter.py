@@ -386,6 +386,120 @@ def test_likelihood_field_matches_the_textbook_formula():
     np.testing.assert_allclose(pf.weights, expected, rtol=1e-3, atol=1e-9)
 
 
+def _lf_reference(g: OccupancyGrid, cfg: MCLConfig, parts: np.ndarray, z: np.ndarray,
+                  beams: np.ndarray, max_range: float) -> np.ndarray:
+    """Per-particle scan log-likelihood from the textbook formula, in float64."""
+    pad = 400
+    dist = np.minimum(g.distance_field(pad), cfg.lf_max_dist)
+    keep = z < max_range
+    ang = parts[:, 2:3] + beams[keep]
+    ex = parts[:, 0:1] + z[keep] * np.cos(ang) - g.origin[0]
+    ey = parts[:, 1:2] + z[keep] * np.sin(ang) - g.origin[1]
+    d = dist[np.floor(ey / g.resolution).astype(int) + pad,
+             np.floor(ex / g.resolution).astype(int) + pad]
+    lik = cfg.lf_z_hit * np.exp(-0.5 * (d / cfg.lf_sigma) ** 2) / (
+        cfg.lf_sigma * np.sqrt(2 * np.pi)) + cfg.lf_z_rand / max_range
+    return cfg.likelihood_exponent * np.log(lik).sum(axis=1) + np.where(
+        g.is_free(parts[:, :2]), 0.0, cfg.occupied_loglik)
+
+
+@pytest.mark.parametrize("n_beams", [30, 90, 360])  # float32 exp, float64 exp, max subtracted
+def test_likelihood_field_weights_and_evidence_match_float64(n_beams):
+    g = room()
+    cfg = MCLConfig(n_particles=300)
+    rng = np.random.default_rng(8)
+    beams = np.linspace(-np.pi, np.pi, n_beams, endpoint=False)
+    pose = np.array([5.0, 3.0, 0.4])
+    z = g.simulate_scan(pose, beams, MAX_RANGE)
+    pf = ParticleFilter(g, np.random.default_rng(9), cfg)
+    pf.init_gaussian(pose, np.diag([0.4, 0.4, 0.2]) ** 2)
+    for prior in ("non-uniform", "resampled"):
+        if prior == "resampled":
+            pf.resample()  # uniform weights: the update skips multiplying by them
+        parts, w0 = pf.particles.copy(), pf.weights.copy()
+        if prior == "non-uniform":
+            w0 = rng.random(w0.size) + 0.1
+            w0 /= w0.sum()
+            pf.set_particles(parts, w0)
+        evidence = pf.update_likelihood_field(z, beams, MAX_RANGE)
+        ll = _lf_reference(g, cfg, parts, z, beams, MAX_RANGE)
+        m = ll.max()
+        expected = w0 * np.exp(ll - m)
+        assert evidence == pytest.approx(m + np.log(expected.sum()), abs=1e-3)
+        np.testing.assert_allclose(pf.weights, expected / expected.sum(), rtol=2e-3, atol=1e-12)
+
+
+def test_endpoint_cells_are_float64_floors():
+    # the float32 endpoint arithmetic picks the float64 cell for all but a few endpoints
+    # lying within ~1e-5 cells of a cell boundary (weights then differ in one beam)
+    for origin in ((0.0, 0.0), (500000.0, 4200000.0)):
+        g0 = room()
+        g = OccupancyGrid(g0.occupied, g0.resolution, origin)
+        cfg = MCLConfig(n_particles=5000)
+        rng = np.random.default_rng(11)
+        parts = np.column_stack([rng.uniform(0.2, 9.8, 5000) + origin[0],
+                                 rng.uniform(0.2, 5.8, 5000) + origin[1],
+                                 rng.uniform(-np.pi, np.pi, 5000)])
+        z = rng.uniform(0.1, MAX_RANGE - 0.1, BEAMS.size)
+        pf = ParticleFilter(g, np.random.default_rng(0), cfg)
+        pf.set_particles(parts)
+        pf.update_likelihood_field(z, BEAMS, MAX_RANGE)
+        parts = pf.particles  # float32 state: compare the endpoint arithmetic alone
+        ll = _lf_reference(g, cfg, parts, z, BEAMS, MAX_RANGE)
+        expected = np.exp(ll - ll.max())
+        expected /= expected.sum()
+        off = ~np.isclose(pf.weights, expected, rtol=1e-3, atol=1e-12)
+        assert np.count_nonzero(off) <= 3
+
+
+def test_low_variance_resampling_skips_zero_weights():
+    rng = np.random.default_rng(4)
+    w = rng.random(200) * (rng.random(200) < 0.3)
+    w[0] = w[-1] = 0.0
+    for n in (0, 1, 37, 200, 1000):
+        for _ in range(20):
+            idx = low_variance_indices(w, n, rng)
+            assert idx.size == n and np.all(w[idx] > 0)
+
+
+def test_headings_stay_wrapped_and_resampling_reuses_the_update_sums():
+    g = room()
+    pf = ParticleFilter(g, np.random.default_rng(6), MCLConfig(n_particles=500))
+    pf.init_gaussian(np.array([5.0, 3.0, 3.1]), np.diag([0.2, 0.2, 0.3]) ** 2)
+    z = g.simulate_scan(np.array([5.0, 3.0, 3.1]), BEAMS, MAX_RANGE)
+    for k in range(21):
+        pf.predict_delta((0.05, 0.0, 0.7))
+        h = pf.particles[:, 2]
+        assert np.all((h >= -np.pi) & (h < np.pi))
+        pf.update_likelihood_field(z, BEAMS, MAX_RANGE)
+        cum = pf._cumulative_weights()
+        np.testing.assert_allclose(cum / cum[-1], np.cumsum(pf.weights), rtol=1e-12, atol=1e-15)
+        if k % 3 == 0:
+            pf.resample()
+
+
+def test_pickled_and_copied_filters_continue_identically():
+    import copy
+    import pickle
+
+    g = room()
+    pf = ParticleFilter(g, np.random.default_rng(12), MCLConfig(n_particles=300))
+    pf.init_gaussian(np.array([5.0, 3.0, 0.3]), np.diag([0.3, 0.3, 0.1]) ** 2)
+    z = g.simulate_scan(np.array([5.0, 3.0, 0.3]), BEAMS, MAX_RANGE)
+    for _ in range(3):  # fill the work-array caches
+        pf.predict_delta((0.05, 0.0, 0.02))
+        pf.update_likelihood_field(z, BEAMS, MAX_RANGE)
+    clones = [pickle.loads(pickle.dumps(pf)), copy.deepcopy(pf)]
+    for f in [pf, *clones]:
+        for _ in range(3):
+            f.resample_if_needed()
+            f.predict_delta((0.05, 0.0, 0.02))
+            f.update_likelihood_field(z, BEAMS, MAX_RANGE)
+    for c in clones:
+        np.testing.assert_array_equal(c.particles, pf.particles)
+        np.testing.assert_array_equal(c.weights, pf.weights)
+
+
 def test_map_far_from_the_origin_gives_the_same_weights():
     # real logs use UTM-size coordinates: float32 shortcuts must not lose precision there
     local = room()
