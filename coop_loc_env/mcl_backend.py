@@ -7,15 +7,17 @@ in a known map built from the scenario's layout. Per env step and robot:
    (low-variance, with random particles injected and KLD-sampling of the count
    between ``n_min`` and ``n_particles``, the maximum);
 2. predict with the step's odometry sub-steps (one composed motion);
-3. weight by the range scan: the likelihood-field model for a laser, the beam
-   model with wide cones for a sonar (``cone_half_width = 0.5 * sonar_fov / sonar_beams``,
-   expected ranges looked up in a precomputed range table);
+3. weight by the range scan: the likelihood-field model for a laser (or the
+   beam model without cones, ``extras["mcl_laser_model"] = "beam"``), the beam
+   model with wide cones for a sonar (``cone_half_width = 0.5 * sonar_fov / sonar_beams``);
+   beam models look expected ranges up in a precomputed range table;
 4. weight by DGPS fixes and compass readings when the robot has them
    (Gaussian likelihoods with the variances the receivers report);
 5. detections between two MCL robots (``cooperative_updates``): the observed
    robot's belief is multiplied by the density of where the observer's particles
    say it is (:class:`estimators.detection_transfer.DetectionTransfer`, density
-   trees, the paper's 2.5 m lockout, negative sightings ignored).
+   trees, the paper's 2.5 m lockout, negative sightings ignored; the factor may
+   be tempered, ``extras["mcl_detection_exponent"]``).
 
 Maps: one :class:`~estimators.occupancy.OccupancyGrid` per range-sensor type,
 rasterized from ``world.layout.obstacles`` honouring each obstacle's
@@ -24,10 +26,12 @@ world's border. Grids and their derived tables are cached per process, so
 many envs of one scenario share them. The resolution is
 ``max(0.1, max(world_size) / 160)`` m unless the scenario sets
 ``extras["mcl_resolution"]``; other :class:`MCLConfig` fields can be set
-through ``extras["mcl"]`` (a dict).
+through ``extras["mcl"]`` (a dict), per sensor type through
+``extras["mcl_laser"]`` / ``extras["mcl_sonar"]`` (applied on top).
 
 Initial belief: uniform over the free space when ``cfg.global_localization``
-(the paper's global localization), otherwise Gaussian around a noisy draw
+(the paper's global localization; ``extras["mcl_global_init_factor"]`` times
+``n_particles`` at first, 4 by default, cut by KLD-sampling), otherwise Gaussian around a noisy draw
 around the true start (``init_pos_std``, ``init_heading_std``), as the EKF.
 
 Not handled: detections between an MCL robot and a robot running another
@@ -74,7 +78,7 @@ __all__ = ["MCLBackend", "beam_angles", "known_map", "map_resolution"]
 HIST_CELLS = 5
 HIST_CELL = 1.0  # m, edge of one egocentric histogram cell
 HEADING_BINS = 8
-SONAR_LOOKUP_BINS = 180
+RANGE_LOOKUP_BINS = 180
 LOCKOUT_DISTANCE = 2.5  # m (Fox et al.)
 RESET_STD = 1.0  # m: confident observers (position std below) seed uncertain targets (above)
 GLOBAL_INIT_FACTOR = 4  # global localization starts with this many times n_particles
@@ -104,19 +108,42 @@ def map_resolution(cfg: ScenarioConfig) -> float:
     return float(res)
 
 
-def mcl_overrides(cfg: ScenarioConfig) -> dict:
-    """:class:`MCLConfig` fields a scenario sets through ``extras["mcl"]`` (validated)."""
-    tuned = cfg.extras.get("mcl", {})
-    if not isinstance(tuned, dict):
-        raise ValueError(f"extras['mcl'] must be a dict of MCLConfig fields, got {tuned!r}")
+def mcl_overrides(cfg: ScenarioConfig, sensor: str | None = None) -> dict:
+    """:class:`MCLConfig` fields a scenario sets through ``extras["mcl"]`` (validated), updated
+    by ``extras["mcl_laser"]`` / ``extras["mcl_sonar"]`` for a ``sensor`` robot's filter."""
     known = set(MCLConfig.__dataclass_fields__) - {"n_particles", "n_max"}
-    bad = sorted(set(tuned) - known)
-    if bad:
-        raise ValueError(
-            f"extras['mcl'] has unknown MCLConfig field(s) {bad} (n_particles comes from the "
-            f"config key n_particles); known: {sorted(known)}"
-        )
-    return dict(tuned)
+    out: dict = {}
+    for key in ("mcl", "mcl_laser", "mcl_sonar"):  # all validated, whichever robots exist
+        tuned = cfg.extras.get(key, {})
+        if not isinstance(tuned, dict):
+            raise ValueError(f"extras[{key!r}] must be a dict of MCLConfig fields, got {tuned!r}")
+        bad = sorted(set(tuned) - known)
+        if bad:
+            raise ValueError(
+                f"extras[{key!r}] has unknown MCLConfig field(s) {bad} (n_particles comes from "
+                f"the config key n_particles); known: {sorted(known)}"
+            )
+        if key in ("mcl", f"mcl_{sensor}"):
+            out.update(tuned)
+    return out
+
+
+def laser_model(cfg: ScenarioConfig) -> str:
+    """``extras["mcl_laser_model"]``: ``"likelihood_field"`` (default) or ``"beam"``.
+
+    The likelihood field scores each beam endpoint by its distance to the nearest
+    occupied cell, so an endpoint deep inside a thick wall or the solid outside
+    of a room scores as well as one on its surface (a pose whose beams "see
+    through" a wall is not penalized). The beam model (Fox et al.'s Fig. 1:
+    Gaussian around the ray-cast range, short readings, max-range readings)
+    compares ranges and has no such blind spot; laser robots then use the same
+    model as sonars, with ray casts from the grid's range table and no cone.
+    """
+    m = cfg.extras.get("mcl_laser_model", "likelihood_field")
+    if m not in ("likelihood_field", "beam"):
+        raise ValueError(f"extras['mcl_laser_model'] must be 'likelihood_field' or 'beam', "
+                         f"got {m!r}")
+    return m
 
 
 def detection_reset_fraction(cfg: ScenarioConfig) -> float:
@@ -136,6 +163,15 @@ def global_init_factor(cfg: ScenarioConfig) -> int:
     if isinstance(f, bool) or not isinstance(f, int) or f < 1:
         raise ValueError(f"extras['mcl_global_init_factor'] must be an int >= 1, got {f!r}")
     return f
+
+
+def detection_exponent(cfg: ScenarioConfig) -> float:
+    """``extras["mcl_detection_exponent"]``: tempering of each belief transfer's factor
+    (:attr:`TransferConfig.exponent`; 1, the default, is the paper's untempered Eq. 14)."""
+    f = cfg.extras.get("mcl_detection_exponent", 1.0)
+    if isinstance(f, bool) or not isinstance(f, (int, float)) or not 0.0 < f <= 1.0:
+        raise ValueError(f"extras['mcl_detection_exponent'] must be in (0, 1], got {f!r}")
+    return float(f)
 
 
 def known_map(world: World, sensor: str, resolution: float) -> OccupancyGrid:
@@ -217,28 +253,28 @@ class MCLBackend:
         n = cfg.n_particles
         # Motion-noise floors are per prediction (one per env step): scale them with dt.
         motion = MotionNoise(min_xy=0.02 * cfg.dt / 0.1, min_heading=0.01 * cfg.dt / 0.1)
-        tuned = mcl_overrides(cfg)
-        self.mcl_config = {
-            t: MCLConfig(
-                **{
-                    "n_particles": n,
-                    "motion": motion,
-                    "adaptive": True,
-                    "n_max": n,
-                    "n_min": min(n, 100),
-                    "beam_sigma": max(0.3, 2 * cfg.sonar_range_std),
-                    "lf_sigma": max(0.2, 2 * cfg.laser_range_std),
-                    "beam_lookup_bins": SONAR_LOOKUP_BINS if t == "sonar" else 0,
-                    **tuned,
-                }
-            )
-            for t in self._grids
-        }
+        self._laser_beam = laser_model(cfg) == "beam"
+        self.mcl_config = {}
+        for t in self._grids:
+            fields = {
+                "n_particles": n,
+                "motion": motion,
+                "adaptive": True,
+                "n_max": n,
+                "n_min": 100,
+                "beam_sigma": max(0.3, 2 * cfg.sonar_range_std),
+                "lf_sigma": max(0.2, 2 * cfg.laser_range_std),
+                "beam_lookup_bins": RANGE_LOOKUP_BINS if t == "sonar" or self._laser_beam else 0,
+                **mcl_overrides(cfg, t),
+            }
+            fields["n_min"] = min(n, fields["n_min"])  # a smaller n_particles caps it
+            self.mcl_config[t] = MCLConfig(**fields)
         self.transfer = DetectionTransfer(
             TransferConfig(
                 lockout_distance=LOCKOUT_DISTANCE,
                 false_positive_prob=max(cfg.false_positive_prob, 1e-3),
                 n_samples=min(n, 1000),
+                exponent=detection_exponent(cfg),
             )
         )
         self.reset_fraction = detection_reset_fraction(cfg)
@@ -280,8 +316,11 @@ class MCLBackend:
         self.transfers_applied[:] = 0
         self._t = 0
         self._conflicts = {}
-        if self._sonar.any():  # build the shared range table now, not inside the first step
-            self._grids["sonar"].range_table(cfg.sonar_max_range, SONAR_LOOKUP_BINS)
+        # build the shared range tables now, not inside the first step
+        if self._sonar.any():
+            self._grids["sonar"].range_table(cfg.sonar_max_range, RANGE_LOOKUP_BINS)
+        if self._laser_beam and not self._sonar.all():
+            self._grids["laser"].range_table(cfg.laser_max_range, RANGE_LOOKUP_BINS)
 
     # ------------------------------------------------------------------ step
     def step(self, readings: Readings, active: np.ndarray) -> dict[str, int]:
@@ -422,6 +461,8 @@ class MCLBackend:
         pf = self.filters[i]
         if t == "sonar":
             pf.update_beam(ranges[ok], angles[ok], cfg.sonar_max_range, self._cone)
+        elif self._laser_beam:
+            pf.update_beam(ranges[ok], angles[ok], cfg.laser_max_range)
         else:
             pf.update_likelihood_field(ranges[ok], angles[ok], cfg.laser_max_range)
 

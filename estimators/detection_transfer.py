@@ -26,6 +26,21 @@ Guards against double counting (the paper's two rules):
    (2.5 m in the paper). With the symmetric update the reverse pair
    ``(n, m)`` is locked as well, keyed to ``n``'s odometer.
 
+Tempering (``TransferConfig.exponent`` < 1, not in the paper). Relative
+detections are blind to a rotation of the whole team: if every robot's belief
+is turned about the centre of a symmetric room by the same angle, every
+detection fits as well as before; only each robot's own scans can rule such a
+frame out. The lockout still lets a robot be detected every few seconds when
+detectors see all round and robots share one room, and each transfer
+re-imports beliefs that earlier transfers already shaped (the factorial
+double counting the paper's two rules only limit). Untempered, those repeated
+factors outweigh scans that are themselves tempered against their own
+overconfidence, and a team settles on whichever frame it first agrees on.
+Raising the factor to a power below 1 makes a transfer count as a fraction of
+an independent observation, as the scans' ``likelihood_exponent`` does; a
+single transfer then shifts weight between modes less, and several transfers
+between robots of different sensor types are needed to settle a symmetry.
+
 False positives. The detection model is the paper's mixture: with
 probability ``false_positive_prob`` a reported detection is spurious and
 carries no information, so the factor applied to ``n``'s particles is
@@ -146,7 +161,10 @@ class TransferConfig:
     model to grow the density tree (leaf size ``leaf_size``, default
     ``sqrt(n_samples)``); ``heading_scale`` (m per rad) weighs the heading
     axis when the tree picks its longest dimension. ``symmetric`` also
-    updates the observer from the target's belief.
+    updates the observer from the target's belief. ``exponent`` tempers the
+    detection likelihood: the factor applied to the target's weights is
+    ``((1 - p_fp) tree_pdf + p_fp / V) ** exponent`` (1, the default, is the
+    paper's Eq. 14; see the module docstring for when less is needed).
     """
 
     lockout_distance: float = 2.5
@@ -155,6 +173,7 @@ class TransferConfig:
     leaf_size: int | None = None
     heading_scale: float = 1.0
     symmetric: bool = False
+    exponent: float = 1.0
 
     def __post_init__(self) -> None:
         if not math.isfinite(self.lockout_distance) or self.lockout_distance < 0:
@@ -167,6 +186,8 @@ class TransferConfig:
             raise ValueError(f"n_samples must be >= 1, got {self.n_samples}")
         if not math.isfinite(self.heading_scale) or self.heading_scale <= 0:
             raise ValueError(f"heading_scale must be > 0, got {self.heading_scale}")
+        if not math.isfinite(self.exponent) or not 0 < self.exponent <= 1:
+            raise ValueError(f"exponent must be in (0, 1], got {self.exponent}")
 
 
 @dataclass(frozen=True)
@@ -318,6 +339,8 @@ class DetectionTransfer:
         expected_tree = float(np.dot(pf.weights, pdf))
         denom = (1.0 - p_fp) * expected_tree + p_fp * uniform
         posterior_fp = p_fp * uniform / denom if denom > 0 else 1.0
+        if self.config.exponent != 1.0:
+            factors = factors ** self.config.exponent
         pf.apply_weight_factors(factors)
         return float(posterior_fp)
 

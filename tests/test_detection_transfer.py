@@ -196,6 +196,26 @@ def test_zero_false_positive_rate_and_disjoint_support_leave_weights_unchanged()
     np.testing.assert_array_equal(n.weights, w)
 
 
+def test_tempered_transfer_raises_the_factors_to_the_exponent():
+    g = room()
+    out = {}
+    for exponent in (1.0, 0.25):
+        m, n = localized(g, POSE_M, 1), lost(g, 2)
+        w0 = n.weights.copy()
+        res = DetectionTransfer(TransferConfig(exponent=exponent)).apply(
+            detection(), m, n, np.random.default_rng(3))
+        assert res.applied
+        out[exponent] = n.weights / w0
+    # same samples, same tree: tempered factors are the untempered ones ** 0.25
+    # (up to the normalization)
+    ratio = out[0.25] / out[1.0] ** 0.25
+    np.testing.assert_allclose(ratio, ratio[0], rtol=1e-6)
+    assert out[0.25].max() / out[0.25].min() < out[1.0].max() / out[1.0].min()
+    for bad in (0.0, 1.5, float("nan")):
+        with pytest.raises(ValueError, match="exponent"):
+            TransferConfig(exponent=bad)
+
+
 def test_sampled_poses_invert_each_other():
     rng = np.random.default_rng(0)
     det = RobotDetection(0, 1, 2.0, 0.4, range_std=1e-6, bearing_std=1e-6, orientation=-0.7,

@@ -39,6 +39,20 @@ def test_hallway_is_symmetric_but_for_the_bay():
     assert bay_cells > 0
 
 
+def _rotate(points: np.ndarray, k: int) -> np.ndarray:
+    """``points`` (n, 2) turned by ``k`` sixths of a turn about the hexagon's centre."""
+    a = k * np.pi / 3
+    rot = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    return (np.asarray(points) - (8.0, 7.0)) @ rot.T + (8.0, 7.0)
+
+
+def _invariant(features, k: int) -> bool:
+    """Whether a set of polygons maps onto itself under ``k`` sixths of a turn."""
+    cents = np.array([np.mean(o.vertices, axis=0) for o in features])
+    moved = _rotate(cents, k)
+    return all(np.min(np.hypot(*(cents - m).T)) < 1e-6 for m in moved)
+
+
 def test_hexagon_features_and_symmetry():
     env = coop_loc_env.parallel_env("hexagon")
     cfg = env.config
@@ -49,15 +63,79 @@ def test_hexagon_features_and_symmetry():
     # the laser's map is exactly symmetric under a half turn (two indistinguishable poses)
     np.testing.assert_array_equal(laser, laser[::-1, ::-1])
     assert not np.array_equal(sonar, sonar[::-1, ::-1])
-    # sonar-only features sit 120 degrees apart around the centre
-    feats = [o for o in env.world.layout.obstacles if o.visible_to == ("sonar",)]
-    ang = np.sort([np.arctan2(o.center[1] - 7.0, o.center[0] - 8.0) for o in feats])
-    np.testing.assert_allclose(np.diff(ang), 2 * np.pi / 3, atol=1e-9)
+    obstacles = env.world.layout.obstacles
+    sonar_f = [o for o in obstacles if o.visible_to == ("sonar",)]
+    laser_f = [o for o in obstacles if o.visible_to == ("laser",)]
+    assert len(sonar_f) == 3 and len(laser_f) == 4
+    # Fig. 13: a sonar robot cannot tell three poses apart (its features repeat every
+    # third of a turn), a laser robot two (half a turn); the walls repeat every sixth
+    # of a turn, so together only the identity keeps both feature sets.
+    assert [k for k in range(6) if _invariant(sonar_f, k)] == [0, 2, 4]
+    assert [k for k in range(6) if _invariant(laser_f, k)] == [0, 3]
     # hexagon edges are 8 m
     from coop_loc_env.scenarios.fox import hexagon_vertices
 
     v = np.array(hexagon_vertices())
     np.testing.assert_allclose(np.hypot(*(np.roll(v, -1, 0) - v).T), 8.0)
+
+
+def test_wander_reads_each_robots_own_scan():
+    """Sonar robots in the mixed hexagon team turn away from walls instead of pushing
+    into them (their odometry then matches their motion)."""
+    from policies.fox import WanderPolicy
+
+    env = coop_loc_env.parallel_env("hexagon", n_particles=50, cooperative_updates=False)
+    obs, _ = env.reset(seed=0)
+    policy = WanderPolicy()
+    policy.reset(env, seed=0)
+    cfg = env.config
+    dt = cfg.dt / cfg.odometry_substeps
+    worst = 0.0
+    for _ in range(120):
+        before = env.world.poses.copy()
+        obs, *_ = env.step(policy.act(obs))
+        odo = env.last_readings.odometry
+        p = before.copy()
+        for s in range(cfg.odometry_substeps):
+            v, w = odo[s, :, 0], odo[s, :, 1]
+            th = p[:, 2] + 0.5 * w * dt
+            p += np.stack([v * dt * np.cos(th), v * dt * np.sin(th), w * dt], axis=1)
+        worst = max(worst, float(np.hypot(*(p[:, :2] - env.world.poses[:, :2]).T).max()))
+    assert worst < 0.15
+
+
+def test_hexagon_detection_between_sensor_types_picks_the_consistent_copy():
+    """A laser robot unsure between two poses (half a turn apart) detects a sonar robot
+    unsure between three (thirds of a turn apart): only the true pose of the sonar robot
+    is consistent with both beliefs, so the transfer keeps it alone."""
+    env = coop_loc_env.parallel_env("hexagon", n_particles=600)
+    env.reset(seed=1)
+    env.step({a: np.zeros(2, dtype=np.float32) for a in env.agents})
+    backend = env.backends[0]
+    backend.transfer.reset()
+    poses = env.world.poses
+    rng = np.random.default_rng(0)
+
+    def copies(pose, ks, n=600):
+        parts = []
+        for k in ks:
+            xy = _rotate(pose[None, :2], k)[0]
+            c = np.array([xy[0], xy[1], wrap_angle(pose[2] + k * np.pi / 3)])
+            parts.append(c + rng.normal(0.0, [0.15, 0.15, 0.03], (n // len(ks), 3)))
+        return np.concatenate(parts)
+
+    laser, sonar = 1, 0
+    backend.filters[laser].set_particles(copies(poses[laser], (0, 3)))
+    backend.filters[sonar].set_particles(copies(poses[sonar], (0, 2, 4)))
+    before = backend.filters[sonar].particle_spread(poses[sonar])
+    assert before > 3.0
+    # tempered transfers (exponent 0.2) need a few detections; the lockout only
+    # lets one through per 2.5 m of the observer's travel, so let it travel
+    for _ in range(4):
+        _detection_step(env, laser, sonar)
+        backend.filters[laser].odometer += 3.0
+        backend.filters[sonar].resample()
+    assert backend.filters[sonar].particle_spread(poses[sonar]) < 1.0, before
 
 
 @pytest.mark.parametrize("scenario", ["symmetric_hallway", "hexagon"])

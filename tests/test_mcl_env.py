@@ -132,11 +132,15 @@ def test_known_maps_honour_visible_to():
     assert laser is known_map(env.world, "laser", res)  # cached
     sonar_only = [o for o in env.world.layout.obstacles if o.visible_to == ("sonar",)]
     laser_only = [o for o in env.world.layout.obstacles if o.visible_to == ("laser",)]
-    assert len(sonar_only) == 3 and len(laser_only) == 2
+    assert len(sonar_only) == 3 and len(laser_only) == 4
+
+    def inside(o):  # a point inside the (convex) feature
+        return np.mean(o.vertices, axis=0) if o.shape == "polygon" else np.array(o.center)
+
     for o in sonar_only:
-        assert not sonar.is_free(np.array(o.center)) and laser.is_free(np.array(o.center))
+        assert not sonar.is_free(inside(o)) and laser.is_free(inside(o))
     for o in laser_only:
-        assert not laser.is_free(np.array(o.center)) and sonar.is_free(np.array(o.center))
+        assert not laser.is_free(inside(o)) and sonar.is_free(inside(o))
     # walls at the world's edges: the border ring lies just outside
     assert laser.bounds[0] == pytest.approx(-res)
     with pytest.raises(ValueError, match="radar"):
@@ -169,8 +173,36 @@ def test_cooperative_updates_switch_transfers():
         ({"global_localization": 1}, "global_localization"),
         ({"extras": {"mcl_resolution": -1.0}}, "mcl_resolution"),
         ({"extras": {"mcl": {"bogus": 1}}}, "bogus"),
+        ({"extras": {"mcl_laser": {"bogus": 1}}}, "bogus"),
+        ({"extras": {"mcl_sonar": 0.3}}, "mcl_sonar"),
+        ({"extras": {"mcl_laser_model": "sonar"}}, "mcl_laser_model"),
+        ({"extras": {"mcl_detection_exponent": 0.0}}, "mcl_detection_exponent"),
+        ({"extras": {"mcl_detection_exponent": 1.5}}, "mcl_detection_exponent"),
+        ({"extras": {"mcl_global_init_factor": 0}}, "mcl_global_init_factor"),
     ],
 )
 def test_bad_mcl_settings_raise(kwargs, match):
     with pytest.raises(ValueError, match=match):
         _make("outdoor_terrain", **kwargs)
+
+
+def test_per_sensor_settings_and_the_laser_beam_model():
+    env = _make("hexagon", n_particles=300, max_cycles=4)
+    backend = env.backends[0]
+    # the hexagon's settings: lasers use the beam model with their own sigma,
+    # both types share the tempering; a smaller n_particles caps n_min
+    laser, sonar = backend.mcl_config["laser"], backend.mcl_config["sonar"]
+    assert backend._laser_beam and laser.beam_lookup_bins > 0
+    assert laser.beam_sigma == pytest.approx(0.3) and sonar.beam_sigma == pytest.approx(0.5)
+    assert laser.likelihood_exponent == sonar.likelihood_exponent
+    assert laser.n_min == laser.n_max == 300
+    assert backend.transfer.config.exponent == pytest.approx(0.2)
+    obs, infos = env.reset(seed=0)
+    assert all(pf.n_particles == 3000 for pf in backend.filters)  # 10x at the start
+    while env.agents:
+        obs, _, _, _, infos = env.step({a: np.array([0.3, 0.1]) for a in env.agents})
+    assert all(np.isfinite(i["particle_spread"]) for i in infos.values())
+    # the default elsewhere: likelihood field for lasers, untempered transfers
+    env = _make("symmetric_hallway")
+    assert not env.backends[0]._laser_beam
+    assert env.backends[0].transfer.config.exponent == 1.0

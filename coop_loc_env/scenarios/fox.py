@@ -6,8 +6,9 @@ known map and has only odometry, a range finder and a robot detector (no DGPS,
 compass, inclinometer or camera). The env step is 0.5 s so that episodes of
 several simulated minutes stay cheap (600 s in the hallway, 300 s in the
 hexagon); sensors fire once per step. Each robot keeps up to 2000 particles
-(4x as many at the start), and the MCL settings in ``extras`` are tuned for
-symmetric worlds (see the comments in :func:`_common`).
+in the hallway (4x as many at the start) and up to 5000 in the hexagon (10x at
+the start); the MCL settings in ``extras`` are tuned for symmetric worlds (see
+the comments in :func:`_common` and :func:`hexagon`).
 
 * ``symmetric_hallway`` (Fig. 12): eight sonar robots in a square ring of
   2.5 m wide corridors around a 15 m x 15 m block. The ring is symmetric under
@@ -15,17 +16,17 @@ symmetric worlds (see the comments in :func:`_common`).
   (a 4 m deep, 5 m long bay) off the left corridor, so a robot alone must pass
   it to know which corridor it is in (or see enough of it from a corner).
 * ``hexagon`` (Fig. 13): a hexagonal room with 8 m edges, four sonar and four
-  laser robots. Three sonar-only features (``visible_to=("sonar",)``, like
-  glass panes a laser sees through) sit at every other edge, symmetric under
-  120 degree turns; two laser-only features (``visible_to=("laser",)``, like
-  thin poles a sonar misses) sit at opposite corners, symmetric under 180
-  degree turns. A sonar robot alone cannot tell three poses apart, a laser
-  robot two; together (through detections) they should. The features are
-  solid: a robot may bump into one its own sensor cannot see (and slides off).
-  Known limitation: in our runs detections do not yet help here (see
-  ``scripts/reproduce_fox.py``): single-robot beliefs collapse onto one of
-  the symmetric copies before the robots meet, and transfers then spread a
-  rotated frame instead of picking the consistent mode.
+  laser robots. Three sonar-only blocks (``visible_to=("sonar",)``) stand
+  against the middle of every other edge, symmetric under thirds of a turn;
+  four laser-only chamfers (``visible_to=("laser",)``) cut the corners at 0,
+  60, 180 and 240 degrees, symmetric under half a turn only. As in the
+  paper's Fig. 13(c, d), a sonar robot alone cannot tell three poses apart and
+  a laser robot two; as the walls repeat every sixth of a turn, only the true
+  pose is consistent with both, so a detection between robots of different
+  types picks it (Eq. 10: the product of a two-mode and a three-mode belief
+  has one common mode). The features are solid and flush with the walls, so
+  robots that cannot see them rarely touch them. The MCL settings keep the
+  symmetric copies alive and the detections tempered (see :func:`hexagon`).
 """
 
 from __future__ import annotations
@@ -207,10 +208,31 @@ def hexagon_obstacles(edge: float = HEX_EDGE) -> tuple[Obstacle, ...]:
 def hexagon() -> ScenarioConfig:
     """Four sonar and four laser robots in a symmetric hexagon with 8 m edges (Fig. 13)."""
     common = _common()
-    # Every pose in the hexagon has two (laser) or three (sonar) exact copies, so
-    # randomly injected particles land on copies that fit as well as the truth and
-    # split a tracked belief: no injection here.
-    common["extras"]["mcl"].update(random_fraction=0.0, augmented=False)
+    extras = common["extras"]
+    # Every pose in the hexagon has two (laser) or three (sonar) exact copies, and a
+    # robot alone must keep all of them (the paper's Fig. 13(c, d)) until a detection
+    # picks the one consistent with a robot of the other type:
+    # * no random injection: injected particles land on copies that fit as well as
+    #   the truth and split a tracked belief;
+    # * many particles: 50 000 at the start (so every copy of the true pose is
+    #   sampled densely), then KLD-sampling between 2000 and 5000 (each of up to six
+    #   copies keeps hundreds of particles, so resampling noise does not drift them
+    #   apart); scans tempered harder (exponent 0.05) so that the copies' weights,
+    #   equal in theory, do not diverge through sampling noise;
+    # * lasers use the beam model (the paper's Fig. 1) with a 0.3 m Gaussian: the
+    #   likelihood field scores beam endpoints inside the solid outside of the room
+    #   as hits, so poses whose beams pass through a wall fit as well as the truth.
+    extras["mcl"].update(random_fraction=0.0, augmented=False, likelihood_exponent=0.05,
+                         n_min=2000)
+    # Detections are tempered too (exponent 0.2): relative detections cannot tell a
+    # rotated copy of the whole team from the truth, only the robots' own scans can;
+    # a robot here is detected about every 1.5 s (360-degree detector, 8 robots in
+    # one room), and untempered, those repeated transfers (each re-importing the
+    # same beliefs) outvote the tempered scans and the team settles on whichever
+    # frame it first agrees on.
+    extras.update(mcl_global_init_factor=10, mcl_laser_model="beam",
+                  mcl_laser={"beam_sigma": 0.3}, mcl_detection_exponent=0.2)
+    common["n_particles"] = 5000
     return ScenarioConfig(
         name="hexagon",
         n_robots=8,
