@@ -277,6 +277,9 @@ def test_reproduce_fox_script_writes_json(tmp_path):
             assert set(data[exp][cond]) == {"mean_s", "std_s", "not_localized"}
         assert isinstance(data[exp]["reduction_pct"], float)
     assert set(data["hexagon"]["by_sensor"]) == {"sonar", "laser"}
+    laser = data["hexagon"]["by_sensor"]["laser"]["with_detections"]
+    assert {"localized_at_end", "localized_last_60s", "ever_localized"} <= set(laser)
+    assert laser["localized_last_60s"] <= laser["localized_at_end"] <= laser["ever_localized"]
     assert (tmp_path / "fox_hallway.png").exists() and (tmp_path / "fox_hexagon.png").exists()
     assert mod.main(["--seeds", "0"]) == 2
 
