@@ -93,7 +93,7 @@ def collect_demonstrations(
     try:
         for k in range(n_episodes):
             obs, _ = env.reset(seed=seed + k)
-            inner = getattr(env, "env", env)  # the teacher reads the unwrapped env
+            inner = getattr(env, "unwrapped", env)  # the teacher reads the unwrapped env
             teacher.reset(inner, seed=seed + k)
             per_agent: dict[str, dict[str, list]] = {
                 a: {"obs": [], "act": [], "rew": []} for a in env.possible_agents
