@@ -126,12 +126,15 @@ def compare(
     seed: int = 0,
     overrides: dict[str, Any] | None = None,
     progress: bool = True,
+    on_policy_done=None,
 ) -> dict[str, Any]:
     """Run every policy of ``specs`` on the same seeds; returns the comparison report.
 
     The report holds ``scenario``, ``n_episodes``, ``seed``, ``policies`` (the
     specs), ``summary[spec][figure] = {"mean", "low", "high"}`` and
-    ``episodes[spec]`` (per-episode figures).
+    ``episodes[spec]`` (per-episode figures). ``on_policy_done(report)``, when
+    given, is called after each policy with the report of the policies done so
+    far (``scripts/evaluate.py`` saves it, so a long comparison cut short keeps them).
     """
     import coop_loc_env
 
@@ -155,8 +158,16 @@ def compare(
         for key in COMPARE_FIGURES:
             m, lo, hi = mean_ci(np.array([r[key] for r in records], dtype=float))
             summary[spec][key] = {"mean": m, "low": lo, "high": hi}
-    return {"scenario": scenario, "n_episodes": n_episodes, "seed": seed, "policies": specs,
-            "overrides": dict(overrides or {}), "summary": summary, "episodes": episodes}
+        if on_policy_done is not None:
+            on_policy_done(_report(scenario, n_episodes, seed, list(summary), overrides,
+                                   summary, episodes))
+    return _report(scenario, n_episodes, seed, specs, overrides, summary, episodes)
+
+
+def _report(scenario, n_episodes, seed, specs, overrides, summary, episodes) -> dict[str, Any]:
+    return {"scenario": scenario, "n_episodes": n_episodes, "seed": seed,
+            "policies": list(specs), "overrides": dict(overrides or {}), "summary": summary,
+            "episodes": episodes}
 
 
 def _run(scenario: str, policy, n_episodes: int, seed: int, overrides: dict[str, Any],

@@ -101,7 +101,12 @@ def _compare(args: argparse.Namespace, overrides: dict) -> int:
 
     specs = parse_policy_list(args.compare)
     n = 20 if args.episodes is None else args.episodes
-    data = compare(args.scenario, specs, n, args.seed, overrides, progress=not args.no_progress)
+    def save_partial(partial: dict) -> None:  # keep finished policies if cut short
+        if args.json is not None and len(partial["policies"]) < len(specs):
+            write_json(partial, args.json.with_suffix(".partial.json"))
+
+    data = compare(args.scenario, specs, n, args.seed, overrides, progress=not args.no_progress,
+                   on_policy_done=save_partial)
     print(format_compare_table(data))
     if len(specs) > 1 and n > 1:
         print(format_paired(data, specs[0], "time_to_localize_s"))

@@ -56,8 +56,11 @@ def test_evaluate_compare_prints_one_table_and_saves_plot_and_json(tmp_path, cap
     text = capsys.readouterr().out
     assert "mean [95 % CI] over 3 episodes (seeds 4..6)" in text
     assert text.count("\nfsm ") == 1 and text.count("\nrandom ") == 1
+    assert "paired difference in time to localize (s) vs fsm" in text
     data = json.loads(out.read_text())
     assert data["policies"] == ["fsm", "random"]
+    partial = json.loads((tmp_path / "cmp.partial.json").read_text())  # saved after fsm
+    assert partial["policies"] == ["fsm"] and partial["summary"]["fsm"] == data["summary"]["fsm"]
     for spec in ("fsm", "random"):
         errs = [ep["localization_error_m"] for ep in data["episodes"][spec]]
         assert [ep["seed"] for ep in data["episodes"][spec]] == [4, 5, 6]
