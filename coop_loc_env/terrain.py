@@ -53,7 +53,7 @@ class HeightField:
         self.steep = self.slope > self.tip_over_slope
 
     def _bilinear(self, grid: np.ndarray, points: np.ndarray) -> np.ndarray:
-        """Bilinear interpolation of ``grid`` (row = y) at ``points (k, 2)``, clamped to the grid."""
+        """Bilinear interpolation of ``grid`` (row = y) at ``points (k, 2)``, clamped."""
         p = np.asarray(points, dtype=float).reshape(-1, 2)
         nx, ny = len(self.xs), len(self.ys)
         f = p * (1.0 / self.resolution)
