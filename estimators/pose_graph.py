@@ -230,7 +230,8 @@ def observation_residual(
     """Residual ``G(xa (+) off_a, xb (+) off_b) - mu`` (range, bearing, orientation) and Jacobians.
 
     Angles are wrapped. Derivatives use ``max(r, min_range)``, so they stay finite at
-    ``r = 0``. Shapes as in :func:`between_residual`.
+    ``r = 0``; closer than ``min_range`` they are taken along the measured bearing.
+    Shapes as in :func:`between_residual`.
     """
     m = len(xa)
     if off_a is None:
@@ -250,6 +251,14 @@ def observation_residual(
         ],
         axis=-1,
     )
+    # Below min_range the direction is undefined: differentiate as if b sat
+    # min_range away along the measured bearing (a subgradient of the range cone),
+    # so coincident robots still constrain each other instead of giving zero rows.
+    close = r < min_range
+    if np.any(close):
+        phi = pa[close, 2] + mu[close, 1]
+        dx, dy = dx.copy(), dy.copy()
+        dx[close], dy[close] = min_range * np.cos(phi), min_range * np.sin(phi)
     ga = np.zeros((m, 3, 3))
     ga[:, 0, 0], ga[:, 0, 1] = -dx / rr, -dy / rr
     ga[:, 1, 0], ga[:, 1, 1], ga[:, 1, 2] = dy / rr**2, -dx / rr**2, -1.0
