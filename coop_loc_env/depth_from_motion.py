@@ -106,46 +106,59 @@ class DepthFromMotion:
             Per robot, the :class:`CameraRecord` list of this frame (empty for
             robots whose camera did not fire).
         """
-        cfg = self.cfg
         n = len(poses)
         out: list[list[CameraRecord]] = [[] for _ in range(n)]
-        frames_robots = np.flatnonzero(camera_mask)
-        if frames_robots.size == 0:
+        rows = np.flatnonzero(camera_mask).tolist()
+        if not rows:
             return out
-        targets = np.concatenate([np.asarray(ooi_centers).reshape(-1, 2), poses[:, :2]], axis=0)
-        seen = np.zeros_like(self.frames, dtype=bool)
-        for i in frames_robots:
-            for kind, ident, _bearing, _rng in camera[i]:
-                seen[i, ident if kind == "ooi" else self.n_ooi + ident] = True
-        rows = frames_robots
-        if not seen[rows].any():  # nothing in view: every track of these robots ends
-            self.frames[rows] = 0
-            self.baseline[rows] = 0.0
-            self.last_pose[rows] = poses[rows]
+        # The sightings as (robot, target) pairs; only their tracks need any work.
+        n_ooi, n_targets = self.n_ooi, self.frames.shape[1]
+        keys = {
+            i * n_targets + (ident if kind == "ooi" else n_ooi + ident): bearing
+            for i in rows
+            for kind, ident, bearing, _rng in camera[i]
+        }
+        baseline, frames, last_pose = self.baseline, self.frames, self.last_pose
+        if not keys:  # nothing in view: every track of these robots ends
+            frames[rows] = 0
+            baseline[rows] = 0.0
+            last_pose[rows] = poses[rows]
             return out
+        key = np.fromiter(sorted(keys), dtype=np.intp, count=len(keys))
+        pi, pt = np.divmod(key, n_targets)
         # Tracks that continue: accumulate the baseline since the previous frame.
-        move = poses[rows, :2] - self.last_pose[rows, :2]  # (r, 2)
-        los = targets[None, :, :] - poses[rows, None, :2]  # (r, T, 2)
-        dist = np.maximum(np.hypot(los[..., 0], los[..., 1]), 1e-6)
-        u = los / dist[..., None]
-        along = np.einsum("rd,rtd->rt", move, u)
-        perp = move[:, None, 0] * u[..., 1] - move[:, None, 1] * u[..., 0]
-        step_base = np.sqrt(perp**2 + (cfg.camera_looming_gain * along) ** 2)
-        cont = seen[rows] & (self.frames[rows] > 0)
-        new = seen[rows] & ~cont
-        self.baseline[rows] = np.where(cont, self.baseline[rows] + step_base, 0.0)
-        self.frames[rows] = np.where(seen[rows], self.frames[rows] + 1, 0)
-        fresh_r, fresh_t = np.nonzero(new)
-        if fresh_r.size:
-            self.xi[rows[fresh_r], fresh_t] = rng.standard_normal(fresh_r.size)
-        self.last_pose[rows] = poses[rows]
-        info = (self.baseline[rows] / (dist**2 * max(self.sigma_theta, 1e-12))) ** 2
-        std = 1.0 / np.sqrt(1.0 / self.prior_var + info)  # (r, T)
-        for k, i in enumerate(rows):
-            for kind, ident, bearing, _rng in camera[i]:
-                t = ident if kind == "ooi" else self.n_ooi + ident
-                s = float(std[k, t])
-                r = max(float(dist[k, t] + s * self.xi[i, t]), 0.1)
-                out[i].append(CameraRecord(kind, int(ident), float(bearing), r, s,
-                                           int(self.frames[i, t])))
+        move = poses[pi, :2] - last_pose[pi, :2]  # (k, 2)
+        if n_ooi:
+            targets = np.concatenate([np.asarray(ooi_centers).reshape(-1, 2), poses[:, :2]])
+        else:
+            targets = poses[:, :2]
+        los = targets[pt] - poses[pi, :2]
+        dist = np.maximum(np.hypot(los[:, 0], los[:, 1]), 1e-6)
+        ux, uy = los[:, 0] / dist, los[:, 1] / dist
+        mx, my = move[:, 0], move[:, 1]
+        along = self.cfg.camera_looming_gain * (mx * ux + my * uy)
+        perp = mx * uy - my * ux
+        step_base = np.sqrt(perp**2 + along**2)
+        flat_frames, flat_base = frames.reshape(-1), baseline.reshape(-1)
+        count = flat_frames[key]
+        cont = count > 0
+        base = np.where(cont, flat_base[key] + step_base, 0.0)
+        # Every other track of these robots ends.
+        frames[rows] = 0
+        baseline[rows] = 0.0
+        flat_frames[key] = count + 1
+        flat_base[key] = base
+        if not cont.all():
+            fresh = key[~cont]
+            self.xi.reshape(-1)[fresh] = rng.standard_normal(fresh.size)
+        last_pose[rows] = poses[rows]
+        info = (base / (dist**2 * max(self.sigma_theta, 1e-12))) ** 2
+        std = 1.0 / np.sqrt(1.0 / self.prior_var + info)
+        rng_est = dist + std * self.xi.reshape(-1)[key]
+        for k, i, t, s, r, f in zip(
+            key.tolist(), pi.tolist(), pt.tolist(), std.tolist(), rng_est.tolist(),
+            (count + 1).tolist(), strict=True,
+        ):
+            kind, ident = ("ooi", t) if t < n_ooi else ("robot", t - n_ooi)
+            out[i].append(CameraRecord(kind, ident, float(keys[k]), max(r, 0.1), s, f))
         return out

@@ -141,6 +141,13 @@ class SensorSuite:
         )[:, None]
         self._no_range = ~self.has_range
         self._robot_radii = np.full(n, self.cfg.robot_radius)
+        # Fast path: one caster whose rays are exactly the (robot, beam) grid, row-major,
+        # with one noise level and one maximum range for the whole team (all lasers).
+        grid = len(self._ray_groups) == 1 and np.array_equal(
+            self._ray_robot * self.max_beams + self._ray_beam, np.arange(n * self.max_beams)
+        )
+        uniform = len(set(self.range_max.tolist())) == 1 and len(set(self.range_std.tolist())) == 1
+        self._grid_scan = bool(grid and uniform)
 
     # ------------------------------------------------------------------ read
     def read(
@@ -266,6 +273,8 @@ class SensorSuite:
     def _scan(self, poses: np.ndarray, rng: np.random.Generator, active: np.ndarray) -> np.ndarray:
         """Range scans of every robot with a range sensor, in one vectorized cast."""
         n = len(poses)
+        if self._grid_scan:
+            return self._grid_scan_ranges(poses, rng, active)
         rob = self._ray_robot
         dist = np.empty(len(rob))
         for sel, caster in self._ray_groups:
@@ -280,6 +289,24 @@ class SensorSuite:
         out = np.where(ranges >= rmax, rmax, np.clip(noisy, 0.0, rmax))
         out[self._beam_pad] = np.nan
         out[self._no_range | ~active] = np.nan
+        return out
+
+    def _grid_scan_ranges(
+        self, poses: np.ndarray, rng: np.random.Generator, active: np.ndarray
+    ) -> np.ndarray:
+        """:meth:`_scan` when every robot has the same laser: no scatter, scalar noise/range."""
+        n = len(poses)
+        ranges = self._ray_groups[0][1].cast(poses, poses[:, :2], self._robot_radii)
+        ranges = ranges.reshape(n, self.max_beams)
+        rmax, std = float(self.range_max[0]), float(self.range_std[0])
+        out = rng.standard_normal(ranges.shape)
+        out *= std
+        out += ranges
+        np.maximum(out, 0.0, out=out)
+        np.minimum(out, rmax, out=out)
+        np.copyto(out, rmax, where=ranges >= rmax)
+        if not active.all():
+            out[~active] = np.nan
         return out
 
     # ------------------------------------------------------------------ camera
