@@ -10,6 +10,7 @@ the initial belief is drawn around them (``init_pos_std``,
 
 from __future__ import annotations
 
+import functools
 from typing import Protocol
 
 import numpy as np
@@ -91,11 +92,29 @@ def team_odometry(
 ) -> tuple[np.ndarray, np.ndarray, float]:
     """The step's odometry of ``robots``: ``(v, w)`` each ``(substeps, k)``, zero for robots
     no longer active, and the substep length in seconds."""
-    odo = readings.odometry[:, robots]
+    dt_sub = cfg.dt / cfg.odometry_substeps
+    odo = readings.odometry
+    if len(robots) == odo.shape[1] and active.all() and (robots == _arange(len(robots))).all():
+        return odo[..., 0], odo[..., 1], dt_sub  # the whole team, all active (views)
+    odo = odo[:, robots]
     act = active[robots]
     v = np.where(act, odo[..., 0], 0.0)
     w = np.where(act, odo[..., 1], 0.0)
-    return v, w, cfg.dt / cfg.odometry_substeps
+    return v, w, dt_sub
+
+
+@functools.lru_cache(maxsize=16)
+def _arange(n: int) -> np.ndarray:
+    return np.arange(n)
+
+
+def _odometry_variance(slip: np.ndarray, encoder_std: float, scale: float) -> np.ndarray:
+    """``scale * (encoder_std^2 + slip^2)`` in place on ``slip`` (a fresh array)."""
+    slip *= slip
+    slip += encoder_std**2
+    if scale != 1.0:
+        slip *= scale
+    return slip
 
 
 GAUSSIAN_FEATURE_NAMES = (
@@ -142,12 +161,11 @@ class EKFBackend:
         v, w, dt_sub = team_odometry(cfg, readings, g, active)
         # Encoder noise plus the wheel slip the robot's maker specifies, inflated by
         # ``ekf_process_noise_scale`` to cover what the model leaves out.
-        scale = cfg.ekf_process_noise_scale
-        var_v = scale * (cfg.odom_v_std**2 + (cfg.slip_std * v) ** 2)
-        var_w = scale * (cfg.odom_w_std**2 + (cfg.slip_std * w) ** 2)
+        var_v = _odometry_variance(cfg.slip_std * v, cfg.odom_v_std, cfg.ekf_process_noise_scale)
+        var_w = _odometry_variance(cfg.slip_std * w, cfg.odom_w_std, cfg.ekf_process_noise_scale)
         ekf.predict_sequence(v, w, dt_sub, var_v, var_w)
         stats = {"accepted": 0, "rejected": 0, "cooperative": 0}
-        sel = np.nonzero(readings.gps_mask[g])[0]
+        sel = np.nonzero(readings.gps_mask[g])[0] if readings.gps_mask.any() else ()
         if len(sel):
             var = readings.gps_var[g[sel]]
             r = np.zeros((len(sel), 2, 2))
@@ -155,7 +173,7 @@ class EKFBackend:
             ok = ekf.update_position(sel, readings.gps_xy[g[sel]], r)
             stats["accepted"] += int(ok.sum())
             stats["rejected"] += int((~ok).sum())
-        sel = np.nonzero(readings.compass_mask[g])[0]
+        sel = np.nonzero(readings.compass_mask[g])[0] if readings.compass_mask.any() else ()
         if len(sel):
             ok = ekf.update_heading(
                 sel, readings.compass[g[sel]], np.full(len(sel), cfg.compass_std**2)

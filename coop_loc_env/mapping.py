@@ -75,6 +75,10 @@ class TeamMapper:
         self._covered = 0  # mapped drivable cells
         self.map.merge_listener = self._on_merge
         self._pitch = np.zeros(n)
+        self._all = np.arange(n)
+        self._no_fix = (np.full(n, np.nan), np.zeros(n, dtype=int))
+        for arr in (self._all, *self._no_fix):
+            arr.flags.writeable = False
         self._dt_sub = cfg.dt / cfg.odometry_substeps
         self.last_new_cells = np.zeros(n, dtype=np.int64)
 
@@ -118,7 +122,23 @@ class TeamMapper:
             active: robots still in the episode (others are not sampled).
         """
         m = readings.inclinometer_mask
-        self._pitch[m] = readings.pitch[m]
+        if m.any():
+            self._pitch[m] = readings.pitch[m]
+        if active.all():  # the usual case: the whole team, no gathers
+            fix = readings.gps_mask
+            if fix.any():
+                alt = np.where(fix, readings.gps_altitude, np.nan)
+                nos = np.where(fix, readings.satellites, 0)
+            else:
+                alt, nos = self._no_fix
+            distance = readings.odometry[:, :, 0].sum(axis=0)
+            distance *= self._dt_sub
+            new = self.map.update(
+                self._all, est_mean, est_cov, self._pitch, alt, nos, distance,
+                self.cfg.gps_base_altitude,
+            )
+            self.last_new_cells = new
+            return new
         new = np.zeros(self.cfg.n_robots, dtype=np.int64)
         ids = np.flatnonzero(active)
         if ids.size:

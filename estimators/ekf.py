@@ -132,14 +132,16 @@ class PoseEKF:
         """
         v = np.asarray(v, dtype=float)
         shape = v.shape
+        var_v = np.asarray(var_v, dtype=float)
+        var_w = np.asarray(var_w, dtype=float)
         _propagate(
             self.mean,
             self.cov,
             v,
             np.asarray(w, dtype=float),
             dt,
-            np.broadcast_to(np.asarray(var_v, dtype=float), shape),
-            np.broadcast_to(np.asarray(var_w, dtype=float), shape),
+            var_v if var_v.shape == shape else np.broadcast_to(var_v, shape),
+            var_w if var_w.shape == shape else np.broadcast_to(var_w, shape),
         )
 
     # ------------------------------------------------------------------ updates
@@ -337,42 +339,53 @@ def _propagate(
     ``Fx_t = I + a_t e02 + b_t e12`` commute, so their product and each noise
     term's propagation through the later Jacobians are sums.
     """
+    n_sub, k = v.shape
     phi0 = mean[:, 2].copy()
     # Heading before each substep t: phi0 + dt * sum_{j<t} w_j.
-    phi = phi0[None] + dt * np.concatenate([np.zeros((1, len(phi0))), np.cumsum(w, 0)[:-1]], 0)
+    turned = np.cumsum(w, 0)
+    phi = np.empty((n_sub, k))
+    phi[0] = phi0
+    np.multiply(turned[:-1], dt, out=phi[1:])
+    phi[1:] += phi0
     c, s = np.cos(phi), np.sin(phi)
     dv = dt * v
-    a = -dv * s  # (T, k)
-    b = dv * c
-    mean[:, 0] += b.sum(0)
-    mean[:, 1] -= a.sum(0)
-    mean[:, 2] = wrap_angle(phi0 + dt * w.sum(0))
+    # ab[..., 0] = a = -dv sin(phi), ab[..., 1] = b = dv cos(phi): the Jacobian entries.
+    ab = np.empty((n_sub, k, 2))
+    np.multiply(-dv, s, out=ab[..., 0])
+    np.multiply(dv, c, out=ab[..., 1])
+    ab_cum = np.cumsum(ab, 0)
+    ab_tot = ab_cum[-1]
+    mean[:, 0] += ab_tot[:, 1]
+    mean[:, 1] -= ab_tot[:, 0]
+    mean[:, 2] = wrap_angle(phi0 + dt * turned[-1])
     qv = dt * dt * var_v
     qw = dt * dt * var_w
     # Later Jacobians applied to the noise entering at substep t: sums over j > t.
-    a_tot, b_tot = a.sum(0), b.sum(0)
-    a_after = a_tot[None] - np.cumsum(a, 0)
-    b_after = b_tot[None] - np.cumsum(b, 0)
-    p[:, 0, :] += a_tot[:, None] * p[:, 2, :]
-    p[:, 1, :] += b_tot[:, None] * p[:, 2, :]
-    p[:, :, 0] += a_tot[:, None] * p[:, :, 2]
-    p[:, :, 1] += b_tot[:, None] * p[:, :, 2]
+    after = ab_tot - ab_cum  # (T, k, 2): a_after, b_after
+    # F P F^T with F = I + A e02 + B e12: rows 0 and 1 gain A, B times row 2, then columns.
+    p[:, :2, :] += ab_tot[:, :, None] * p[:, 2:3, :]
+    p[:, :, :2] += p[:, :, 2:3] * ab_tot[:, None, :]
     # Noise M_t = [[qv c^2, qv cs, 0], [qv cs, qv s^2, 0], [0, 0, qw]] pushed through
     # F = I + A e02 + B e12: adds A^2 qw, AB qw, B^2 qw, A qw, B qw terms.
-    s00 = (qv * c * c + a_after**2 * qw).sum(0)
-    s01 = (qv * c * s + a_after * b_after * qw).sum(0)
-    s11 = (qv * s * s + b_after**2 * qw).sum(0)
-    s02 = (a_after * qw).sum(0)
-    s12 = (b_after * qw).sum(0)
-    p[:, 0, 0] += s00
-    p[:, 1, 1] += s11
-    p[:, 2, 2] += qw.sum(0)
-    p[:, 0, 1] += s01
-    p[:, 1, 0] += s01
-    p[:, 0, 2] += s02
-    p[:, 2, 0] += s02
-    p[:, 1, 2] += s12
-    p[:, 2, 1] += s12
+    a_after, b_after = after[..., 0], after[..., 1]
+    terms = np.empty((n_sub, k, 6))  # s00, s01, s11, s02, s12, s22 before summing over t
+    qv_c = qv * c
+    qw_a = a_after * qw
+    qw_b = b_after * qw
+    np.multiply(qv_c, c, out=terms[..., 0])
+    terms[..., 0] += a_after**2 * qw
+    np.multiply(qv_c, s, out=terms[..., 1])
+    terms[..., 1] += a_after * b_after * qw
+    np.multiply(qv * s, s, out=terms[..., 2])
+    terms[..., 2] += b_after**2 * qw
+    terms[..., 3] = qw_a
+    terms[..., 4] = qw_b
+    terms[..., 5] = qw
+    p += terms.sum(0)[:, _NOISE_TERMS].reshape(k, 3, 3)
+
+
+# The summed noise term each covariance cell receives (cells row-major in 3x3).
+_NOISE_TERMS = np.array([0, 1, 3, 1, 2, 4, 3, 4, 5])
 
 
 def relative_measurement(

@@ -157,6 +157,8 @@ class TerrainMap:
         self._footprint = self._make_footprint(float(footprint_radius))
         # Extra variance of footprint cells: unknown cross-slope over their offset.
         self._footprint_var = (self._footprint**2).sum(axis=1) * self.slope_floor**2
+        self._valid_ids: np.ndarray | None = None  # a read-only id array already checked
+        self._owner = np.zeros(0, dtype=np.intp)  # its samples' robot ids (footprint repeat)
         self.reset()
 
     # ------------------------------------------------------------------ setup
@@ -260,6 +262,8 @@ class TerrainMap:
 
     # ---------------------------------------------------------------- update
     def _ids(self, robot_ids: np.ndarray | int) -> np.ndarray:
+        if robot_ids is self._valid_ids:  # read-only and checked before
+            return robot_ids
         ids = np.asarray(robot_ids)
         if ids.ndim == 0:
             ids = ids.reshape(1)
@@ -270,7 +274,11 @@ class TerrainMap:
             raise ValueError(f"robot_ids must lie in [0, {self.n_robots}), got {robot_ids!r}")
         if len(set(lst)) != len(lst):
             raise ValueError(f"robot_ids must not repeat, got {robot_ids!r}")
-        return ids.astype(np.intp, copy=False)
+        ids = ids.astype(np.intp, copy=False)
+        if ids is robot_ids and not ids.flags.writeable:
+            self._valid_ids = ids
+            self._owner = np.repeat(ids, self._footprint.shape[0])
+        return ids
 
     def _flat_index(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Flat cell indices of finite world coordinates and the mask of those inside."""
@@ -281,6 +289,16 @@ class TerrainMap:
         flat = fi.astype(np.intp)
         flat *= self.shape[1]
         flat += fj.astype(np.intp)
+        return flat, inside
+
+    def _flat_index_xy(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`_flat_index` of points ``(k, 2)``."""
+        f = xy - self.origin if self.origin != (0.0, 0.0) else xy.copy()
+        f *= 1.0 / self.resolution
+        inside = np.logical_and.reduce((f >= 0) & (f < self.shape), axis=1)
+        cell = f.astype(np.intp)
+        flat = cell[:, 0] * self.shape[1]
+        flat += cell[:, 1]
         return flat, inside
 
     def update(
@@ -355,16 +373,15 @@ class TerrainMap:
 
         fp = self._footprint
         if fp.shape[0] == 1:
-            x, y = poses[:, 0], poses[:, 1]
+            xy = poses[:, :2]
             vals, vars_, owner = elev, var_s, ids
         else:
-            x = (poses[:, 0:1] + fp[:, 0]).ravel()
-            y = (poses[:, 1:2] + fp[:, 1]).ravel()
+            xy = (poses[:, None, :2] + fp).reshape(-1, 2)
             c, s = np.cos(poses[:, 2:3]), np.sin(poses[:, 2:3])
             vals = (elev[:, None] + tan_p[:, None] * (c * fp[:, 0] + s * fp[:, 1])).ravel()
             vars_ = (var_s[:, None] + self._footprint_var).ravel()
-            owner = np.repeat(ids, fp.shape[0])
-        flat, inside = self._flat_index(x, y)
+            owner = self._owner if ids is self._valid_ids else np.repeat(ids, fp.shape[0])
+        flat, inside = self._flat_index_xy(xy)
         if not np.logical_and.reduce(inside):
             flat, vals, vars_, owner = flat[inside], vals[inside], vars_[inside], owner[inside]
         conf = 1.0 / vars_
@@ -405,9 +422,11 @@ class TerrainMap:
     ) -> np.ndarray:
         """Write samples where they beat the stored confidence; return the winners' indices."""
         best = self._best_per_cell(flat, conf)
-        f = flat[best]
-        win = conf[best] > confs[f]
-        idx = best[win]
+        if len(best) == len(flat):  # every sample is its cell's best
+            idx = np.flatnonzero(conf > confs[flat])
+        else:
+            win = conf[best] > confs[flat[best]]
+            idx = best[win]
         fw = flat[idx]
         elev[fw] = vals[idx]
         confs[fw] = conf[idx]
