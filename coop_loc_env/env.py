@@ -76,6 +76,7 @@ class CoopLocParallelEnv(ParallelEnv):
         self.possible_agents = [f"robot_{i}" for i in range(cfg.n_robots)]
         self.agent_name_mapping = {a: i for i, a in enumerate(self.possible_agents)}
         self.world = World(cfg)
+        self._speed_limits = np.stack([self.world.max_speed, self.world.max_turn_rate], axis=1)
         self.sensors = SensorSuite(cfg, self.world)
         self.backends = make_backends(cfg, self.world)
         self.mapper = TeamMapper(cfg, self.world)
@@ -197,15 +198,13 @@ class CoopLocParallelEnv(ParallelEnv):
         cfg = self.config
         rng = self.np_random
         live = list(self.agents)
-        v_cmd = act[:, 0] * self.world.max_speed
-        w_cmd = act[:, 1] * self.world.max_turn_rate
-        contacts = self.world.step(v_cmd, w_cmd, self._active, rng)
+        cmd = act * self._speed_limits  # (n, 2): commanded V and w
+        if not self._active.all():
+            cmd[~self._active] = 0.0  # tipped-over robots stand still
+        contacts = self.world.step(cmd[:, 0], cmd[:, 1], self._active, rng)
         poses = self.world.poses
-        odom_truth = np.broadcast_to(
-            np.stack([np.where(self._active, v_cmd, 0.0), np.where(self._active, w_cmd, 0.0)], 1),
-            (cfg.odometry_substeps, cfg.n_robots, 2),
-        )
-        readings = self.sensors.read(self._step_count, poses, odom_truth, rng, self._active)
+        # The wheel encoders see the command at every substep.
+        readings = self.sensors.read(self._step_count, poses, cmd, rng, self._active)
         self._camera = self.depth.process(
             readings.camera, readings.camera_mask, poses, self.world.layout.ooi_centers, rng
         )
@@ -261,10 +260,11 @@ class CoopLocParallelEnv(ParallelEnv):
             stacked = np.asarray(list(actions.values()), dtype=float)
         except (TypeError, ValueError):
             stacked = None
-        # abs <= bound is False for NaN and inf too: one test covers all three.
+        # The largest magnitude: NaN (which fails every comparison) if any entry is NaN.
+        peak = np.abs(stacked).max() if stacked is not None and stacked.size else 0.0
         if stacked is None or stacked.shape != (len(actions), 2) or not (
-            np.abs(stacked) <= 1.0 + ACTION_TOLERANCE
-        ).all():
+            peak <= 1.0 + ACTION_TOLERANCE
+        ):
             for agent, action in actions.items():  # find and name the bad one
                 self._check_action(agent, action)
         if rows is None:
@@ -272,8 +272,10 @@ class CoopLocParallelEnv(ParallelEnv):
         else:
             out = np.zeros((self.config.n_robots, 2))
             out[rows] = stacked
-        np.maximum(out, -1.0, out=out)
-        return np.minimum(out, 1.0, out=out)
+        if peak > 1.0:  # within the tolerance: clip to the box
+            np.maximum(out, -1.0, out=out)
+            np.minimum(out, 1.0, out=out)
+        return out
 
     @staticmethod
     def _check_action(agent: str, action: Any) -> None:
@@ -323,33 +325,31 @@ class CoopLocParallelEnv(ParallelEnv):
                     extra.setdefault(int(i), {}).update(entries)
         coverage = self.mapper.coverage()
         map_rmse = self.mapper.map_rmse()
-        terms = np.stack([
-            -cfg.reward_localization_weight * err_xy - cfg.reward_heading_weight * err_th,
-            cfg.reward_coverage_weight * self._new_cells,
-            -cfg.collision_penalty * new_contacts,
-            -cfg.tip_over_penalty * tipped,
-        ], axis=1).tolist()
+        # Reward terms in Python floats (the same IEEE arithmetic as numpy, per robot).
+        w_loc, w_head = cfg.reward_localization_weight, cfg.reward_heading_weight
+        w_cov = cfg.reward_coverage_weight
+        pen_hit, pen_tip = -cfg.collision_penalty, -cfg.tip_over_penalty
         n = cfg.n_robots
         if readings is not None:
             fix, sats = readings.gps_mask.tolist(), readings.satellites.tolist()
         else:
             fix, sats = [False] * n, [0] * n
         columns = zip(
-            self.possible_agents, terms, err_xy.tolist(), err_th.tolist(), fix, sats,
-            new_contacts.tolist(), self._tipped.tolist(), self._new_cells.tolist(), strict=True,
+            self.possible_agents, err_xy.tolist(), err_th.tolist(), fix, sats,
+            new_contacts.tolist(), tipped.tolist(), self._tipped.tolist(),
+            self._new_cells.tolist(), strict=True,
         )
         infos = {}
-        for i, (agent, (loc, covg, coll, tip), exy, eth, gps, nsat, hits, tipped_over, cells) in (
-            enumerate(columns)
-        ):
+        for i, (agent, exy, eth, gps, nsat, hits, tip, tipped_over, cells) in enumerate(columns):
             infos[agent] = {
                 "true_pose": poses[i],
                 "est_pose": est[i],
                 "pose_cov": cov[i],
                 "position_error": exy,
                 "heading_error": eth,
-                "reward_terms": {"localization": loc, "coverage": covg, "collision": coll,
-                                 "tip_over": tip},
+                "reward_terms": {"localization": -w_loc * exy - w_head * eth,
+                                 "coverage": w_cov * float(cells), "collision": pen_hit * hits,
+                                 "tip_over": pen_tip * tip},
                 "gps_fix": bool(gps),
                 "satellites": int(nsat),
                 "collisions": int(hits),

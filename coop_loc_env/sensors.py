@@ -163,16 +163,17 @@ class SensorSuite:
         Args:
             step: env step index (0-based) that just finished.
             poses: true poses after the step ``(n, 3)``.
-            odom_cmd: wheel-encoder truth per substep ``(substeps, n, 2)``.
+            odom_cmd: wheel-encoder truth per substep ``(substeps, n, 2)``, or ``(n, 2)``
+                when it is the same at every substep.
             rng: the episode's noise generator.
             active: robots still in the episode.
         """
         cfg = self.cfg
         n = len(poses)
         dt = cfg.dt
-        odo = odom_cmd + rng.standard_normal(odom_cmd.shape) * np.array(
-            [cfg.odom_v_std, cfg.odom_w_std]
-        )
+        odo = rng.standard_normal((cfg.odometry_substeps, n, 2))
+        odo *= (cfg.odom_v_std, cfg.odom_w_std)
+        odo += odom_cmd
         idle = self._idle_readings(n)
         gps_mask, gps_xy, gps_var, gps_alt, sats = (
             idle["gps_mask"], idle["gps_xy"], idle["gps_var"], idle["gps_alt"], idle["sats"]

@@ -51,9 +51,11 @@ class HeightField:
         self.slope = np.arctan(np.hypot(dzdx, dzdy))
         self.tip_over_slope = np.deg2rad(cfg.tip_over_slope_deg)
         self.steep = self.slope > self.tip_over_slope
+        # Cells whose steepest corner comes near the limit (a margin for rounding).
+        self._steep_cells = self._corners(self.slope).max(axis=1) > self.tip_over_slope - 1e-9
 
-    def _bilinear(self, grid: np.ndarray, points: np.ndarray) -> np.ndarray:
-        """Bilinear interpolation of ``grid`` (row = y) at ``points (k, 2)``, clamped."""
+    def _cells(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Flat cell index ``(k,)`` and position within the cell ``(k, 2)`` of ``points``."""
         p = np.asarray(points, dtype=float).reshape(-1, 2)
         nx, ny = len(self.xs), len(self.ys)
         f = p * (1.0 / self.resolution)
@@ -61,7 +63,20 @@ class HeightField:
         np.minimum(f, (nx - 1.000001, ny - 1.000001), out=f)
         cell = f.astype(np.intp)
         frac = f - cell
-        corners = self._corners(grid)[cell[:, 1] * (nx - 1) + cell[:, 0]]  # (k, 4)
+        return cell[:, 1] * (nx - 1) + cell[:, 0], frac
+
+    def _bilinear(
+        self,
+        grid: np.ndarray,
+        points: np.ndarray,
+        cells: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> np.ndarray:
+        """Bilinear interpolation of ``grid`` (row = y) at ``points (k, 2)``, clamped.
+
+        ``cells`` is :meth:`_cells` of ``points`` when already known.
+        """
+        index, frac = self._cells(points) if cells is None else cells
+        corners = self._corners(grid)[index]  # (k, 4)
         tx, ty = frac[:, 0], frac[:, 1]
         low = corners[:, 0] + tx * (corners[:, 1] - corners[:, 0])
         high = corners[:, 2] + tx * (corners[:, 3] - corners[:, 2])
@@ -96,4 +111,9 @@ class HeightField:
 
     def is_steep(self, points: np.ndarray) -> np.ndarray:
         """Whether the slope at ``points`` exceeds the tip-over limit."""
-        return self._bilinear(self.slope, points) > self.tip_over_slope
+        cells = self._cells(points)
+        # The interpolated slope never exceeds its cell's steepest corner: most cells
+        # can't be steep anywhere, and points in them need no interpolation.
+        if not self._steep_cells[cells[0]].any():
+            return np.zeros(len(cells[0]), dtype=bool)
+        return self._bilinear(self.slope, points, cells) > self.tip_over_slope

@@ -235,10 +235,11 @@ class World:
             self._velocity_rows.append(pymunk.batch.Buffer())
             self._velocity_rows[-1].set_float_buf(row)
         self._state_batch = pymunk.batch.Buffer()
+        self._direct = _DirectBatch.make(self.space, self._velocity_rows)
 
     def __getstate__(self) -> dict:
         state = self.__dict__.copy()
-        for key in ("_velocity_buffer", "_velocity_rows", "_state_batch"):
+        for key in ("_velocity_buffer", "_velocity_rows", "_state_batch", "_direct"):
             state.pop(key, None)
         return state
 
@@ -293,8 +294,10 @@ class World:
         n = len(v_cmd)
         before = self.contacts["counts"].copy()
         slip = 1.0 + cfg.slip_std * rng.standard_normal((n_sub, n, 2))
-        vk = np.where(active, v_cmd, 0.0) * slip[:, :, 0]  # (substeps, n)
-        wk = np.where(active, w_cmd, 0.0) * slip[:, :, 1]
+        if not active.all():
+            v_cmd, w_cmd = np.where(active, v_cmd, 0.0), np.where(active, w_cmd, 0.0)
+        vk = v_cmd * slip[:, :, 0]  # (substeps, n)
+        wk = w_cmd * slip[:, :, 1]
         # Bodies have infinite moment: contacts never change their turn rate, so the
         # heading at each substep's start is known in advance (summed in pymunk's order).
         steps = np.empty((n_sub + 1, n))
@@ -305,11 +308,18 @@ class World:
         vel[:-1, :n, 0] = vk * np.cos(heading[:-1])
         vel[:-1, :n, 1] = vk * np.sin(heading[:-1])
         vel[:-1, :n, 2] = wk
-        set_bodies, space = pymunk.batch.set_space_bodies, self.space
-        for row in self._velocity_rows[:-1]:
-            set_bodies(space, _VELOCITIES, row)
-            space.step(dt)
-        set_bodies(space, _VELOCITIES, self._velocity_rows[-1])  # stop the robots
+        space, direct = self.space, self._direct
+        if direct is not None and direct.ready(space):
+            for k in range(n_sub):
+                direct.set_velocities(k)
+                direct.step(dt)
+            direct.set_velocities(n_sub)  # stop the robots
+        else:
+            set_bodies = pymunk.batch.set_space_bodies
+            for row in self._velocity_rows[:-1]:
+                set_bodies(space, _VELOCITIES, row)
+                space.step(dt)
+            set_bodies(space, _VELOCITIES, self._velocity_rows[-1])  # stop the robots
         batch = self._state_batch
         batch.clear()
         pymunk.batch.get_space_bodies(space, _POSE_FIELDS, batch)
@@ -318,3 +328,59 @@ class World:
         self._angles = state[:, 2].copy()  # unwrapped, as pymunk keeps them
         self.poses[:, 2] = (self.poses[:, 2] + np.pi) % (2 * np.pi) - np.pi
         return self.contacts["counts"] - before
+
+
+class _DirectBatch:
+    """The C calls behind ``pymunk.batch.set_space_bodies`` and ``Space.step``, set up once.
+
+    Each public call rebuilds its C argument struct and, for ``Space.step``,
+    runs bookkeeping for bodies added or removed and post-step callbacks;
+    the world steps a fixed space with none of those, so after the first step
+    (when pymunk checks the new bodies) it calls the same C functions directly.
+    :meth:`ready` falls back to the public API whenever that bookkeeping has work.
+    """
+
+    def __init__(self, space: pymunk.Space, rows: list[pymunk.batch.Buffer]) -> None:
+        from pymunk._chipmunk import ffi, lib
+
+        self._lib = lib
+        self._space_ptr = space._space
+        self._set_fn = ffi.addressof(lib, "pmSpaceBodySetIteratorFuncBatched")
+        self._rows = rows  # keeps the buffers (and their numpy rows) alive
+        self._data = []
+        for row in rows:
+            data = ffi.new("pmBatchedData *")
+            data.fields = _VELOCITIES.value
+            data.floatArray = row._float_arr
+            data.intArray = row._int_arr
+            self._data.append((data, row._float_arr))
+
+    @classmethod
+    def make(cls, space: pymunk.Space, rows: list[pymunk.batch.Buffer]) -> _DirectBatch | None:
+        """The direct caller, or ``None`` when this pymunk lacks the expected internals."""
+        try:
+            direct = cls(space, rows)
+            direct.ready(space)
+        except (AttributeError, ImportError, TypeError):
+            return None
+        return direct
+
+    @staticmethod
+    def ready(space: pymunk.Space) -> bool:
+        """Whether ``Space.step`` would do nothing but the C step."""
+        return not (
+            space._bodies_to_check or space._add_later or space._remove_later
+            or space._post_step_callbacks or space.threaded
+        )
+
+    def set_velocities(self, k: int) -> None:
+        """``set_space_bodies(space, VELOCITY | ANGULAR_VELOCITY, rows[k])``."""
+        data, arr = self._data[k]
+        num = arr.num
+        arr.num = 0  # the iterator reads from the start
+        self._lib.cpSpaceEachBody(self._space_ptr, self._set_fn, data)
+        arr.num = num
+
+    def step(self, dt: float) -> None:
+        """``cpSpaceStep`` (no Python-side bookkeeping)."""
+        self._lib.cpSpaceStep(self._space_ptr, dt)
