@@ -44,6 +44,9 @@ class EstimatorBackend(Protocol):
 
 _FEATURE_LOW = np.array([-3.0, -3.0, -3.0, -1.0, -1.0, -1.0])  # log10 stds, correlations
 _FEATURE_HIGH = np.array([2.0, 2.0, 2.0, 1.0, 1.0, 1.0])
+_OFF_DIAG = np.array([1, 2, 5])  # cells (0, 1), (0, 2), (1, 2) of a row-major 3x3
+_ROW = np.array([0, 0, 1])
+_COL = np.array([1, 2, 2])
 
 
 def gaussian_features(
@@ -59,9 +62,9 @@ def gaussian_features(
     k = len(mean)
     flat = cov.reshape(k, 9)
     out = np.empty((k, 10))
-    var = np.maximum(flat[:, [0, 4, 8]], 1e-12)
+    var = np.maximum(flat[:, ::4], 1e-12)  # the diagonal (cells 0, 4, 8)
     std = np.sqrt(var)
-    np.divide(flat[:, [1, 2, 5]], std[:, [0, 0, 1]] * std[:, [1, 2, 2]], out=out[:, 7:])
+    np.divide(flat[:, _OFF_DIAG], std[:, _ROW] * std[:, _COL], out=out[:, 7:])
     np.multiply(mean[:, :2], (2.0 / w, 2.0 / h), out=out[:, :2])
     out[:, :2] -= 1.0
     out[:, 2] = np.cos(mean[:, 2])

@@ -62,6 +62,8 @@ class ObservationBuilder:
         self.range = np.ones((n, cfg.laser_obs_bins))
         self.det = np.zeros((n, 6 * cfg.max_detections_obs))
         self._det_written = False
+        self._range_key: np.ndarray | None = None
+        self._range_mixed = True
 
     def _names(self, belief_names: tuple[str, ...]) -> list[str]:
         cfg = self.cfg
@@ -101,7 +103,8 @@ class ObservationBuilder:
             self.incl[m, 1] = readings.roll[m]
         m = readings.range_mask
         if m.all():
-            self.range[:] = _pool(readings.ranges / max_range[:, None], cfg.laser_obs_bins)
+            scale = max_range[:, None] if self._mixed_range(max_range) else float(max_range[0])
+            self.range[:] = _pool(readings.ranges / scale, cfg.laser_obs_bins)
         elif m.any():
             self.range[m] = _pool(readings.ranges[m] / max_range[m, None], cfg.laser_obs_bins)
         det = readings.detections
@@ -123,6 +126,13 @@ class ObservationBuilder:
                 )
                 slot[i] = s + 1
 
+    def _mixed_range(self, max_range: np.ndarray) -> bool:
+        """Whether the robots' maximum ranges differ (cached per array)."""
+        if self._range_key is not max_range:
+            self._range_key = max_range
+            self._range_mixed = len(set(np.asarray(max_range).tolist())) > 1
+        return self._range_mixed
+
     def build_all(
         self,
         belief: np.ndarray,
@@ -136,15 +146,7 @@ class ObservationBuilder:
         """
         cfg = self.cfg
         n = len(belief)
-        parts = [
-            belief,
-            np.zeros((n, self.belief_size - belief.shape[1])),
-            self.gps,
-            self.incl,
-            self.range,
-            self.det,
-            last_action,
-        ]
+        parts = [belief, self.gps, self.incl, self.range, self.det, last_action]
         if cfg.map_patch_obs:
             if map_patch is None:
                 raise ValueError("map_patch is required when map_patch_obs > 0, got None")
@@ -153,8 +155,16 @@ class ObservationBuilder:
             w, h = cfg.world_size
             x, y, th = true_poses.T
             parts.append(np.stack([x / w * 2 - 1, y / h * 2 - 1, np.cos(th), np.sin(th)], 1))
-        obs = np.concatenate(parts, axis=1).astype(np.float32)
-        return np.clip(obs, -OBS_LIMIT, OBS_LIMIT, out=obs)
+        # Each block cast to float32 in place of one concatenated float64 matrix.
+        obs = np.empty((n, self.size), dtype=np.float32)
+        obs[:, belief.shape[1] : self.belief_size] = 0.0  # belief padding
+        start = 0
+        for part in parts:
+            width = part.shape[1]
+            obs[:, start : start + width] = part
+            start += width + (self.belief_size - width if part is belief else 0)
+        np.maximum(obs, -OBS_LIMIT, out=obs)
+        return np.minimum(obs, OBS_LIMIT, out=obs)
 
 
 @functools.lru_cache(maxsize=64)

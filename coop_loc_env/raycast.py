@@ -46,6 +46,29 @@ def ray_circles(
     return t
 
 
+def circles_block(
+    origins: np.ndarray, dirs: np.ndarray, centers: np.ndarray, radii: np.ndarray,
+    reach: np.ndarray,
+) -> np.ndarray:
+    """Whether any circle cuts each ray closer than ``reach`` (``(R,)`` bool).
+
+    The hit distance per (ray, circle) is :func:`ray_circles`'
+    (entry point, or the exit point for a ray starting inside), computed the same way.
+    """
+    if len(centers) == 0:
+        return np.zeros(len(origins), dtype=bool)
+    fx = origins[:, 0:1] - centers[:, 0]
+    fy = origins[:, 1:2] - centers[:, 1]
+    b = fx * dirs[:, 0:1] + fy * dirs[:, 1:2]
+    disc = b * b - (fx * fx + fy * fy - radii * radii)
+    with np.errstate(invalid="ignore"):
+        sq = np.sqrt(disc)  # NaN where the ray misses: every comparison below is False
+        np.negative(b, out=b)
+        t = b - sq
+        np.add(b, sq, out=t, where=t < 0)  # origin inside the circle: exit point
+        return np.logical_or.reduce((t >= 0) & (t < reach[:, None]), axis=1)
+
+
 def ray_segments(
     origins: np.ndarray, dirs: np.ndarray, seg_a: np.ndarray, seg_b: np.ndarray
 ) -> np.ndarray:

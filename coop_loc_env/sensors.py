@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from coop_loc_env.config import ScenarioConfig
-from coop_loc_env.raycast import CHANNEL, FanCaster, ray_circles, ray_segments
+from coop_loc_env.raycast import CHANNEL, FanCaster, circles_block, ray_segments
 from coop_loc_env.world import World
 from estimators.geometry import wrap_angle
 
@@ -62,6 +62,17 @@ class Readings:
     camera_mask: np.ndarray
     camera: list[list[tuple[str, int, float, float]]]  # per robot: (kind, id, bearing, range)
     detections: Detections
+
+
+def _no_detections() -> Detections:
+    """An empty, read-only :class:`Detections` (shared by steps when the detector is idle)."""
+    empty = Detections()
+    for arr in (empty.observer, empty.target, empty.z, empty.cov, empty.genuine):
+        arr.flags.writeable = False
+    return empty
+
+
+_NO_DETECTIONS = _no_detections()
 
 
 def _due(step: int, dt: float, rate: float) -> bool:
@@ -199,7 +210,7 @@ class SensorSuite:
         if _due(step, dt, cfg.camera_rate) and self.has_camera.any():
             camera_mask = self.has_camera & active
             camera = self._camera(poses, rng, camera_mask)
-        detections = Detections()
+        detections = _NO_DETECTIONS
         if _due(step, dt, cfg.detector_rate) and self.has_detector.any() and n > 1:
             detections = self._detect(poses, rng, active)
         return Readings(
@@ -321,22 +332,25 @@ class SensorSuite:
         fov = np.deg2rad(cfg.camera_fov_deg)
         px = fov / cfg.camera_width_px
         out: list[list[tuple[str, int, float, float]]] = [[] for _ in range(n)]
-        keep = mask[pair_i]
-        obs_i, tgt_j = pair_i[keep], pair_j[keep]
-        d = targets[tgt_j] - poses[obs_i, :2]
+        if not mask.all():
+            keep = mask[pair_i]
+            pair_i, pair_j = pair_i[keep], pair_j[keep]
+        d = targets[pair_j] - poses[pair_i, :2]
         dist = np.hypot(d[:, 0], d[:, 1])
-        bearing = wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - poses[obs_i, 2])
+        bearing = wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - poses[pair_i, 2])
         cand = (dist < cfg.camera_max_range) & (np.abs(bearing) <= fov / 2) & (dist > 1e-6)
-        obs_i, tgt_j, dist, bearing = obs_i[cand], tgt_j[cand], dist[cand], bearing[cand]
-        if len(obs_i) == 0:
+        cand = np.flatnonzero(cand)
+        if len(cand) == 0:
             return out
+        obs_i, tgt_j, dist, bearing = pair_i[cand], pair_j[cand], dist[cand], bearing[cand]
         visible = self._line_of_sight(poses[obs_i, :2], targets[tgt_j], dist, exclude_ooi=tgt_j)
         pixel = np.round(bearing / px)
         measured = pixel * px
         rng_noise = dist + cfg.camera_range_std * rng.standard_normal(len(dist))
-        for i, j, b, r, vis in zip(obs_i, tgt_j, measured, rng_noise, visible, strict=True):
+        for i, j, b, r, vis in zip(obs_i.tolist(), tgt_j.tolist(), measured.tolist(),
+                                   rng_noise.tolist(), visible.tolist(), strict=True):
             if vis:
-                out[i].append((kinds[j], ids[j], float(b), float(max(r, 0.1))))
+                out[i].append((kinds[j], ids[j], b, max(r, 0.1)))
         return out
 
     def _camera_pairs(self, n_ooi: int, n: int):
@@ -359,12 +373,13 @@ class SensorSuite:
         """Whether nothing static blocks the segment from each origin to its target."""
         d = (targets - origins) / np.maximum(dist, 1e-9)[:, None]
         centers, radii, seg_a, seg_b = self._sight_shapes
-        hit = ray_circles(origins, d, centers, radii).min(1, initial=np.inf)
-        if len(seg_a):
-            np.minimum(hit, ray_segments(origins, d, seg_a, seg_b).min(1), out=hit)
         # Both ends lie inside the world, so its walls never block. The target itself
         # may be a circle in the scene (an OOI): allow hits at its surface.
-        return hit >= dist - 0.6
+        reach = dist - 0.6
+        visible = ~circles_block(origins, d, centers, radii, reach)
+        if len(seg_a):
+            visible &= ray_segments(origins, d, seg_a, seg_b).min(1) >= reach
+        return visible
 
     # ------------------------------------------------------------------ robot detector
     def _detect(
@@ -456,3 +471,4 @@ class SensorSuite:
             std[:, 1] = cfg.detection_bearing_std
         std[:, 2] = cfg.detection_orientation_std
         return std
+

@@ -98,3 +98,19 @@ def test_fan_caster_ignores_circles_beyond_its_range_but_not_walls():
     near.dense_limit = far.dense_limit = 0  # the culled path
     assert near.cast(pose)[0] == pytest.approx(5.0)
     assert far.cast(pose)[0] == pytest.approx(8.0)  # the wall at x = 10
+
+
+def test_circles_block_agrees_with_nearest_ray_circle_hit():
+    from coop_loc_env.raycast import circles_block
+
+    rng = np.random.default_rng(3)
+    centers = rng.uniform(0, 10, (15, 2))
+    radii = rng.uniform(0.1, 1.0, 15)
+    origins = rng.uniform(0, 10, (200, 2))
+    origins[0] = centers[0]  # a ray starting inside a circle
+    ang = rng.uniform(-np.pi, np.pi, 200)
+    dirs = np.stack([np.cos(ang), np.sin(ang)], 1)
+    reach = rng.uniform(-1, 8, 200)
+    hit = ray_circles(origins, dirs, centers, radii).min(1)
+    np.testing.assert_array_equal(circles_block(origins, dirs, centers, radii, reach), hit < reach)
+    assert not circles_block(origins, dirs, centers[:0], radii[:0], reach).any()
