@@ -97,8 +97,10 @@ def team_odometry(
     no longer active, and the substep length in seconds."""
     dt_sub = cfg.dt / cfg.odometry_substeps
     odo = readings.odometry
-    if len(robots) == odo.shape[1] and active.all() and (robots == _arange(len(robots))).all():
-        return odo[..., 0], odo[..., 1], dt_sub  # the whole team, all active (views)
+    if len(robots) == odo.shape[1] and (robots == _arange(len(robots))).all():  # whole team
+        if active.all():
+            return odo[..., 0], odo[..., 1], dt_sub  # views
+        return np.where(active, odo[..., 0], 0.0), np.where(active, odo[..., 1], 0.0), dt_sub
     odo = odo[:, robots]
     act = active[robots]
     v = np.where(act, odo[..., 0], 0.0)

@@ -76,9 +76,9 @@ class TeamMapper:
         self.map.merge_listener = self._on_merge
         self._pitch = np.zeros(n)
         self._all = np.arange(n)
-        self._no_fix = (np.full(n, np.nan), np.zeros(n, dtype=int))
-        for arr in (self._all, *self._no_fix):
-            arr.flags.writeable = False
+        self._all.flags.writeable = False
+        self._ids_cache: dict[bytes, np.ndarray] = {}
+        self._no_fix_cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._dt_sub = cfg.dt / cfg.odometry_substeps
         self.last_new_cells = np.zeros(n, dtype=np.int64)
 
@@ -124,40 +124,58 @@ class TeamMapper:
         m = readings.inclinometer_mask
         if m.any():
             self._pitch[m] = readings.pitch[m]
-        if active.all():  # the usual case: the whole team, no gathers
-            fix = readings.gps_mask
-            if fix.any():
-                alt = np.where(fix, readings.gps_altitude, np.nan)
-                nos = np.where(fix, readings.satellites, 0)
-            else:
-                alt, nos = self._no_fix
-            distance = readings.odometry[:, :, 0].sum(axis=0)
-            distance *= self._dt_sub
-            new = self.map.update(
-                self._all, est_mean, est_cov, self._pitch, alt, nos, distance,
-                self.cfg.gps_base_altitude,
-            )
-            self.last_new_cells = new
-            return new
-        new = np.zeros(self.cfg.n_robots, dtype=np.int64)
-        ids = np.flatnonzero(active)
-        if ids.size:
-            distance = readings.odometry[:, ids, 0].sum(axis=0) * self._dt_sub
-            fix = readings.gps_mask[ids]
-            alt = np.where(fix, readings.gps_altitude[ids], np.nan)
-            nos = np.where(fix, readings.satellites[ids], 0)
-            new[ids] = self.map.update(
-                ids,
-                est_mean[ids],
-                est_cov[ids],
-                self._pitch[ids],
-                alt,
-                nos,
-                distance,
-                self.cfg.gps_base_altitude,
-            )
+        whole = bool(active.all())
+        ids = self._all if whole else self._active_ids(active)
+        if not ids.size:
+            self.last_new_cells = np.zeros(self.cfg.n_robots, dtype=np.int64)
+            return self.last_new_cells
+        fix = readings.gps_mask  # only active robots get a fix
+        if fix.any():
+            alt = np.where(fix, readings.gps_altitude, np.nan)
+            nos = np.where(fix, readings.satellites, 0)
+            if not whole:
+                alt, nos = alt[ids], nos[ids]
+        else:
+            alt, nos = self._no_fix(ids.size)
+        distance = readings.odometry[:, :, 0].sum(axis=0)
+        pitch = self._pitch
+        if not whole:
+            distance, pitch = distance[ids], pitch[ids]
+            est_mean, est_cov = est_mean[ids], est_cov[ids]
+        distance *= self._dt_sub
+        cells = self.map.update(
+            ids, est_mean, est_cov, pitch, alt, nos, distance, self.cfg.gps_base_altitude
+        )
+        if whole:
+            new = cells
+        else:
+            new = np.zeros(self.cfg.n_robots, dtype=np.int64)
+            new[ids] = cells
         self.last_new_cells = new
         return new
+
+    def _active_ids(self, active: np.ndarray) -> np.ndarray:
+        """Indices of the active robots, read-only and cached per pattern (so the map
+        checks them once)."""
+        key = active.tobytes()
+        ids = self._ids_cache.get(key)
+        if ids is None:
+            ids = np.flatnonzero(active)
+            ids.flags.writeable = False
+            if len(self._ids_cache) > 64:
+                self._ids_cache.clear()
+            self._ids_cache[key] = ids
+        return ids
+
+    def _no_fix(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """Altitudes (NaN) and satellite counts (0) of ``k`` robots without a fix (read-only)."""
+        arrays = self._no_fix_cache.get(k)
+        if arrays is None:
+            arrays = (np.full(k, np.nan), np.zeros(k, dtype=int))
+            for arr in arrays:
+                arr.flags.writeable = False
+            self._no_fix_cache[k] = arrays
+        return arrays
 
     def _on_merge(
         self, cells: np.ndarray, before: np.ndarray, after: np.ndarray, was_mapped: np.ndarray
