@@ -37,6 +37,7 @@ by interchangeable robots.
 from __future__ import annotations
 
 import functools
+import math
 
 import numpy as np
 from gymnasium import spaces
@@ -113,16 +114,17 @@ class ObservationBuilder:
             self._det_written = False
         if len(det):
             self._det_written = True
-            order = np.lexsort((det.z[:, 0], det.observer))
-            slot = np.zeros(cfg.n_robots, dtype=int)
+            order = np.lexsort((det.z[:, 0], det.observer)).tolist()
+            observer, z = det.observer.tolist(), det.z.tolist()
+            slot = [0] * cfg.n_robots
             for k in order:
-                i = det.observer[k]
+                i = observer[k]
                 s = slot[i]
                 if s >= cfg.max_detections_obs:
                     continue
-                r, b, o = det.z[k]
+                r, b, o = z[k]
                 self.det[i, 6 * s : 6 * s + 6] = (
-                    1.0, r / cfg.detector_range, np.cos(b), np.sin(b), np.cos(o), np.sin(o)
+                    1.0, r / cfg.detector_range, math.cos(b), math.sin(b), math.cos(o), math.sin(o)
                 )
                 slot[i] = s + 1
 

@@ -102,6 +102,7 @@ class SensorSuite:
         self._build_ray_tables()
         self._idle: dict[str, np.ndarray] | None = None
         self._pairs: tuple | None = None
+        self._not_self: np.ndarray | None = None
         scene, sight = world.layout.scene, CHANNEL["sight"]
         self._sight_shapes = (
             scene.circle_centers[scene.circle_mask[:, sight]],
@@ -400,13 +401,11 @@ class SensorSuite:
         rel_xy = poses[None, :, :2] - poses[:, None, :2]  # [i, j] = p_j - p_i
         dist = np.hypot(rel_xy[..., 0], rel_xy[..., 1])
         bearing = wrap_angle(np.arctan2(rel_xy[..., 1], rel_xy[..., 0]) - poses[:, None, 2])
-        in_view = (
-            can[:, None]
-            & active[None, :]
-            & ~np.eye(n, dtype=bool)
-            & (dist <= cfg.detector_range)
-            & (np.abs(bearing) <= fov / 2 + 1e-9)
-        )
+        in_view = np.outer(can, active)
+        in_view &= self._others(n)
+        in_view &= dist <= cfg.detector_range
+        if fov < 2 * np.pi:  # all bearings lie in [-pi, pi): a full circle sees every one
+            in_view &= np.abs(bearing) <= fov / 2 + 1e-9
         oi, tj = np.nonzero(in_view)
         if len(oi):
             los = self._line_of_sight(poses[oi, :2], poses[tj, :2], dist[oi, tj])
@@ -447,6 +446,13 @@ class SensorSuite:
             believed[:, 1] = np.deg2rad(cfg.camera_fov_deg) / cfg.camera_width_px / np.sqrt(12)
         cov[:, [0, 1, 2], [0, 1, 2]] = believed**2
         return Detections(observer, target, noisy, cov, genuine)
+
+    def _others(self, n: int) -> np.ndarray:
+        """``(n, n)`` mask of (observer, target) pairs of two different robots (cached)."""
+        if self._not_self is None or len(self._not_self) != n:
+            self._not_self = ~np.eye(n, dtype=bool)
+            self._not_self.flags.writeable = False
+        return self._not_self
 
     def _detection_std(self, ranges: np.ndarray) -> np.ndarray:
         """Per-detection standard deviations of (range, bearing, orientation), ``(k, 3)``."""
