@@ -108,7 +108,7 @@ class DepthFromMotion:
         """
         n = len(poses)
         out: list[list[CameraRecord]] = [[] for _ in range(n)]
-        rows = np.flatnonzero(camera_mask).tolist()
+        rows = np.asarray(camera_mask).nonzero()[0].tolist()
         if not rows:
             return out
         # The sightings as (robot, target) pairs; only their tracks need any work.
@@ -148,7 +148,7 @@ class DepthFromMotion:
         baseline[rows] = 0.0
         flat_frames[key] = count + 1
         flat_base[key] = base
-        if not cont.all():
+        if np.count_nonzero(cont) < cont.size:
             fresh = key[~cont]
             self.xi.reshape(-1)[fresh] = rng.standard_normal(fresh.size)
         last_pose[rows] = poses[rows]

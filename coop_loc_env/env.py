@@ -199,7 +199,7 @@ class CoopLocParallelEnv(ParallelEnv):
         rng = self.np_random
         live = list(self.agents)
         cmd = act * self._speed_limits  # (n, 2): commanded V and w
-        if not self._active.all():
+        if np.count_nonzero(self._active) < self._active.size:
             cmd[~self._active] = 0.0  # tipped-over robots stand still
         contacts = self.world.step(cmd[:, 0], cmd[:, 1], self._active, rng)
         poses = self.world.poses

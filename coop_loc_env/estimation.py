@@ -98,7 +98,7 @@ def team_odometry(
     dt_sub = cfg.dt / cfg.odometry_substeps
     odo = readings.odometry
     if len(robots) == odo.shape[1] and (robots == _arange(len(robots))).all():  # whole team
-        if active.all():
+        if np.count_nonzero(active) == active.size:
             return odo[..., 0], odo[..., 1], dt_sub  # views
         return np.where(active, odo[..., 0], 0.0), np.where(active, odo[..., 1], 0.0), dt_sub
     odo = odo[:, robots]
@@ -170,7 +170,7 @@ class EKFBackend:
         var_w = _odometry_variance(cfg.slip_std * w, cfg.odom_w_std, cfg.ekf_process_noise_scale)
         ekf.predict_sequence(v, w, dt_sub, var_v, var_w)
         stats = {"accepted": 0, "rejected": 0, "cooperative": 0}
-        sel = np.nonzero(readings.gps_mask[g])[0] if readings.gps_mask.any() else ()
+        sel = np.nonzero(readings.gps_mask[g])[0] if np.count_nonzero(readings.gps_mask) else ()
         if len(sel):
             var = readings.gps_var[g[sel]]
             r = np.zeros((len(sel), 2, 2))
@@ -178,7 +178,8 @@ class EKFBackend:
             ok = ekf.update_position(sel, readings.gps_xy[g[sel]], r)
             stats["accepted"] += int(ok.sum())
             stats["rejected"] += int((~ok).sum())
-        sel = np.nonzero(readings.compass_mask[g])[0] if readings.compass_mask.any() else ()
+        compass = readings.compass_mask
+        sel = np.nonzero(compass[g])[0] if np.count_nonzero(compass) else ()
         if len(sel):
             ok = ekf.update_heading(
                 sel, readings.compass[g[sel]], np.full(len(sel), cfg.compass_std**2)

@@ -122,15 +122,15 @@ class TeamMapper:
             active: robots still in the episode (others are not sampled).
         """
         m = readings.inclinometer_mask
-        if m.any():
+        if np.count_nonzero(m):
             self._pitch[m] = readings.pitch[m]
-        whole = bool(active.all())
+        whole = np.count_nonzero(active) == active.size
         ids = self._all if whole else self._active_ids(active)
         if not ids.size:
             self.last_new_cells = np.zeros(self.cfg.n_robots, dtype=np.int64)
             return self.last_new_cells
         fix = readings.gps_mask  # only active robots get a fix
-        if fix.any():
+        if np.count_nonzero(fix):
             alt = np.where(fix, readings.gps_altitude, np.nan)
             nos = np.where(fix, readings.satellites, 0)
             if not whole:

@@ -95,18 +95,19 @@ class ObservationBuilder:
     def ingest(self, readings: Readings, max_range: np.ndarray) -> None:
         """Latch the sensor features of one step."""
         cfg = self.cfg
-        if readings.satellites.any() or readings.gps_mask.any():  # a DGPS step
+        if np.count_nonzero(readings.satellites) or np.count_nonzero(readings.gps_mask):  # DGPS
             self.gps[:, 0] = readings.gps_mask
             self.gps[:, 1] = readings.satellites / 12.0
         m = readings.inclinometer_mask
-        if m.any():
+        if np.count_nonzero(m):
             self.incl[m, 0] = readings.pitch[m]
             self.incl[m, 1] = readings.roll[m]
         m = readings.range_mask
-        if m.all():
+        fired = np.count_nonzero(m)
+        if fired == m.size:
             scale = max_range[:, None] if self._mixed_range(max_range) else float(max_range[0])
             self.range[:] = _pool(readings.ranges / scale, cfg.laser_obs_bins)
-        elif m.any():
+        elif fired:
             self.range[m] = _pool(readings.ranges[m] / max_range[m, None], cfg.laser_obs_bins)
         det = readings.detections
         if self._det_written:

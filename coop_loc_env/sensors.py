@@ -102,6 +102,8 @@ class SensorSuite:
         self._build_ray_tables()
         self._idle: dict[str, np.ndarray] | None = None
         self._pairs: tuple | None = None
+        self._any_camera = bool(self.has_camera.any())
+        self._any_detector = bool(self.has_detector.any())
         self._not_self: np.ndarray | None = None
         scene, sight = world.layout.scene, CHANNEL["sight"]
         self._sight_shapes = (
@@ -208,11 +210,11 @@ class SensorSuite:
             ranges = self._scan(poses, rng, active)
         camera_mask = idle["mask"]
         camera: list[list[tuple[str, int, float, float]]] = [[] for _ in range(n)]
-        if _due(step, dt, cfg.camera_rate) and self.has_camera.any():
+        if _due(step, dt, cfg.camera_rate) and self._any_camera:
             camera_mask = self.has_camera & active
             camera = self._camera(poses, rng, camera_mask)
         detections = _NO_DETECTIONS
-        if _due(step, dt, cfg.detector_rate) and self.has_detector.any() and n > 1:
+        if _due(step, dt, cfg.detector_rate) and self._any_detector and n > 1:
             detections = self._detect(poses, rng, active)
         return Readings(
             odometry=odo,
@@ -318,7 +320,7 @@ class SensorSuite:
         np.maximum(out, 0.0, out=out)
         np.minimum(out, rmax, out=out)
         np.copyto(out, rmax, where=ranges >= rmax)
-        if not active.all():
+        if np.count_nonzero(active) < n:
             out[~active] = np.nan
         return out
 
@@ -333,19 +335,19 @@ class SensorSuite:
         fov = np.deg2rad(cfg.camera_fov_deg)
         px = fov / cfg.camera_width_px
         out: list[list[tuple[str, int, float, float]]] = [[] for _ in range(n)]
-        if not mask.all():
+        if np.count_nonzero(mask) < n:
             keep = mask[pair_i]
             pair_i, pair_j = pair_i[keep], pair_j[keep]
         d = targets[pair_j] - poses[pair_i, :2]
         dist = np.hypot(d[:, 0], d[:, 1])
         bearing = wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - poses[pair_i, 2])
         cand = (dist < cfg.camera_max_range) & (np.abs(bearing) <= fov / 2) & (dist > 1e-6)
-        cand = np.flatnonzero(cand)
+        cand = cand.nonzero()[0]
         if len(cand) == 0:
             return out
         obs_i, tgt_j, dist, bearing = pair_i[cand], pair_j[cand], dist[cand], bearing[cand]
         visible = self._line_of_sight(poses[obs_i, :2], targets[tgt_j], dist, exclude_ooi=tgt_j)
-        pixel = np.round(bearing / px)
+        pixel = np.rint(bearing / px)  # np.round to 0 decimals
         measured = pixel * px
         rng_noise = dist + cfg.camera_range_std * rng.standard_normal(len(dist))
         for i, j, b, r, vis in zip(obs_i.tolist(), tgt_j.tolist(), measured.tolist(),

@@ -114,6 +114,6 @@ class HeightField:
         cells = self._cells(points)
         # The interpolated slope never exceeds its cell's steepest corner: most cells
         # can't be steep anywhere, and points in them need no interpolation.
-        if not self._steep_cells[cells[0]].any():
+        if not np.count_nonzero(self._steep_cells[cells[0]]):
             return np.zeros(len(cells[0]), dtype=bool)
         return self._bilinear(self.slope, points, cells) > self.tip_over_slope

@@ -294,7 +294,7 @@ class World:
         n = len(v_cmd)
         before = self.contacts["counts"].copy()
         slip = 1.0 + cfg.slip_std * rng.standard_normal((n_sub, n, 2))
-        if not active.all():
+        if np.count_nonzero(active) < n:
             v_cmd, w_cmd = np.where(active, v_cmd, 0.0), np.where(active, w_cmd, 0.0)
         vk = v_cmd * slip[:, :, 0]  # (substeps, n)
         wk = w_cmd * slip[:, :, 1]
@@ -303,7 +303,7 @@ class World:
         steps = np.empty((n_sub + 1, n))
         steps[0] = self._angles
         steps[1:] = wk * dt
-        heading = np.cumsum(steps, axis=0)
+        heading = np.add.accumulate(steps, axis=0)  # np.cumsum without its wrapper
         vel = self._velocity_buffer
         vel[:-1, :n, 0] = vk * np.cos(heading[:-1])
         vel[:-1, :n, 1] = vk * np.sin(heading[:-1])

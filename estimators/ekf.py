@@ -342,7 +342,7 @@ def _propagate(
     n_sub, k = v.shape
     phi0 = mean[:, 2].copy()
     # Heading before each substep t: phi0 + dt * sum_{j<t} w_j.
-    turned = np.cumsum(w, 0)
+    turned = np.add.accumulate(w, axis=0)  # np.cumsum without its wrapper
     phi = np.empty((n_sub, k))
     phi[0] = phi0
     np.multiply(turned[:-1], dt, out=phi[1:])
@@ -353,7 +353,7 @@ def _propagate(
     ab = np.empty((n_sub, k, 2))
     np.multiply(-dv, s, out=ab[..., 0])
     np.multiply(dv, c, out=ab[..., 1])
-    ab_cum = np.cumsum(ab, 0)
+    ab_cum = np.add.accumulate(ab, axis=0)
     ab_tot = ab_cum[-1]
     mean[:, 0] += ab_tot[:, 1]
     mean[:, 1] -= ab_tot[:, 0]

@@ -140,7 +140,7 @@ def fuse_elevation(
     # d/dtheta tan = sec^2, so var(d tan(theta)) = (d sec^2 sigma)^2 to first order.
     dev = distance * (1.0 + tan_p * tan_p) * pitch_std
     var_inc = prev_var + dev * dev
-    if not has_fix.any():  # f_gps = 0: the inclinometer alone
+    if not np.count_nonzero(has_fix):  # f_gps = 0: the inclinometer alone
         return z_inc, var_inc
     z_gps = np.where(has_fix, gps_elev, 0.0)
     var_gps = (gps_alt_std * gps_alt_std * REF_NOS) / np.maximum(nos, 1e-12)

@@ -382,7 +382,7 @@ class TerrainMap:
             vars_ = (var_s[:, None] + self._footprint_var).ravel()
             owner = self._owner if ids is self._valid_ids else np.repeat(ids, fp.shape[0])
         flat, inside = self._flat_index_xy(xy)
-        if not np.logical_and.reduce(inside):
+        if np.count_nonzero(inside) < inside.size:
             flat, vals, vars_, owner = flat[inside], vals[inside], vars_[inside], owner[inside]
         conf = 1.0 / vars_
 
@@ -423,7 +423,7 @@ class TerrainMap:
         """Write samples where they beat the stored confidence; return the winners' indices."""
         best = self._best_per_cell(flat, conf)
         if len(best) == len(flat):  # every sample is its cell's best
-            idx = np.flatnonzero(conf > confs[flat])
+            idx = (conf > confs[flat]).nonzero()[0]
         else:
             win = conf[best] > confs[flat[best]]
             idx = best[win]
