@@ -108,9 +108,12 @@ class DepthFromMotion:
         """
         n = len(poses)
         out: list[list[CameraRecord]] = [[] for _ in range(n)]
-        rows = np.asarray(camera_mask).nonzero()[0].tolist()
+        fired = np.asarray(camera_mask)
+        rows = fired.nonzero()[0].tolist()
         if not rows:
             return out
+        # Index of the robots whose camera fired (a slice for the whole team).
+        sel = slice(None) if len(rows) == n else fired.nonzero()[0]
         # The sightings as (robot, target) pairs; only their tracks need any work.
         n_ooi, n_targets = self.n_ooi, self.frames.shape[1]
         keys = {
@@ -120,19 +123,20 @@ class DepthFromMotion:
         }
         baseline, frames, last_pose = self.baseline, self.frames, self.last_pose
         if not keys:  # nothing in view: every track of these robots ends
-            frames[rows] = 0
-            baseline[rows] = 0.0
-            last_pose[rows] = poses[rows]
+            frames[sel] = 0
+            baseline[sel] = 0.0
+            last_pose[sel] = poses[sel]
             return out
         key = np.fromiter(sorted(keys), dtype=np.intp, count=len(keys))
         pi, pt = np.divmod(key, n_targets)
         # Tracks that continue: accumulate the baseline since the previous frame.
-        move = poses[pi, :2] - last_pose[pi, :2]  # (k, 2)
+        here = poses[pi, :2]
+        move = here - last_pose[pi, :2]  # (k, 2)
         if n_ooi:
             targets = np.concatenate([np.asarray(ooi_centers).reshape(-1, 2), poses[:, :2]])
         else:
             targets = poses[:, :2]
-        los = targets[pt] - poses[pi, :2]
+        los = targets[pt] - here
         dist = np.maximum(np.hypot(los[:, 0], los[:, 1]), 1e-6)
         ux, uy = los[:, 0] / dist, los[:, 1] / dist
         mx, my = move[:, 0], move[:, 1]
@@ -144,14 +148,14 @@ class DepthFromMotion:
         cont = count > 0
         base = np.where(cont, flat_base[key] + step_base, 0.0)
         # Every other track of these robots ends.
-        frames[rows] = 0
-        baseline[rows] = 0.0
+        frames[sel] = 0
+        baseline[sel] = 0.0
         flat_frames[key] = count + 1
         flat_base[key] = base
         if np.count_nonzero(cont) < cont.size:
             fresh = key[~cont]
             self.xi.reshape(-1)[fresh] = rng.standard_normal(fresh.size)
-        last_pose[rows] = poses[rows]
+        last_pose[sel] = poses[sel]
         info = (base / (dist**2 * max(self.sigma_theta, 1e-12))) ** 2
         std = 1.0 / np.sqrt(1.0 / self.prior_var + info)
         rng_est = dist + std * self.xi.reshape(-1)[key]

@@ -171,7 +171,7 @@ class TeamMapper:
         """Altitudes (NaN) and satellite counts (0) of ``k`` robots without a fix (read-only)."""
         arrays = self._no_fix_cache.get(k)
         if arrays is None:
-            arrays = (np.full(k, np.nan), np.zeros(k, dtype=int))
+            arrays = (np.full(k, np.nan), np.zeros(k))
             for arr in arrays:
                 arr.flags.writeable = False
             self._no_fix_cache[k] = arrays

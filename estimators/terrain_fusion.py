@@ -53,7 +53,7 @@ REF_NOS = 10.0
 
 def _as_nos(nos: np.ndarray | float) -> np.ndarray:
     nos = np.asarray(nos, dtype=float)
-    if not ((nos >= 0) & (nos < np.inf)).all():
+    if np.count_nonzero((nos >= 0) & (nos < np.inf)) != nos.size:
         raise ValueError(f"nos must be finite and >= 0, got {nos!r}")
     return nos
 

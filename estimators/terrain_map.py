@@ -157,6 +157,7 @@ class TerrainMap:
         self._footprint = self._make_footprint(float(footprint_radius))
         # Extra variance of footprint cells: unknown cross-slope over their offset.
         self._footprint_var = (self._footprint**2).sum(axis=1) * self.slope_floor**2
+        self._fp_x, self._fp_y = self._footprint[:, 0].copy(), self._footprint[:, 1].copy()
         self._valid_ids: np.ndarray | None = None  # a read-only id array already checked
         self._owner = np.zeros(0, dtype=np.intp)  # its samples' robot ids (footprint repeat)
         self.reset()
@@ -293,9 +294,10 @@ class TerrainMap:
 
     def _flat_index_xy(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`_flat_index` of points ``(k, 2)``."""
-        f = xy - self.origin if self.origin != (0.0, 0.0) else xy.copy()
-        f *= 1.0 / self.resolution
-        inside = np.logical_and.reduce((f >= 0) & (f < self.shape), axis=1)
+        f = (xy - self.origin if self.origin != (0.0, 0.0) else xy) * (1.0 / self.resolution)
+        ok = f >= 0
+        ok &= f < self.shape
+        inside = ok[:, 0] & ok[:, 1]
         cell = f.astype(np.intp)
         flat = cell[:, 0] * self.shape[1]
         flat += cell[:, 1]
@@ -378,7 +380,7 @@ class TerrainMap:
         else:
             xy = (poses[:, None, :2] + fp).reshape(-1, 2)
             c, s = np.cos(poses[:, 2:3]), np.sin(poses[:, 2:3])
-            vals = (elev[:, None] + tan_p[:, None] * (c * fp[:, 0] + s * fp[:, 1])).ravel()
+            vals = (elev[:, None] + tan_p[:, None] * (c * self._fp_x + s * self._fp_y)).ravel()
             vars_ = (var_s[:, None] + self._footprint_var).ravel()
             owner = self._owner if ids is self._valid_ids else np.repeat(ids, fp.shape[0])
         flat, inside = self._flat_index_xy(xy)
