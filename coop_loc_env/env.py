@@ -87,11 +87,16 @@ class CoopLocParallelEnv(ParallelEnv):
             if b.feature_size == belief_size and hasattr(b, "feature_names"):
                 belief_names = tuple(b.feature_names)
         self.observations = ObservationBuilder(cfg, belief_size, belief_names)
+        self._one_backend = len(self.backends) == 1 and np.array_equal(
+            self.backends[0].robots, np.arange(cfg.n_robots)
+        )
         self._observation_space = self.observations.space
         self._action_space = spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
         self._np_random: np.random.Generator | None = None
         self._np_random_seed: int | None = None
         self._renderer = None
+        self._rows_key: tuple[str, ...] | None = None
+        self._rows: list[int] = []
         self.agents: list[str] = []
         self._reset_state()
 
@@ -243,8 +248,9 @@ class CoopLocParallelEnv(ParallelEnv):
             raise ValueError(
                 f"actions must be a dict agent -> action, got {type(actions).__name__}"
             )
-        if list(actions) == self.agents == self.possible_agents:  # the usual case, in order
-            rows = None
+        keys = list(actions)
+        if keys == self.agents:  # the usual case: every live agent, in order
+            rows = None if len(keys) == self.config.n_robots else self._rows_of(keys)
         else:
             unknown = [a for a in actions if a not in self.agent_name_mapping]
             if unknown:
@@ -277,6 +283,14 @@ class CoopLocParallelEnv(ParallelEnv):
             np.minimum(out, 1.0, out=out)
         return out
 
+    def _rows_of(self, agents: list[str]) -> list[int]:
+        """Robot indices of ``agents`` (cached for the current list of live agents)."""
+        key = tuple(agents)
+        if self._rows_key != key:
+            self._rows_key = key
+            self._rows = [self.agent_name_mapping[a] for a in agents]
+        return self._rows
+
     @staticmethod
     def _check_action(agent: str, action: Any) -> None:
         """Raise a ``ValueError`` naming ``agent`` if ``action`` is malformed."""
@@ -295,15 +309,22 @@ class CoopLocParallelEnv(ParallelEnv):
 
     # ------------------------------------------------------------------ beliefs, obs, infos
     def _gather_beliefs(self) -> None:
+        if self._one_backend:  # one estimator for the whole team, robots in order
+            self._est_mean[:] = self.backends[0].mean()
+            self._est_cov[:] = self.backends[0].cov()
+            return
         for backend in self.backends:
             self._est_mean[backend.robots] = backend.mean()
             self._est_cov[backend.robots] = backend.cov()
 
     def _observe_all(self, agents: list[str]) -> dict[str, np.ndarray]:
-        belief = np.zeros((self.config.n_robots, self.observations.belief_size))
-        for backend in self.backends:
-            feats = backend.features()
-            belief[backend.robots, : feats.shape[1]] = feats
+        if self._one_backend:
+            belief = self.backends[0].features()  # ObservationBuilder pads it
+        else:
+            belief = np.zeros((self.config.n_robots, self.observations.belief_size))
+            for backend in self.backends:
+                feats = backend.features()
+                belief[backend.robots, : feats.shape[1]] = feats
         patch = None
         if self.config.map_patch_obs:
             patch = self.mapper.patches(self._est_mean, self.config.map_patch_obs)

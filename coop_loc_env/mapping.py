@@ -23,6 +23,8 @@ vectorized operations over the grid.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from coop_loc_env.config import ScenarioConfig
@@ -199,7 +201,7 @@ class TeamMapper:
         """
         if self.map.n_mapped == 0:
             return float("nan")
-        return float(np.sqrt(max(self._sq_error, 0.0) / self.map.n_mapped))
+        return math.sqrt(max(self._sq_error, 0.0) / self.map.n_mapped)
 
     def patches(self, est_mean: np.ndarray, size_cells: int) -> np.ndarray:
         """Egocentric patches ``(n, 3, S, S)`` around the estimated poses.
