@@ -336,8 +336,9 @@ class CoopLocParallelEnv(ParallelEnv):
         poses = self.world.poses.copy()  # each agent's info holds rows of fresh copies
         est = self._est_mean.copy()
         cov = self._est_cov.copy()
-        err_xy = np.hypot(est[:, 0] - poses[:, 0], est[:, 1] - poses[:, 1])
-        err_th = np.abs(wrap_angle(est[:, 2] - poses[:, 2]))
+        diff = est - poses
+        err_xy = np.hypot(diff[:, 0], diff[:, 1])
+        err_th = np.abs(wrap_angle(diff[:, 2]))
         readings = self._last_readings
         extra: dict[int, dict] = {}
         for backend in self.backends:
