@@ -107,8 +107,9 @@ class ObservationBuilder:
         if fired == m.size:
             scale = max_range[:, None] if self._mixed_range(max_range) else float(max_range[0])
             self.range[:] = _pool(readings.ranges / scale, cfg.laser_obs_bins)
-        elif fired:
-            self.range[m] = _pool(readings.ranges[m] / max_range[m, None], cfg.laser_obs_bins)
+        elif fired:  # pool every row (each on its own), keep the robots that scanned
+            scale = max_range[:, None] if self._mixed_range(max_range) else float(max_range[0])
+            self.range[m] = _pool(readings.ranges / scale, cfg.laser_obs_bins)[m]
         det = readings.detections
         if self._det_written:
             self.det[:] = 0.0

@@ -105,6 +105,8 @@ class SensorSuite:
         self._any_camera = bool(self.has_camera.any())
         self._any_detector = bool(self.has_detector.any())
         self._not_self: np.ndarray | None = None
+        self._masked_key: tuple[bytes, int] | None = None
+        self._masked: tuple[np.ndarray, np.ndarray] = (np.zeros(0, int), np.zeros(0, int))
         scene, sight = world.layout.scene, CHANNEL["sight"]
         self._sight_shapes = (
             scene.circle_centers[scene.circle_mask[:, sight]],
@@ -336,8 +338,7 @@ class SensorSuite:
         px = fov / cfg.camera_width_px
         out: list[list[tuple[str, int, float, float]]] = [[] for _ in range(n)]
         if np.count_nonzero(mask) < n:
-            keep = mask[pair_i]
-            pair_i, pair_j = pair_i[keep], pair_j[keep]
+            pair_i, pair_j = self._masked_pairs(mask, pair_i, pair_j)
         d = targets[pair_j] - poses[pair_i, :2]
         dist = np.hypot(d[:, 0], d[:, 1])
         bearing = wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - poses[pair_i, 2])
@@ -365,6 +366,17 @@ class SensorSuite:
             keep = ~((tgt_j >= n_ooi) & (tgt_j - n_ooi == obs_i))
             self._pairs = ((n_ooi, n), (kinds, ids, obs_i[keep], tgt_j[keep]))
         return self._pairs[1]
+
+    def _masked_pairs(
+        self, mask: np.ndarray, pair_i: np.ndarray, pair_j: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The camera pairs whose observer is in ``mask`` (cached per mask pattern)."""
+        key = (mask.tobytes(), id(pair_i))
+        if self._masked_key != key:
+            keep = mask[pair_i]
+            self._masked = (pair_i[keep], pair_j[keep])
+            self._masked_key = key
+        return self._masked
 
     def _line_of_sight(
         self,

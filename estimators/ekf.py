@@ -370,16 +370,14 @@ def _propagate(
     a_after, b_after = after[..., 0], after[..., 1]
     terms = np.empty((n_sub, k, 6))  # s00, s01, s11, s02, s12, s22 before summing over t
     qv_c = qv * c
-    qw_a = a_after * qw
-    qw_b = b_after * qw
+    np.multiply(a_after, qw, out=terms[..., 3])
+    np.multiply(b_after, qw, out=terms[..., 4])
     np.multiply(qv_c, c, out=terms[..., 0])
     terms[..., 0] += a_after**2 * qw
     np.multiply(qv_c, s, out=terms[..., 1])
     terms[..., 1] += a_after * b_after * qw
     np.multiply(qv * s, s, out=terms[..., 2])
     terms[..., 2] += b_after**2 * qw
-    terms[..., 3] = qw_a
-    terms[..., 4] = qw_b
     terms[..., 5] = qw
     p += terms.sum(0)[:, _NOISE_TERMS].reshape(k, 3, 3)
 
