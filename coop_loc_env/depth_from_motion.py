@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from coop_loc_env.config import ScenarioConfig
+from coop_loc_env.sensors import CameraSightings
 
 
 @dataclass(frozen=True)
@@ -91,6 +92,7 @@ class DepthFromMotion:
         poses: np.ndarray,
         ooi_centers: np.ndarray,
         rng: np.random.Generator,
+        sightings: CameraSightings | None = None,
     ) -> list[list[CameraRecord]]:
         """Turn one step's camera sightings into depth-from-motion records.
 
@@ -101,6 +103,8 @@ class DepthFromMotion:
             poses: true robot poses ``(n, 3)`` (the camera's true motion).
             ooi_centers: positions of the objects of interest ``(k, 2)``.
             rng: the episode's noise generator (draws a new track's error).
+            sightings: the same sightings as arrays (``Readings.camera_sightings``);
+                when given, ``camera`` is not read and the geometry is not recomputed.
 
         Returns:
             Per robot, the :class:`CameraRecord` list of this frame (empty for
@@ -116,28 +120,41 @@ class DepthFromMotion:
         sel = slice(None) if len(rows) == n else fired.nonzero()[0]
         # The sightings as (robot, target) pairs; only their tracks need any work.
         n_ooi, n_targets = self.n_ooi, self.frames.shape[1]
-        keys = {
-            i * n_targets + (ident if kind == "ooi" else n_ooi + ident): bearing
-            for i in rows
-            for kind, ident, bearing, _rng in camera[i]
-        }
+        if sightings is not None:
+            n_seen = len(sightings.bearing)
+        else:
+            keys = {
+                i * n_targets + (ident if kind == "ooi" else n_ooi + ident): bearing
+                for i in rows
+                for kind, ident, bearing, _rng in camera[i]
+            }
+            n_seen = len(keys)
         baseline, frames, last_pose = self.baseline, self.frames, self.last_pose
-        if not keys:  # nothing in view: every track of these robots ends
+        if not n_seen:  # nothing in view: every track of these robots ends
             frames[sel] = 0
             baseline[sel] = 0.0
             last_pose[sel] = poses[sel]
             return out
-        key = np.fromiter(sorted(keys), dtype=np.intp, count=len(keys))
-        pi, pt = np.divmod(key, n_targets)
-        # Tracks that continue: accumulate the baseline since the previous frame.
-        here = poses[pi, :2]
-        move = here - last_pose[pi, :2]  # (k, 2)
-        if n_ooi:
-            targets = np.concatenate([np.asarray(ooi_centers).reshape(-1, 2), poses[:, :2]])
+        if sightings is not None:  # already in key order, geometry at hand
+            pi, pt, bearings = sightings.observer, sightings.target, sightings.bearing
+            key = pi * n_targets
+            key += pt
+            here = poses[pi, :2]
+            move = here - last_pose[pi, :2]  # (k, 2)
+            los, dist = sightings.offset, sightings.dist  # dist > 1e-6
         else:
-            targets = poses[:, :2]
-        los = targets[pt] - here
-        dist = np.maximum(np.hypot(los[:, 0], los[:, 1]), 1e-6)
+            key = np.fromiter(sorted(keys), dtype=np.intp, count=len(keys))
+            bearings = [keys[k] for k in key.tolist()]
+            pi, pt = np.divmod(key, n_targets)
+            # Tracks that continue: accumulate the baseline since the previous frame.
+            here = poses[pi, :2]
+            move = here - last_pose[pi, :2]  # (k, 2)
+            if n_ooi:
+                targets = np.concatenate([np.asarray(ooi_centers).reshape(-1, 2), poses[:, :2]])
+            else:
+                targets = poses[:, :2]
+            los = targets[pt] - here
+            dist = np.maximum(np.hypot(los[:, 0], los[:, 1]), 1e-6)
         ux, uy = los[:, 0] / dist, los[:, 1] / dist
         mx, my = move[:, 0], move[:, 1]
         along = self.cfg.camera_looming_gain * (mx * ux + my * uy)
@@ -159,10 +176,10 @@ class DepthFromMotion:
         info = (base / (dist**2 * max(self.sigma_theta, 1e-12))) ** 2
         std = 1.0 / np.sqrt(1.0 / self.prior_var + info)
         rng_est = dist + std * self.xi.reshape(-1)[key]
-        for k, i, t, s, r, f in zip(
-            key.tolist(), pi.tolist(), pt.tolist(), std.tolist(), rng_est.tolist(),
+        for b, i, t, s, r, f in zip(
+            bearings, pi.tolist(), pt.tolist(), std.tolist(), rng_est.tolist(),
             (count + 1).tolist(), strict=True,
         ):
             kind, ident = ("ooi", t) if t < n_ooi else ("robot", t - n_ooi)
-            out[i].append(CameraRecord(kind, ident, float(keys[k]), max(r, 0.1), s, f))
+            out[i].append(CameraRecord(kind, ident, float(b), max(r, 0.1), s, f))
         return out

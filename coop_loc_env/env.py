@@ -78,6 +78,7 @@ class CoopLocParallelEnv(ParallelEnv):
         self.world = World(cfg)
         self._speed_limits = np.stack([self.world.max_speed, self.world.max_turn_rate], axis=1)
         self.sensors = SensorSuite(cfg, self.world)
+        self.sensors.camera_lists = False  # depth from motion reads the camera_sightings
         self.backends = make_backends(cfg, self.world)
         self.mapper = TeamMapper(cfg, self.world)
         self.depth = DepthFromMotion(cfg, len(self.world.layout.ooi_centers))
@@ -211,7 +212,8 @@ class CoopLocParallelEnv(ParallelEnv):
         # The wheel encoders see the command at every substep.
         readings = self.sensors.read(self._step_count, poses, cmd, rng, self._active)
         self._camera = self.depth.process(
-            readings.camera, readings.camera_mask, poses, self.world.layout.ooi_centers, rng
+            readings.camera, readings.camera_mask, poses, self.world.layout.ooi_centers, rng,
+            readings.camera_sightings,
         )
         readings.camera = [[(c.kind, c.id, c.bearing, c.range) for c in cs] for cs in self._camera]
         self._last_readings = readings
@@ -223,7 +225,7 @@ class CoopLocParallelEnv(ParallelEnv):
         self._last_action = act
         self._step_count += 1
 
-        newly_tipped = self._active & self.world.terrain.is_steep(poses[:, :2])
+        newly_tipped = self.world.terrain.is_steep(poses[:, :2], self._active)
         self._tipped |= newly_tipped
         if cfg.tip_over_terminates:
             self._active &= ~newly_tipped

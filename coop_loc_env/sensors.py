@@ -40,6 +40,22 @@ class Detections:
 
 
 @dataclass
+class CameraSightings:
+    """The visible (observer, target) pairs of one camera frame, in (observer, target) order.
+
+    Targets index the objects of interest first, then the robots. ``offset`` is
+    the true target position minus the observer's, ``dist`` its length (> 0)
+    and ``bearing`` the pixel-quantized bearings as Python floats.
+    """
+
+    observer: np.ndarray  # (k,) ints
+    target: np.ndarray  # (k,) ints
+    bearing: list[float]
+    offset: np.ndarray  # (k, 2)
+    dist: np.ndarray  # (k,)
+
+
+@dataclass
 class Readings:
     """Everything the team's sensors produced during one env step.
 
@@ -62,6 +78,10 @@ class Readings:
     camera_mask: np.ndarray
     camera: list[list[tuple[str, int, float, float]]]  # per robot: (kind, id, bearing, range)
     detections: Detections
+    # The camera's sightings as arrays, in (robot, target) order: observer, target index
+    # (objects of interest first, then robots), quantized bearing (a list), line-of-sight
+    # offsets (k, 2) and true distances (k,). None when the camera took no frame.
+    camera_sightings: CameraSightings | None = None
 
 
 def _no_detections() -> Detections:
@@ -73,6 +93,12 @@ def _no_detections() -> Detections:
 
 
 _NO_DETECTIONS = _no_detections()
+_NO_SIGHTINGS = CameraSightings(
+    np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp), [], np.zeros((0, 2)), np.zeros(0)
+)
+for _arr in (_NO_SIGHTINGS.observer, _NO_SIGHTINGS.target, _NO_SIGHTINGS.offset,
+             _NO_SIGHTINGS.dist):
+    _arr.flags.writeable = False
 
 
 def _due(step: int, dt: float, rate: float) -> bool:
@@ -103,6 +129,9 @@ class SensorSuite:
         self._idle: dict[str, np.ndarray] | None = None
         self._pairs: tuple | None = None
         self._any_camera = bool(self.has_camera.any())
+        # Whether read() fills Readings.camera with (kind, id, bearing, noisy range) lists;
+        # the env turns it off, as depth from motion replaces those ranges.
+        self.camera_lists = True
         self._any_detector = bool(self.has_detector.any())
         self._not_self: np.ndarray | None = None
         self._masked_key: tuple[bytes, int] | None = None
@@ -212,9 +241,10 @@ class SensorSuite:
             ranges = self._scan(poses, rng, active)
         camera_mask = idle["mask"]
         camera: list[list[tuple[str, int, float, float]]] = [[] for _ in range(n)]
+        sightings = None
         if _due(step, dt, cfg.camera_rate) and self._any_camera:
             camera_mask = self.has_camera & active
-            camera = self._camera(poses, rng, camera_mask)
+            camera, sightings = self._camera(poses, rng, camera_mask)
         detections = _NO_DETECTIONS
         if _due(step, dt, cfg.detector_rate) and self._any_detector and n > 1:
             detections = self._detect(poses, rng, active)
@@ -235,6 +265,7 @@ class SensorSuite:
             camera_mask=camera_mask,
             camera=camera,
             detections=detections,
+            camera_sightings=sightings,
         )
 
     def _idle_readings(self, n: int) -> dict[str, np.ndarray]:
@@ -327,8 +358,14 @@ class SensorSuite:
         return out
 
     # ------------------------------------------------------------------ camera
-    def _camera(self, poses: np.ndarray, rng: np.random.Generator, mask: np.ndarray):
-        """Objects of interest and robots in the camera's view, bearing quantized to pixels."""
+    def _camera(
+        self, poses: np.ndarray, rng: np.random.Generator, mask: np.ndarray
+    ) -> tuple[list[list[tuple[str, int, float, float]]], CameraSightings]:
+        """Objects of interest and robots in the camera's view, bearing quantized to pixels.
+
+        Returns the per-robot ``(kind, id, bearing, noisy range)`` lists and the
+        same sightings as arrays (:class:`CameraSightings`).
+        """
         cfg = self.cfg
         n = len(poses)
         ooi = self.world.layout.ooi_centers
@@ -345,17 +382,30 @@ class SensorSuite:
         cand = (dist < cfg.camera_max_range) & (np.abs(bearing) <= fov / 2) & (dist > 1e-6)
         cand = cand.nonzero()[0]
         if len(cand) == 0:
-            return out
+            return out, _NO_SIGHTINGS
         obs_i, tgt_j, dist, bearing = pair_i[cand], pair_j[cand], dist[cand], bearing[cand]
-        visible = self._line_of_sight(poses[obs_i, :2], targets[tgt_j], dist, exclude_ooi=tgt_j)
+        d = d[cand]
+        # d is target - origin and dist > 1e-6 its length: the unit line of sight directly.
+        visible = self._sight_clear(poses[obs_i, :2], d / dist[:, None], dist)
         pixel = np.rint(bearing / px)  # np.round to 0 decimals
-        measured = pixel * px
-        rng_noise = dist + cfg.camera_range_std * rng.standard_normal(len(dist))
-        for i, j, b, r, vis in zip(obs_i.tolist(), tgt_j.tolist(), measured.tolist(),
-                                   rng_noise.tolist(), visible.tolist(), strict=True):
-            if vis:
+        measured = (pixel * px).tolist()
+        vis = visible.tolist()
+        if np.count_nonzero(visible) < len(vis):
+            keep = visible.nonzero()[0]
+            sightings = CameraSightings(obs_i[keep], tgt_j[keep],
+                                        [b for b, v in zip(measured, vis, strict=True) if v],
+                                        d[keep], dist[keep])
+        else:
+            sightings = CameraSightings(obs_i, tgt_j, measured, d, dist)
+        noise = rng.standard_normal(len(dist))  # drawn either way: the same noise stream
+        if not self.camera_lists:
+            return out, sightings
+        rng_noise = dist + cfg.camera_range_std * noise
+        for i, j, b, r, v in zip(obs_i.tolist(), tgt_j.tolist(), measured,
+                                 rng_noise.tolist(), vis, strict=True):
+            if v:
                 out[i].append((kinds[j], ids[j], b, max(r, 0.1)))
-        return out
+        return out, sightings
 
     def _camera_pairs(self, n_ooi: int, n: int):
         """Target kinds and ids, and every (observer, target) pair but a robot and itself."""
@@ -387,6 +437,10 @@ class SensorSuite:
     ) -> np.ndarray:
         """Whether nothing static blocks the segment from each origin to its target."""
         d = (targets - origins) / np.maximum(dist, 1e-9)[:, None]
+        return self._sight_clear(origins, d, dist)
+
+    def _sight_clear(self, origins: np.ndarray, d: np.ndarray, dist: np.ndarray) -> np.ndarray:
+        """:meth:`_line_of_sight` given the unit directions ``d`` to the targets."""
         centers, radii, seg_a, seg_b = self._sight_shapes
         # Both ends lie inside the world, so its walls never block. The target itself
         # may be a circle in the scene (an OOI): allow hits at its surface.

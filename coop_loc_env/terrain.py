@@ -109,11 +109,21 @@ class HeightField:
         across = -g[:, 0] * s + g[:, 1] * c
         return np.arctan(along), np.arctan(across)
 
-    def is_steep(self, points: np.ndarray) -> np.ndarray:
-        """Whether the slope at ``points`` exceeds the tip-over limit."""
+    def is_steep(self, points: np.ndarray, among: np.ndarray | None = None) -> np.ndarray:
+        """Whether the slope at ``points`` exceeds the tip-over limit.
+
+        With a boolean mask ``among`` only those points are tested (the others
+        read False): a robot already tipped over on a slope costs nothing.
+        """
         cells = self._cells(points)
         # The interpolated slope never exceeds its cell's steepest corner: most cells
         # can't be steep anywhere, and points in them need no interpolation.
-        if not np.count_nonzero(self._steep_cells[cells[0]]):
-            return np.zeros(len(cells[0]), dtype=bool)
-        return self._bilinear(self.slope, points, cells) > self.tip_over_slope
+        maybe = self._steep_cells[cells[0]]
+        if among is not None:
+            maybe &= among
+        if not np.count_nonzero(maybe):
+            return maybe
+        out = self._bilinear(self.slope, points, cells) > self.tip_over_slope
+        if among is not None:
+            out &= among
+        return out

@@ -1,0 +1,53 @@
+"""Per-step results shared between modules give what each module computes on its own."""
+
+import numpy as np
+
+import coop_loc_env
+from coop_loc_env.depth_from_motion import DepthFromMotion
+
+
+def _env(n=4, **kw):
+    env = coop_loc_env.parallel_env("outdoor_terrain", n_robots=n, max_cycles=10**9,
+                                    estimator="ekf", start_region=None, **kw)
+    env.reset(seed=3)
+    return env
+
+
+def test_is_steep_among_is_the_masked_test():
+    env = _env()
+    terrain = env.world.terrain
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(0, 40, (400, 2))
+    for cx, cy in terrain.steep_centers:  # points on the steep patches too
+        pts = np.concatenate([pts, np.array([cx, cy]) + rng.normal(0, 2, (50, 2))])
+    among = rng.random(len(pts)) < 0.7
+    full = terrain.is_steep(pts)
+    assert full.any()
+    np.testing.assert_array_equal(terrain.is_steep(pts, among), full & among)
+    np.testing.assert_array_equal(terrain.is_steep(pts, np.zeros(len(pts), bool)), False)
+
+
+def test_depth_from_camera_sightings_matches_depth_from_camera_lists():
+    env = _env(5)
+    sensors, cfg = env.sensors, env.config
+    n_ooi = len(env.world.layout.ooi_centers)
+    by_lists, by_arrays = DepthFromMotion(cfg, n_ooi), DepthFromMotion(cfg, n_ooi)
+    by_lists.reset(env.world.poses)
+    by_arrays.reset(env.world.poses)
+    rng = np.random.default_rng(1)
+    seen = 0
+    sensors.camera_lists = True
+    for _ in range(150):
+        env.step({a: rng.uniform(-1, 1, 2) for a in env.agents})
+        poses = env.world.poses
+        mask = rng.random(len(poses)) < 0.8
+        cam, sightings = sensors._camera(poses, np.random.default_rng(2), mask)
+        a = by_lists.process(cam, mask, poses, env.world.layout.ooi_centers,
+                             np.random.default_rng(3))
+        b = by_arrays.process([[] for _ in cam], mask, poses, env.world.layout.ooi_centers,
+                              np.random.default_rng(3), sightings)
+        assert a == b
+        seen += sum(len(r) for r in a)
+    assert seen > 50
+    np.testing.assert_array_equal(by_lists.baseline, by_arrays.baseline)
+    np.testing.assert_array_equal(by_lists.frames, by_arrays.frames)
