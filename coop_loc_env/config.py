@@ -14,6 +14,7 @@ Default rates and noise follow Table 1 of the outdoor paper (Madhavan et al.).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -345,9 +346,9 @@ class ScenarioConfig:
                 f"got {self.odometry_rate!r}"
             )
 
-    @property
+    @functools.cached_property
     def odometry_substeps(self) -> int:
-        """Physics/odometry substeps per env step."""
+        """Physics/odometry substeps per env step (computed once: the config is frozen)."""
         return max(1, int(round(self.dt * self.odometry_rate)))
 
 

@@ -207,7 +207,7 @@ class CoopLocParallelEnv(ParallelEnv):
         cmd = act * self._speed_limits  # (n, 2): commanded V and w
         if np.count_nonzero(self._active) < self._active.size:
             cmd[~self._active] = 0.0  # tipped-over robots stand still
-        contacts = self.world.step(cmd[:, 0], cmd[:, 1], self._active, rng)
+        contacts = self.world.step(cmd[:, 0], cmd[:, 1], self._active, rng, idle_zeroed=True)
         poses = self.world.poses
         # The wheel encoders see the command at every substep.
         readings = self.sensors.read(self._step_count, poses, cmd, rng, self._active)

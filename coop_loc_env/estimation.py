@@ -91,13 +91,20 @@ def noisy_start(
 
 
 def team_odometry(
-    cfg: ScenarioConfig, readings: Readings, robots: np.ndarray, active: np.ndarray
+    cfg: ScenarioConfig,
+    readings: Readings,
+    robots: np.ndarray,
+    active: np.ndarray,
+    whole_team: bool | None = None,
 ) -> tuple[np.ndarray, np.ndarray, float]:
     """The step's odometry of ``robots``: ``(v, w)`` each ``(substeps, k)``, zero for robots
-    no longer active, and the substep length in seconds."""
+    no longer active, and the substep length in seconds. ``whole_team`` says (when known)
+    whether ``robots`` is ``0 .. n-1`` in order."""
     dt_sub = cfg.dt / cfg.odometry_substeps
     odo = readings.odometry
-    if len(robots) == odo.shape[1] and (robots == _arange(len(robots))).all():  # whole team
+    if whole_team is None:
+        whole_team = len(robots) == odo.shape[1] and bool((robots == _arange(len(robots))).all())
+    if whole_team:
         if np.count_nonzero(active) == active.size:
             return odo[..., 0], odo[..., 1], dt_sub  # views
         return np.where(active, odo[..., 0], 0.0), np.where(active, odo[..., 1], 0.0), dt_sub
@@ -151,6 +158,7 @@ class EKFBackend:
         self.cfg = cfg
         self.robots = np.asarray(robots, dtype=int)
         self._local = {int(g): i for i, g in enumerate(self.robots)}
+        self._whole_team = bool(np.array_equal(self.robots, np.arange(cfg.n_robots)))
         self.ekf: PoseEKF | None = None
 
     def reset(self, true_poses: np.ndarray, rng: np.random.Generator) -> None:
@@ -163,7 +171,7 @@ class EKFBackend:
         cfg = self.cfg
         ekf = self.ekf
         g = self.robots
-        v, w, dt_sub = team_odometry(cfg, readings, g, active)
+        v, w, dt_sub = team_odometry(cfg, readings, g, active, self._whole_team)
         # Encoder noise plus the wheel slip the robot's maker specifies, inflated by
         # ``ekf_process_noise_scale`` to cover what the model leaves out.
         var_v = _odometry_variance(cfg.slip_std * v, cfg.odom_v_std, cfg.ekf_process_noise_scale)

@@ -132,6 +132,7 @@ class SensorSuite:
         # Whether read() fills Readings.camera with (kind, id, bearing, noisy range) lists;
         # the env turns it off, as depth from motion replaces those ranges.
         self.camera_lists = True
+        self._odo_std = np.array([cfg.odom_v_std, cfg.odom_w_std])
         self._any_detector = bool(self.has_detector.any())
         self._not_self: np.ndarray | None = None
         self._masked_key: tuple[bytes, int] | None = None
@@ -217,7 +218,7 @@ class SensorSuite:
         n = len(poses)
         dt = cfg.dt
         odo = rng.standard_normal((cfg.odometry_substeps, n, 2))
-        odo *= (cfg.odom_v_std, cfg.odom_w_std)
+        odo *= self._odo_std
         odo += odom_cmd
         idle = self._idle_readings(n)
         gps_mask, gps_xy, gps_var, gps_alt, sats = (

@@ -276,7 +276,12 @@ class World:
 
     # ------------------------------------------------------------------ step
     def step(
-        self, v_cmd: np.ndarray, w_cmd: np.ndarray, active: np.ndarray, rng: np.random.Generator
+        self,
+        v_cmd: np.ndarray,
+        w_cmd: np.ndarray,
+        active: np.ndarray,
+        rng: np.random.Generator,
+        idle_zeroed: bool = False,
     ) -> np.ndarray:
         """Advance one env step (``odometry_substeps`` physics substeps).
 
@@ -284,6 +289,7 @@ class World:
             v_cmd, w_cmd: commanded linear and angular velocities ``(n,)``.
             active: robots that can move (tipped-over robots stand still).
             rng: noise source for wheel slip.
+            idle_zeroed: the caller already zeroed the commands of inactive robots.
 
         Returns:
             Number of new contacts per robot during the step, ``(n,)``.
@@ -294,7 +300,7 @@ class World:
         n = len(v_cmd)
         before = self.contacts["counts"].copy()
         slip = 1.0 + cfg.slip_std * rng.standard_normal((n_sub, n, 2))
-        if np.count_nonzero(active) < n:
+        if not idle_zeroed and np.count_nonzero(active) < n:
             v_cmd, w_cmd = np.where(active, v_cmd, 0.0), np.where(active, w_cmd, 0.0)
         vk = v_cmd * slip[:, :, 0]  # (substeps, n)
         wk = w_cmd * slip[:, :, 1]

@@ -147,6 +147,9 @@ class TerrainMap:
         nx = int(np.ceil(width / resolution - 1e-9))
         ny = int(np.ceil(height / resolution - 1e-9))
         self.shape = (nx, ny)
+        # The same as arrays, made once for the per-step cell lookups (None: origin at 0).
+        self._shape_xy = np.array(self.shape, dtype=float)
+        self._origin_xy = None if self.origin == (0.0, 0.0) else np.array(self.origin)
         self.datum = float(datum)
         self.pitch_std = float(pitch_std)
         self.gps_alt_std = float(gps_alt_std)
@@ -294,9 +297,9 @@ class TerrainMap:
 
     def _flat_index_xy(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`_flat_index` of points ``(k, 2)``."""
-        f = (xy - self.origin if self.origin != (0.0, 0.0) else xy) * (1.0 / self.resolution)
+        f = (xy - self._origin_xy if self._origin_xy is not None else xy) * (1.0 / self.resolution)
         ok = f >= 0
-        ok &= f < self.shape
+        ok &= f < self._shape_xy
         inside = ok[:, 0] & ok[:, 1]
         cell = f.astype(np.intp)
         flat = cell[:, 0] * self.shape[1]
