@@ -172,6 +172,7 @@ class FanCaster:
         sm = scene.seg_mask[:, channel]
         self.seg_a, self.seg_b = scene.seg_a[sm], scene.seg_b[sm]
         self.bounds = scene.bounds
+        self._bounds_xy = None if scene.bounds is None else np.array(scene.bounds, dtype=float)
         self.ray_robot = np.asarray(ray_robot, dtype=np.intp)
         self.ray_angle = np.asarray(ray_angle, dtype=float)
         self.robots, self.ray_slot = np.unique(self.ray_robot, return_inverse=True)
@@ -220,8 +221,14 @@ class FanCaster:
             self._cast_circles(poses, centers, radii, n_static, dirs, origins, dist)
         if len(self.seg_a):
             np.minimum(dist, ray_segments(origins, dirs, self.seg_a, self.seg_b).min(1), out=dist)
-        if self.bounds is not None:
-            np.minimum(dist, ray_box(origins, dirs, self.bounds), out=dist)
+        if self.bounds is not None:  # ray_box, merged column by column (no reduction)
+            wall = np.where(dirs > 0, self._bounds_xy, 0.0)
+            wall -= origins
+            with np.errstate(divide="ignore"):
+                wall /= dirs
+            np.abs(wall, out=wall)
+            np.minimum(dist, wall[:, 0], out=dist)
+            np.minimum(dist, wall[:, 1], out=dist)
         return dist
 
     def _dense_circles(self, poses, centers, radii, n_static, dirs, origins, dist) -> None:
@@ -233,7 +240,8 @@ class FanCaster:
         Rays start outside every circle but their own robot's, which is skipped.
         """
         rel = centers.T[None] - poses[self.robots, :2, None]  # (robots, 2, circles)
-        q = (rel * rel).sum(1)
+        q = rel[:, 0] * rel[:, 0]  # |c - o|^2 without a reduction
+        q += rel[:, 1] * rel[:, 1]
         q -= radii * radii
         if len(radii) > n_static:
             own = self._own_circles(len(radii), n_static)

@@ -367,8 +367,12 @@ class TerrainMap:
         tan_p = np.tan(pitch)
         slope2 = np.maximum(tan_p * tan_p, self.slope_floor**2)
         var_s = np.maximum(var + slope2 * pos_var, self.min_var)
-        # One finiteness check covers poses, pitch, distance and covariances.
-        if not np.isfinite(np.add.reduce(elev) + np.add.reduce(var_s) + np.add.reduce(poses, None)):
+        # One finiteness check covers poses, pitch, distance and covariances (one reduction).
+        check = elev + var_s
+        check += poses[:, 0]
+        check += poses[:, 1]
+        check += poses[:, 2]
+        if not np.isfinite(np.add.reduce(check)):
             raise ValueError(
                 f"est_poses, pose_covs, pitch and distance must be finite, got {poses!r}, "
                 f"{pos_var!r}, {pitch!r}, {distance!r}"
