@@ -191,7 +191,7 @@ class CoopLocParallelEnv(ParallelEnv):
         self.mapper.reset(self.world.poses, self._est_mean, self._est_cov)
         self.agents = list(self.possible_agents)
         zeros = np.zeros(self.config.n_robots)
-        infos = self._infos(zeros, np.zeros(self.config.n_robots, dtype=int))
+        infos = self._infos(zeros, np.zeros(self.config.n_robots, dtype=int))[0]
         obs = self._observe_all(self.agents)
         if self.render_mode == "human":
             self.render()
@@ -231,12 +231,11 @@ class CoopLocParallelEnv(ParallelEnv):
             self._active &= ~newly_tipped
         truncate = self._step_count >= cfg.max_cycles
 
-        infos = self._infos(newly_tipped.astype(float), contacts)
-        rewards = {a: float(sum(infos[a]["reward_terms"].values())) for a in live}
-        terminations = {a: bool(not self._active[self.agent_name_mapping[a]]) for a in live}
+        infos, rewards = self._infos(newly_tipped.astype(float), contacts, live)
+        active = self._active.tolist()
+        terminations = {a: not active[self.agent_name_mapping[a]] for a in live}
         truncations = {a: bool(truncate) for a in live}
         obs = self._observe_all(live)
-        infos = {a: infos[a] for a in live}
         self.agents = [a for a in live if not (terminations[a] or truncations[a])]
         if self.render_mode == "human":
             self.render()
@@ -333,7 +332,10 @@ class CoopLocParallelEnv(ParallelEnv):
         obs = self.observations.build_all(belief, self._last_action, self.world.poses, patch)
         return {a: obs[self.agent_name_mapping[a]] for a in agents}
 
-    def _infos(self, tipped: np.ndarray, new_contacts: np.ndarray) -> dict[str, dict]:
+    def _infos(
+        self, tipped: np.ndarray, new_contacts: np.ndarray, agents: list[str] | None = None
+    ) -> tuple[dict[str, dict], dict[str, float]]:
+        """Infos and rewards of ``agents`` (all possible agents by default), in that order."""
         cfg = self.config
         poses = self.world.poses.copy()  # each agent's info holds rows of fresh copies
         est = self._est_mean.copy()
@@ -363,17 +365,24 @@ class CoopLocParallelEnv(ParallelEnv):
             new_contacts.tolist(), tipped.tolist(), self._tipped.tolist(),
             self._new_cells.tolist(), strict=True,
         )
-        infos = {}
-        for i, (agent, exy, eth, gps, nsat, hits, tip, tipped_over, cells) in enumerate(columns):
+        if agents is not None and len(agents) < n:  # only the live agents' entries
+            every = list(columns)
+            columns = [(i, every[i]) for i in self._rows_of(agents)]
+        else:
+            columns = enumerate(columns)
+        infos, rewards = {}, {}
+        for i, (agent, exy, eth, gps, nsat, hits, tip, tipped_over, cells) in columns:
+            loc, cover = -w_loc * exy - w_head * eth, w_cov * float(cells)
+            hit, tip_term = pen_hit * hits, pen_tip * tip
+            rewards[agent] = 0.0 + loc + cover + hit + tip_term  # what sum() of the terms gives
             infos[agent] = {
                 "true_pose": poses[i],
                 "est_pose": est[i],
                 "pose_cov": cov[i],
                 "position_error": exy,
                 "heading_error": eth,
-                "reward_terms": {"localization": -w_loc * exy - w_head * eth,
-                                 "coverage": w_cov * float(cells), "collision": pen_hit * hits,
-                                 "tip_over": pen_tip * tip},
+                "reward_terms": {"localization": loc, "coverage": cover, "collision": hit,
+                                 "tip_over": tip_term},
                 "gps_fix": bool(gps),
                 "satellites": int(nsat),
                 "collisions": int(hits),
@@ -383,7 +392,7 @@ class CoopLocParallelEnv(ParallelEnv):
                 "map_rmse": map_rmse,
                 **extra.get(i, {}),
             }
-        return infos
+        return infos, rewards
 
     # ------------------------------------------------------------------ render
     def render(self) -> np.ndarray | None:

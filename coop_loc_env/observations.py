@@ -109,7 +109,8 @@ class ObservationBuilder:
             self.range[:] = _pool(readings.ranges / scale, cfg.laser_obs_bins)
         elif fired:  # pool every row (each on its own), keep the robots that scanned
             scale = max_range[:, None] if self._mixed_range(max_range) else float(max_range[0])
-            self.range[m] = _pool(readings.ranges / scale, cfg.laser_obs_bins)[m]
+            pooled = _pool(readings.ranges / scale, cfg.laser_obs_bins)
+            np.copyto(self.range, pooled, where=m[:, None])
         det = readings.detections
         if self._det_written:
             self.det[:] = 0.0
