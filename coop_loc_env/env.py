@@ -204,9 +204,9 @@ class CoopLocParallelEnv(ParallelEnv):
         cfg = self.config
         rng = self.np_random
         live = list(self.agents)
-        cmd = act * self._speed_limits  # (n, 2): commanded V and w
-        if np.count_nonzero(self._active) < self._active.size:
-            cmd[~self._active] = 0.0  # tipped-over robots stand still
+        # (n, 2): commanded V and w. Only live agents act, and every live agent is active:
+        # the rows of tipped-over robots are zeros, so they stand still.
+        cmd = act * self._speed_limits
         contacts = self.world.step(cmd[:, 0], cmd[:, 1], self._active, rng, idle_zeroed=True)
         poses = self.world.poses
         # The wheel encoders see the command at every substep.

@@ -49,6 +49,14 @@ _ROW = np.array([0, 0, 1])
 _COL = np.array([1, 2, 2])
 
 
+@functools.lru_cache(maxsize=16)
+def _position_scale(w: float, h: float) -> np.ndarray:
+    """``(2 / w, 2 / h)`` as a read-only array (made once per world size)."""
+    scale = np.array([2.0 / w, 2.0 / h])
+    scale.flags.writeable = False
+    return scale
+
+
 def gaussian_features(
     mean: np.ndarray, cov: np.ndarray, world_size: tuple[float, float]
 ) -> np.ndarray:
@@ -65,7 +73,7 @@ def gaussian_features(
     var = np.maximum(flat[:, ::4], 1e-12)  # the diagonal (cells 0, 4, 8)
     std = np.sqrt(var)
     np.divide(flat[:, _OFF_DIAG], std[:, _ROW] * std[:, _COL], out=out[:, 7:])
-    np.multiply(mean[:, :2], (2.0 / w, 2.0 / h), out=out[:, :2])
+    np.multiply(mean[:, :2], _position_scale(w, h), out=out[:, :2])
     out[:, :2] -= 1.0
     out[:, 2] = np.cos(mean[:, 2])
     out[:, 3] = np.sin(mean[:, 2])
