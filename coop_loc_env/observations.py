@@ -58,13 +58,32 @@ class ObservationBuilder:
         self.size = len(self.names)
         self.space = spaces.Box(-OBS_LIMIT, OBS_LIMIT, shape=(self.size,), dtype=np.float32)
         n = cfg.n_robots
-        self.gps = np.zeros((n, 2))
-        self.incl = np.zeros((n, 2))
-        self.range = np.ones((n, cfg.laser_obs_bins))
-        self.det = np.zeros((n, 6 * cfg.max_detections_obs))
+        # The latched features side by side, in observation order, so that one copy
+        # moves them all: gps (2), incl (2), range bins, detections; each a view.
+        self._latched = np.zeros((n, 4 + cfg.laser_obs_bins + 6 * cfg.max_detections_obs))
+        self._bind_views()
+        self.range[:] = 1.0
         self._det_written = False
         self._range_key: np.ndarray | None = None
         self._range_mixed = True
+
+    def _bind_views(self) -> None:
+        """``gps``, ``incl``, ``range`` and ``det``: column blocks of ``_latched``."""
+        bins = self.cfg.laser_obs_bins
+        self.gps = self._latched[:, 0:2]
+        self.incl = self._latched[:, 2:4]
+        self.range = self._latched[:, 4 : 4 + bins]
+        self.det = self._latched[:, 4 + bins :]
+
+    def __getstate__(self) -> dict:
+        state = self.__dict__.copy()
+        for key in ("gps", "incl", "range", "det"):  # views: rebuilt on unpickling
+            state.pop(key, None)
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._bind_views()
 
     def _names(self, belief_names: tuple[str, ...]) -> list[str]:
         cfg = self.cfg
@@ -151,7 +170,7 @@ class ObservationBuilder:
         """
         cfg = self.cfg
         n = len(belief)
-        parts = [belief, self.gps, self.incl, self.range, self.det, last_action]
+        parts = [belief, self._latched, last_action]  # _latched: gps, incl, range, det
         if cfg.map_patch_obs:
             if map_patch is None:
                 raise ValueError("map_patch is required when map_patch_obs > 0, got None")

@@ -51,3 +51,24 @@ def test_depth_from_camera_sightings_matches_depth_from_camera_lists():
     assert seen > 50
     np.testing.assert_array_equal(by_lists.baseline, by_arrays.baseline)
     np.testing.assert_array_equal(by_lists.frames, by_arrays.frames)
+
+
+def test_latched_features_stay_views_of_one_block_after_copy_and_pickle():
+    import copy
+    import pickle
+
+    env = _env()
+    rng = np.random.default_rng(0)
+    for _ in range(12):
+        env.step({a: rng.uniform(-1, 1, 2) for a in env.agents})
+    for clone in (copy.deepcopy(env), pickle.loads(pickle.dumps(env))):
+        ob = clone.observations
+        for block in (ob.gps, ob.incl, ob.range, ob.det):
+            assert np.shares_memory(block, ob._latched)
+        r1, r2 = np.random.default_rng(4), np.random.default_rng(4)
+        twin = copy.deepcopy(env)
+        for _ in range(15):
+            o1 = twin.step({a: r1.uniform(-1, 1, 2) for a in twin.agents})[0]
+            o2 = clone.step({a: r2.uniform(-1, 1, 2) for a in clone.agents})[0]
+            assert o1.keys() == o2.keys()
+            assert all(np.array_equal(o1[k], o2[k]) for k in o1)
