@@ -182,6 +182,9 @@ class FanCaster:
         same_fan = len(counts) > 0 and bool(np.all(counts == counts[0]))
         self.fans = (len(counts), int(counts[0]), 2) if robot_major and same_fan else None
         self._own_key: tuple[int, int] | None = None
+        self._extra_key: np.ndarray | None = None  # the read-only extra radii cached
+        self._radii_all = self.radii
+        self._radii_sq = self.radii * self.radii
         self._own = (np.zeros(0, np.intp), np.zeros(0, np.intp))
         wrapped = (self.ray_angle + np.pi) % (2 * np.pi)  # in [0, 2 pi)
         key = self.ray_robot * _KEY_STRIDE + wrapped
@@ -202,7 +205,8 @@ class FanCaster:
         Args:
             poses: ``(n, 3)`` robot poses (rows indexed by ``ray_robot``).
             extra_centers, extra_radii: moving circles (the robots) ``(E, 2)``, ``(E,)``;
-                the circle with a ray's own robot index is skipped.
+                the circle with a ray's own robot index is skipped. A read-only
+                ``extra_radii`` is taken as constant: its combined radii are reused.
         """
         rays = len(self.ray_robot)
         dist = np.full(rays, np.inf)
@@ -214,7 +218,7 @@ class FanCaster:
         centers, radii, n_static = self.centers, self.radii, len(self.radii)
         if extra_centers is not None and len(extra_centers):
             centers = np.concatenate([centers, extra_centers])
-            radii = np.concatenate([radii, extra_radii])
+            radii = self._all_radii(extra_radii)
         if len(radii) * rays <= self.dense_limit:
             self._dense_circles(poses, centers, radii, n_static, dirs, origins, dist)
         else:
@@ -242,7 +246,7 @@ class FanCaster:
         rel = centers.T[None] - poses[self.robots, :2, None]  # (robots, 2, circles)
         q = rel[:, 0] * rel[:, 0]  # |c - o|^2 without a reduction
         q += rel[:, 1] * rel[:, 1]
-        q -= radii * radii
+        q -= self._squared(radii)
         if len(radii) > n_static:
             own = self._own_circles(len(radii), n_static)
             q[own[0], own[1]] = np.inf
@@ -259,8 +263,21 @@ class FanCaster:
             b -= disc
             np.reciprocal(b, out=b)
             inv = np.fmax.reduce(b, axis=-1).reshape(-1)
-        hit = inv > 0
-        dist[hit] = 1.0 / inv[hit]
+        np.divide(1.0, inv, out=dist, where=inv > 0)  # misses keep inf
+
+    def _all_radii(self, extra_radii: np.ndarray) -> np.ndarray:
+        """Static radii followed by ``extra_radii`` (reused while a read-only array repeats)."""
+        if extra_radii.flags.writeable or extra_radii is not self._extra_key:
+            radii = np.concatenate([self.radii, extra_radii])
+            if extra_radii.flags.writeable:
+                return radii
+            self._extra_key, self._radii_all = extra_radii, radii
+            self._radii_sq = radii * radii
+        return self._radii_all
+
+    def _squared(self, radii: np.ndarray) -> np.ndarray:
+        """``radii * radii`` (the cached square for the combined radii)."""
+        return self._radii_sq if radii is self._radii_all else radii * radii
 
     def _own_circles(self, n_circles: int, n_static: int) -> tuple[np.ndarray, np.ndarray]:
         """(row, column) in the (robots, circles) table of each robot's own body."""

@@ -187,6 +187,7 @@ class SensorSuite:
         )[:, None]
         self._no_range = ~self.has_range
         self._robot_radii = np.full(n, self.cfg.robot_radius)
+        self._robot_radii.flags.writeable = False  # constant: the caster reuses its radii
         # Fast path: one caster whose rays are exactly the (robot, beam) grid, row-major,
         # with one noise level and one maximum range for the whole team (all lasers).
         grid = len(self._ray_groups) == 1 and np.array_equal(

@@ -72,3 +72,21 @@ def test_latched_features_stay_views_of_one_block_after_copy_and_pickle():
             o2 = clone.step({a: r2.uniform(-1, 1, 2) for a in clone.agents})[0]
             assert o1.keys() == o2.keys()
             assert all(np.array_equal(o1[k], o2[k]) for k in o1)
+
+
+def test_fan_caster_reuses_read_only_radii_with_the_same_hits():
+    env = _env(6)
+    sensors = env.sensors
+    caster = sensors._ray_groups[0][1]
+    const = sensors._robot_radii
+    assert not const.flags.writeable
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        env.step({a: rng.uniform(-1, 1, 2) for a in env.agents})
+        poses = env.world.poses
+        fresh = caster.cast(poses, poses[:, :2], const.copy())  # writeable: not cached
+        np.testing.assert_array_equal(caster.cast(poses, poses[:, :2], const), fresh)
+        np.testing.assert_array_equal(caster.cast(poses, poses[:, :2], const), fresh)
+        other = np.full(len(poses), 0.5)  # a different radius is not served from the cache
+        caster.cast(poses, poses[:, :2], other)
+        np.testing.assert_array_equal(caster.cast(poses, poses[:, :2], const), fresh)
