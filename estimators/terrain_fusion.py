@@ -112,6 +112,8 @@ def fuse_elevation(
     pitch_std: float,
     gps_alt_std: float,
     weights: str = "paper",
+    *,
+    tan_pitch: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """One complementary-filter step of elevation per robot (all arguments shape ``(N,)``).
 
@@ -126,20 +128,24 @@ def fuse_elevation(
         weights: ``"paper"`` for the satellite-count weights, or ``"kalman"``
             for the variance-optimal gain ``f_gps = var_inc / (var_inc + var_gps)``
             (a 1-D Kalman filter, for comparison with the paper's choice).
+        tan_pitch: ``np.tan(pitch)`` when the caller has it already.
 
     Returns:
         ``(elev, var)``: fused elevation and its first-order variance.
     """
     if weights not in ("paper", "kalman"):
         raise ValueError(f"weights must be 'paper' or 'kalman', got {weights!r}")
-    nos = _as_nos(nos)
-    gps_elev = np.asarray(gps_elev, dtype=float)
-    has_fix = (nos > 0) & (gps_elev == gps_elev)  # NaN != NaN
-    tan_p = np.tan(pitch)
+    nos = np.asarray(nos, dtype=float)
+    tan_p = np.tan(pitch) if tan_pitch is None else tan_pitch
     z_inc = prev_elev + distance * tan_p
     # d/dtheta tan = sec^2, so var(d tan(theta)) = (d sec^2 sigma)^2 to first order.
     dev = distance * (1.0 + tan_p * tan_p) * pitch_std
     var_inc = prev_var + dev * dev
+    if not np.count_nonzero(nos):  # no satellites anywhere (a valid count): no fix at all
+        return z_inc, var_inc
+    nos = _as_nos(nos)
+    gps_elev = np.asarray(gps_elev, dtype=float)
+    has_fix = (nos > 0) & (gps_elev == gps_elev)  # NaN != NaN
     if not np.count_nonzero(has_fix):  # f_gps = 0: the inclinometer alone
         return z_inc, var_inc
     z_gps = np.where(has_fix, gps_elev, 0.0)

@@ -351,6 +351,7 @@ class TerrainMap:
         nos = _vector("nos", nos, n)
         distance = _vector("distance", distance, n)
         pos_var = covs[:, 0, 0] + covs[:, 1, 1]
+        tan_p = np.tan(pitch)
 
         elev, var = fuse_elevation(
             self._robot_elev[ids],
@@ -362,9 +363,9 @@ class TerrainMap:
             self.pitch_std,
             self.gps_alt_std,
             self.weights,
+            tan_pitch=tan_p,
         )
         # Sample variance: elevation + position error seen through the slope.
-        tan_p = np.tan(pitch)
         slope2 = np.maximum(tan_p * tan_p, self.slope_floor**2)
         var_s = np.maximum(var + slope2 * pos_var, self.min_var)
         # One finiteness check covers poses, pitch, distance and covariances (one reduction).
