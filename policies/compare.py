@@ -37,6 +37,12 @@ LABELS = {
     "localized_fraction": "localized",
 }
 SPREAD_THRESHOLD = 1.5
+# The range each figure can take: its confidence interval is clipped to it (a
+# Student-t interval of counts or fractions near a bound would leave it).
+FIGURE_BOUNDS = {
+    "coverage": (0.0, 1.0),
+    "localized_fraction": (0.0, 1.0),
+}
 
 
 def parse_policy_list(text: str) -> list[str]:
@@ -106,8 +112,14 @@ def time_to_localize(ep: dict[str, Any], dt: float, threshold: float = SPREAD_TH
     return float(times.mean()), float(done.mean())
 
 
-def mean_ci(values: np.ndarray, level: float = 0.95) -> tuple[float, float, float]:
-    """``(mean, low, high)`` of the Student-t ``level`` interval of the mean."""
+def mean_ci(
+    values: np.ndarray, level: float = 0.95, bounds: tuple[float, float] | None = None
+) -> tuple[float, float, float]:
+    """``(mean, low, high)`` of the Student-t ``level`` interval of the mean.
+
+    ``bounds`` (low, high), when given, clip the interval to the values the mean
+    can take (a mean of counts is never negative, a fraction never above 1).
+    """
     v = np.asarray(values, dtype=float)
     v = v[np.isfinite(v)]
     if len(v) == 0:
@@ -116,7 +128,10 @@ def mean_ci(values: np.ndarray, level: float = 0.95) -> tuple[float, float, floa
     if len(v) < 2:
         return m, float("nan"), float("nan")
     half = float(stats.t.ppf(0.5 + level / 2, len(v) - 1) * v.std(ddof=1) / np.sqrt(len(v)))
-    return m, m - half, m + half
+    low, high = m - half, m + half
+    if bounds is not None:
+        low, high = max(low, bounds[0]), min(high, bounds[1])
+    return m, low, high
 
 
 def compare(
@@ -156,7 +171,8 @@ def compare(
         episodes[spec] = records
         summary[spec] = {}
         for key in COMPARE_FIGURES:
-            m, lo, hi = mean_ci(np.array([r[key] for r in records], dtype=float))
+            m, lo, hi = mean_ci(np.array([r[key] for r in records], dtype=float),
+                                bounds=FIGURE_BOUNDS.get(key, (0.0, np.inf)))
             summary[spec][key] = {"mean": m, "low": lo, "high": hi}
         if on_policy_done is not None:
             on_policy_done(_report(scenario, n_episodes, seed, list(summary), overrides,

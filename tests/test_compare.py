@@ -28,6 +28,17 @@ def test_mean_ci_is_the_student_t_interval():
     assert m == 5.0 and np.isnan(lo) and np.isnan(hi)
 
 
+def test_mean_ci_is_clipped_to_the_bounds():
+    counts = np.array([0.0, 0.0, 0.0, 12.0])  # the t interval reaches below 0
+    m, lo, hi = mean_ci(counts)
+    assert lo < 0
+    m_b, lo_b, hi_b = mean_ci(counts, bounds=(0.0, np.inf))
+    assert (m_b, lo_b, hi_b) == (m, 0.0, hi)
+    frac = np.array([1.0, 1.0, 1.0, 0.5])
+    assert mean_ci(frac)[2] > 1.0
+    assert mean_ci(frac, bounds=(0.0, 1.0))[2] == 1.0
+
+
 def test_time_to_localize_first_crossing_and_censoring():
     std = np.full((10, 2), 5.0)
     std[4:, 0] = 1.0  # robot 0: spread sqrt(2) * 1.0 = 1.41 < 1.5 from step index 4
