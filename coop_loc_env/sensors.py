@@ -478,31 +478,40 @@ class SensorSuite:
             in_view &= np.abs(bearing) <= fov / 2 + 1e-9
         oi, tj = np.nonzero(in_view)
         if len(oi):
-            los = self._line_of_sight(poses[oi, :2], poses[tj, :2], dist[oi, tj])
+            # rel_xy holds the pair offsets already: the unit lines of sight directly.
+            pair_dist = dist[oi, tj]
+            los = self._sight_clear(
+                poses[oi, :2], rel_xy[oi, tj] / np.maximum(pair_dist, 1e-9)[:, None], pair_dist
+            )
             oi, tj = oi[los], tj[los]
         seen_any = np.zeros(n, dtype=bool)
         seen_any[oi] = True
         detected = rng.random(len(oi)) < cfg.detection_prob
         oi, tj = oi[detected], tj[detected]
+        # False positives for robots with nothing in view.
+        fp_obs = np.nonzero(can & ~seen_any & (rng.random(n) < cfg.false_positive_prob))[0]
+        if len(oi) + len(fp_obs) == 0:
+            return _NO_DETECTIONS  # (draws of size 0 below would not touch the generator)
         true_z = np.stack(
             [dist[oi, tj], bearing[oi, tj], wrap_angle(poses[tj, 2] - poses[oi, 2])], axis=1
         )
-        # False positives for robots with nothing in view.
-        fp_obs = np.nonzero(can & ~seen_any & (rng.random(n) < cfg.false_positive_prob))[0]
-        fp_tgt = (fp_obs + rng.integers(1, n, size=len(fp_obs))) % n
-        half = min(fov / 2, np.pi)
-        fp_z = np.stack(
-            [
-                rng.uniform(2 * cfg.robot_radius, cfg.detector_range, len(fp_obs)),
-                rng.uniform(-half, half, len(fp_obs)),
-                rng.uniform(-np.pi, np.pi, len(fp_obs)),
-            ],
-            axis=1,
-        )
-        observer = np.concatenate([oi, fp_obs])
-        target = np.concatenate([tj, fp_tgt])
-        genuine = np.concatenate([np.ones(len(oi), bool), np.zeros(len(fp_obs), bool)])
-        z = np.concatenate([true_z, fp_z], axis=0)
+        if len(fp_obs):
+            fp_tgt = (fp_obs + rng.integers(1, n, size=len(fp_obs))) % n
+            half = min(fov / 2, np.pi)
+            fp_z = np.stack(
+                [
+                    rng.uniform(2 * cfg.robot_radius, cfg.detector_range, len(fp_obs)),
+                    rng.uniform(-half, half, len(fp_obs)),
+                    rng.uniform(-np.pi, np.pi, len(fp_obs)),
+                ],
+                axis=1,
+            )
+            observer = np.concatenate([oi, fp_obs])
+            target = np.concatenate([tj, fp_tgt])
+            genuine = np.concatenate([np.ones(len(oi), bool), np.zeros(len(fp_obs), bool)])
+            z = np.concatenate([true_z, fp_z], axis=0)
+        else:  # only true sightings (size-0 false-positive draws consume no randomness)
+            observer, target, genuine, z = oi, tj, np.ones(len(oi), bool), true_z
         std = self._detection_std(z[:, 0])
         noisy = z + std * rng.standard_normal(z.shape)
         noisy[:, 0] = np.maximum(noisy[:, 0], 0.05)
