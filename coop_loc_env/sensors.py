@@ -298,7 +298,9 @@ class SensorSuite:
         clo, chi = cfg.gps_canopy_satellites
         open_sky = rng.integers(lo, hi + 1, size=n)
         canopy = rng.integers(clo, chi + 1, size=n)
-        blend = np.clip(depth / 0.5, 0.0, 1.0)
+        blend = depth / 0.5
+        np.maximum(blend, 0.0, out=blend)  # np.clip without its wrapper
+        np.minimum(blend, 1.0, out=blend)
         sats = np.rint((1 - blend) * open_sky + blend * canopy).astype(int)
         sats = np.where(self.has_gps, sats, 0)
         fix = self.has_gps & active & (sats >= 4)

@@ -54,9 +54,14 @@ class Layout:
         points = np.asarray(points, dtype=float).reshape(-1, 2)
         if len(self.canopy_radii) == 0:
             return np.zeros(len(points))
-        d = np.linalg.norm(points[:, None, :] - self.canopy_centers[None], axis=2)
+        # linalg.norm's sqrt(x^2 + y^2) and clip's max/min, without their wrappers.
+        rel = points[:, None, :] - self.canopy_centers[None]
+        rel *= rel
+        d = np.sqrt(rel[..., 0] + rel[..., 1])
         depth = 1.0 - d / self.canopy_radii[None]
-        return np.clip(depth.max(1), 0.0, 1.0)
+        deepest = np.maximum.reduce(depth, axis=1)
+        np.maximum(deepest, 0.0, out=deepest)
+        return np.minimum(deepest, 1.0, out=deepest)
 
     def clearance(self, points: np.ndarray) -> np.ndarray:
         """Distance from each point to the nearest solid obstacle surface."""
