@@ -103,10 +103,12 @@ class HeightField:
     def pitch_roll(self, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Pitch (nose up positive) and roll of robots at ``poses (k, 3)``."""
         poses = np.asarray(poses, dtype=float).reshape(-1, 3)
-        g = self.gradient(poses[:, :2])
+        cells = self._cells(poses[:, :2])  # both slope components at the same cells
+        gx = self._bilinear(self.dzdx, poses[:, :2], cells)
+        gy = self._bilinear(self.dzdy, poses[:, :2], cells)
         c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
-        along = g[:, 0] * c + g[:, 1] * s
-        across = -g[:, 0] * s + g[:, 1] * c
+        along = gx * c + gy * s
+        across = -gx * s + gy * c
         return np.arctan(along), np.arctan(across)
 
     def is_steep(self, points: np.ndarray, among: np.ndarray | None = None) -> np.ndarray:
