@@ -192,16 +192,18 @@ class EKFBackend:
             r = np.zeros((len(sel), 2, 2))
             r[:, 0, 0] = r[:, 1, 1] = var
             ok = ekf.update_position(sel, readings.gps_xy[g[sel]], r)
-            stats["accepted"] += int(ok.sum())
-            stats["rejected"] += int((~ok).sum())
+            n_ok = np.count_nonzero(ok)
+            stats["accepted"] += n_ok
+            stats["rejected"] += len(ok) - n_ok
         compass = readings.compass_mask
         sel = np.nonzero(compass[g])[0] if np.count_nonzero(compass) else ()
         if len(sel):
             ok = ekf.update_heading(
                 sel, readings.compass[g[sel]], np.full(len(sel), cfg.compass_std**2)
             )
-            stats["accepted"] += int(ok.sum())
-            stats["rejected"] += int((~ok).sum())
+            n_ok = np.count_nonzero(ok)
+            stats["accepted"] += n_ok
+            stats["rejected"] += len(ok) - n_ok
         det = readings.detections
         if cfg.cooperative_updates and len(det):
             rows = [
@@ -221,8 +223,9 @@ class EKFBackend:
                     fusion=cfg.cooperative_fusion,
                     max_rounds=cfg.cooperative_rounds_per_step,
                 )
-                stats["cooperative"] += int(ok.sum())
-                stats["rejected"] += int((~ok).sum())
+                n_ok = np.count_nonzero(ok)
+                stats["cooperative"] += n_ok
+                stats["rejected"] += len(ok) - n_ok
         return stats
 
     def mean(self) -> np.ndarray:

@@ -53,8 +53,12 @@ class Belief:
     cov: np.ndarray
 
 
+_EYE3 = np.eye(3)
+_EYE3.flags.writeable = False
+
+
 def _check_finite(name: str, value: np.ndarray) -> None:
-    if not np.all(np.isfinite(value)):
+    if not np.isfinite(value).all():
         raise ValueError(f"{name} contains NaN or inf: {value!r}")
 
 
@@ -181,15 +185,20 @@ class PoseEKF:
         s_inv = np.linalg.inv(s)
         d2 = np.einsum("ki,kij,kj->k", nu, s_inv, nu)
         ok = self._gate(d2, nu.shape[1], gate_prob)
-        if not ok.any():
+        n_ok = np.count_nonzero(ok)
+        if not n_ok:
             return ok
-        gain = ph_t[ok] @ s_inv[ok]
-        dx = np.einsum("kij,kj->ki", gain, nu[ok])
-        sel = idx[ok]
+        if n_ok < len(ok):  # keep the accepted rows (all accepted: use them as they are)
+            ph_t, s_inv, nu, idx, jac, p, r = (
+                ph_t[ok], s_inv[ok], nu[ok], idx[ok], jac[ok], p[ok], r[ok]
+            )
+        gain = ph_t @ s_inv
+        dx = np.einsum("kij,kj->ki", gain, nu)
+        sel = idx
         self.mean[sel] += dx
         self.mean[sel, 2] = wrap_angle(self.mean[sel, 2])
-        i_kh = np.eye(3) - gain @ jac[ok]
-        p_new = i_kh @ p[ok] @ np.swapaxes(i_kh, 1, 2) + gain @ r[ok] @ np.swapaxes(gain, 1, 2)
+        i_kh = _EYE3 - gain @ jac
+        p_new = i_kh @ p @ np.swapaxes(i_kh, 1, 2) + gain @ r @ np.swapaxes(gain, 1, 2)
         self.cov[sel] = _symmetrize(p_new)
         return ok
 
