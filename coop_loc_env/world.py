@@ -240,11 +240,10 @@ class World:
             self._velocity_rows.append(pymunk.batch.Buffer())
             self._velocity_rows[-1].set_float_buf(row)
         self._state_batch = pymunk.batch.Buffer()
-        self._direct = _DirectBatch.make(self.space, self._velocity_rows, self._state_batch)
 
     def __getstate__(self) -> dict:
         state = self.__dict__.copy()
-        for key in ("_velocity_buffer", "_velocity_rows", "_state_batch", "_direct"):
+        for key in ("_velocity_buffer", "_velocity_rows", "_state_batch"):
             state.pop(key, None)
         return state
 
@@ -319,110 +318,17 @@ class World:
         vel[:-1, :n, 0] = vk * np.cos(heading[:-1])
         vel[:-1, :n, 1] = vk * np.sin(heading[:-1])
         vel[:-1, :n, 2] = wk
-        space, direct = self.space, self._direct
-        if direct is not None and direct.ready(space):
-            for k in range(n_sub):
-                direct.set_velocities(k)
-                direct.step(dt)
-            direct.set_velocities(n_sub)  # stop the robots
-            state = direct.poses()[:n]
-        else:
-            set_bodies = pymunk.batch.set_space_bodies
-            for row in self._velocity_rows[:-1]:
-                set_bodies(space, _VELOCITIES, row)
-                space.step(dt)
-            set_bodies(space, _VELOCITIES, self._velocity_rows[-1])  # stop the robots
-            batch = self._state_batch
-            batch.clear()
-            pymunk.batch.get_space_bodies(space, _POSE_FIELDS, batch)
-            state = np.frombuffer(batch.float_buf(), dtype=np.float64).reshape(-1, 3)[:n]
+        space, set_bodies = self.space, pymunk.batch.set_space_bodies
+        for row in self._velocity_rows[:-1]:
+            set_bodies(space, _VELOCITIES, row)
+            space.step(dt)
+        set_bodies(space, _VELOCITIES, self._velocity_rows[-1])  # stop the robots
+        batch = self._state_batch
+        batch.clear()
+        pymunk.batch.get_space_bodies(space, _POSE_FIELDS, batch)
+        state = np.frombuffer(batch.float_buf(), dtype=np.float64).reshape(-1, 3)[:n]
         self.poses[:] = state
         self._angles = state[:, 2].copy()  # unwrapped, as pymunk keeps them
         self.poses[:, 2] = (self.poses[:, 2] + np.pi) % (2 * np.pi) - np.pi
         return self.contacts["counts"] - before
 
-
-class _DirectBatch:
-    """The C calls behind ``pymunk.batch.set_space_bodies`` and ``Space.step``, set up once.
-
-    Each public call rebuilds its C argument struct and, for ``Space.step``,
-    runs bookkeeping for bodies added or removed and post-step callbacks;
-    the world steps a fixed space with none of those, so after the first step
-    (when pymunk checks the new bodies) it calls the same C functions directly.
-    :meth:`ready` falls back to the public API whenever that bookkeeping has work.
-    """
-
-    def __init__(
-        self, space: pymunk.Space, rows: list[pymunk.batch.Buffer], state: pymunk.batch.Buffer
-    ) -> None:
-        from pymunk._chipmunk import ffi, lib
-
-        self._lib = lib
-        self._ffi = ffi
-        self._space_ptr = space._space
-        self._set_fn = ffi.addressof(lib, "pmSpaceBodySetIteratorFuncBatched")
-        # get_space_bodies(space, POSITION | ANGLE, state), and a numpy view of its floats
-        # kept while pymunk's array neither moves nor changes length.
-        self._get_fn = ffi.addressof(lib, "pmSpaceBodyGetIteratorFuncBatched")
-        self._state = state
-        self._get_data = ffi.new("pmBatchedData *")
-        self._get_data.fields = _POSE_FIELDS.value
-        self._get_data.floatArray = state._float_arr
-        self._get_data.intArray = state._int_arr
-        self._view: np.ndarray | None = None
-        self._view_key: tuple = (None, -1)
-        self._rows = rows  # keeps the buffers (and their numpy rows) alive
-        self._data = []
-        for row in rows:
-            data = ffi.new("pmBatchedData *")
-            data.fields = _VELOCITIES.value
-            data.floatArray = row._float_arr
-            data.intArray = row._int_arr
-            self._data.append((data, row._float_arr))
-
-    @classmethod
-    def make(
-        cls, space: pymunk.Space, rows: list[pymunk.batch.Buffer], state: pymunk.batch.Buffer
-    ) -> _DirectBatch | None:
-        """The direct caller, or ``None`` when this pymunk lacks the expected internals."""
-        try:
-            direct = cls(space, rows, state)
-            direct.ready(space)
-        except (AttributeError, ImportError, TypeError):
-            return None
-        return direct
-
-    @staticmethod
-    def ready(space: pymunk.Space) -> bool:
-        """Whether ``Space.step`` would do nothing but the C step."""
-        return not (
-            space._bodies_to_check or space._add_later or space._remove_later
-            or space._post_step_callbacks or space.threaded
-        )
-
-    def set_velocities(self, k: int) -> None:
-        """``set_space_bodies(space, VELOCITY | ANGULAR_VELOCITY, rows[k])``."""
-        data, arr = self._data[k]
-        num = arr.num
-        arr.num = 0  # the iterator reads from the start
-        self._lib.cpSpaceEachBody(self._space_ptr, self._set_fn, data)
-        arr.num = num
-
-    def step(self, dt: float) -> None:
-        """``cpSpaceStep`` (no Python-side bookkeeping)."""
-        self._lib.cpSpaceStep(self._space_ptr, dt)
-
-    def poses(self) -> np.ndarray:
-        """``(bodies, 3)`` positions and angles, as ``get_space_bodies`` into the state buffer.
-
-        The returned array views pymunk's memory and is overwritten by the next call.
-        """
-        arr = self._state._float_arr
-        arr.num = 0  # overwrite from the start, as after Buffer.clear()
-        self._lib.cpSpaceEachBody(self._space_ptr, self._get_fn, self._get_data)
-        key = (arr.arr, arr.num)
-        if self._view is None or key[0] != self._view_key[0] or key[1] != self._view_key[1]:
-            buf = self._ffi.buffer(arr.arr, self._ffi.sizeof("cpFloat") * arr.num)
-            self._view = np.frombuffer(buf, dtype=np.float64).reshape(-1, 3)
-            self._view_key = key
-        return self._view
