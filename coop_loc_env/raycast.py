@@ -182,7 +182,7 @@ class FanCaster:
         same_fan = len(counts) > 0 and bool(np.all(counts == counts[0]))
         self.fans = (len(counts), int(counts[0]), 2) if robot_major and same_fan else None
         self._own_key: tuple[int, int] | None = None
-        self._extra_key: np.ndarray | None = None  # the read-only extra radii cached
+        self._extra_key: bytes | None = None  # the extra radii (as bytes) of the cached table
         self._radii_all = self.radii
         self._radii_sq = self.radii * self.radii
         self._own = (np.zeros(0, np.intp), np.zeros(0, np.intp))
@@ -266,12 +266,11 @@ class FanCaster:
         np.divide(1.0, inv, out=dist, where=inv > 0)  # misses keep inf
 
     def _all_radii(self, extra_radii: np.ndarray) -> np.ndarray:
-        """Static radii followed by ``extra_radii`` (reused while a read-only array repeats)."""
-        if extra_radii.flags.writeable or extra_radii is not self._extra_key:
+        """Static radii followed by ``extra_radii`` (reused while the same values repeat)."""
+        key = extra_radii.tobytes()
+        if key != self._extra_key:
             radii = np.concatenate([self.radii, extra_radii])
-            if extra_radii.flags.writeable:
-                return radii
-            self._extra_key, self._radii_all = extra_radii, radii
+            self._extra_key, self._radii_all = key, radii
             self._radii_sq = radii * radii
         return self._radii_all
 

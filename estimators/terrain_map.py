@@ -161,7 +161,8 @@ class TerrainMap:
         # Extra variance of footprint cells: unknown cross-slope over their offset.
         self._footprint_var = (self._footprint**2).sum(axis=1) * self.slope_floor**2
         self._fp_x, self._fp_y = self._footprint[:, 0].copy(), self._footprint[:, 1].copy()
-        self._valid_ids: np.ndarray | None = None  # a read-only id array already checked
+        self._valid_ids: np.ndarray | None = None  # an id array already checked ...
+        self._valid_bytes = b""  # ... and its contents then (a cache hit needs both)
         self._owner = np.zeros(0, dtype=np.intp)  # its samples' robot ids (footprint repeat)
         self.reset()
 
@@ -266,8 +267,8 @@ class TerrainMap:
 
     # ---------------------------------------------------------------- update
     def _ids(self, robot_ids: np.ndarray | int) -> np.ndarray:
-        if robot_ids is self._valid_ids:  # read-only and checked before
-            return robot_ids
+        if robot_ids is self._valid_ids and robot_ids.tobytes() == self._valid_bytes:
+            return robot_ids  # checked before, unchanged since
         ids = np.asarray(robot_ids)
         if ids.ndim == 0:
             ids = ids.reshape(1)
@@ -279,8 +280,8 @@ class TerrainMap:
         if len(set(lst)) != len(lst):
             raise ValueError(f"robot_ids must not repeat, got {robot_ids!r}")
         ids = ids.astype(np.intp, copy=False)
-        if ids is robot_ids and not ids.flags.writeable:
-            self._valid_ids = ids
+        if ids is robot_ids:
+            self._valid_ids, self._valid_bytes = ids, ids.tobytes()
             self._owner = np.repeat(ids, self._footprint.shape[0])
         return ids
 

@@ -1,9 +1,11 @@
 """Per-step results shared between modules give what each module computes on its own."""
 
 import numpy as np
+import pytest
 
 import coop_loc_env
 from coop_loc_env.depth_from_motion import DepthFromMotion
+from estimators.terrain_map import TerrainMap
 
 
 def _env(n=4, **kw):
@@ -90,3 +92,28 @@ def test_fan_caster_reuses_read_only_radii_with_the_same_hits():
         other = np.full(len(poses), 0.5)  # a different radius is not served from the cache
         caster.cast(poses, poses[:, :2], other)
         np.testing.assert_array_equal(caster.cast(poses, poses[:, :2], const), fresh)
+
+
+def test_caches_follow_the_values_not_the_array_object():
+    env = _env(6)
+    caster = env.sensors._ray_groups[0][1]
+    poses = env.world.poses
+    base = np.array(env.sensors._robot_radii)
+    radii = base.view()
+    radii.flags.writeable = False  # a read-only view of data that can still change
+    caster.cast(poses, poses[:, :2], radii)  # cached
+    base[:] = 2.0
+    np.testing.assert_array_equal(
+        caster.cast(poses, poses[:, :2], radii), caster.cast(poses, poses[:, :2], radii.copy())
+    )
+    tmap = TerrainMap(3, (10.0, 10.0), resolution=1.0)
+    base = np.array([0, 1])
+    ids = base.view()
+    ids.flags.writeable = False
+    tmap.set_robot_elevation(ids, 0.0)  # checked and cached
+    base[:] = [2, 2]
+    with pytest.raises(ValueError, match="must not repeat"):
+        tmap.set_robot_elevation(ids, 0.0)
+    base[:] = [5, 7]
+    with pytest.raises(ValueError, match=r"must lie in \[0, 3\)"):
+        tmap.set_robot_elevation(ids, 0.0)
