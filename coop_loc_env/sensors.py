@@ -432,19 +432,8 @@ class SensorSuite:
             self._masked_key = key
         return self._masked
 
-    def _line_of_sight(
-        self,
-        origins: np.ndarray,
-        targets: np.ndarray,
-        dist: np.ndarray,
-        exclude_ooi: np.ndarray | None = None,
-    ) -> np.ndarray:
-        """Whether nothing static blocks the segment from each origin to its target."""
-        d = (targets - origins) / np.maximum(dist, 1e-9)[:, None]
-        return self._sight_clear(origins, d, dist)
-
     def _sight_clear(self, origins: np.ndarray, d: np.ndarray, dist: np.ndarray) -> np.ndarray:
-        """:meth:`_line_of_sight` given the unit directions ``d`` to the targets."""
+        """Whether nothing static blocks the segments from ``origins`` along unit ``d``."""
         centers, radii, seg_a, seg_b = self._sight_shapes
         # Both ends lie inside the world, so its walls never block. The target itself
         # may be a circle in the scene (an OOI): allow hits at its surface.
