@@ -48,6 +48,7 @@ from scipy.stats import chi2
 from estimators.geometry import relative_pose, wrap_angle
 from estimators.pose_graph import (
     COMPONENTS,
+    DEFAULT_MIN_RANGE,
     PoseGraph,
     SolveResult,
     compose,
@@ -143,7 +144,8 @@ class TeamMLE:
         Minimum odometry time (s) of the observer between two accepted observations
         of the same ordered pair; more frequent ones are ignored.
     min_range:
-        Measured ranges below this (m) have their bearing dropped (undefined).
+        Measured ranges below this (m) have their bearing dropped (undefined); the
+        observation derivatives floor the estimated range at it too.
     keyframe_interval:
         An accepted observation starts fresh keyframes for both robots when they have
         integrated at least this much odometry (s) since their last one, so the
@@ -242,8 +244,12 @@ class TeamMLE:
             raise ValueError(f"initial_std must be (3,) or ({n}, 3) of std devs >= 0, got "
                              f"{initial_std!r}")
 
-        self.graph = PoseGraph()
-        self.history: PoseGraph | None = PoseGraph() if keep_history else None
+        # Observation derivatives floor the estimated range at min_range too: two
+        # estimates micrometres apart would otherwise give a bearing information of
+        # ~1e14 and an information matrix too ill-conditioned for its marginals.
+        floor = max(self.min_range, DEFAULT_MIN_RANGE)
+        self.graph = PoseGraph(min_range=floor)
+        self.history: PoseGraph | None = PoseGraph(min_range=floor) if keep_history else None
         self._last = np.zeros(n, dtype=int)
         self._nodes: list[deque[int]] = [deque() for _ in range(n)]
         self._odom = [OdometryIntegrator.zero() for _ in range(n)]
