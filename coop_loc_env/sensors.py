@@ -10,6 +10,7 @@ full rate through the physics substeps).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -39,7 +40,7 @@ class Detections:
         return len(self.observer)
 
 
-@dataclass
+@dataclass(frozen=True)
 class CameraSightings:
     """The visible (observer, target) pairs of one camera frame, in (observer, target) order.
 
@@ -50,7 +51,7 @@ class CameraSightings:
 
     observer: np.ndarray  # (k,) ints
     target: np.ndarray  # (k,) ints
-    bearing: list[float]
+    bearing: Sequence[float]
     offset: np.ndarray  # (k, 2)
     dist: np.ndarray  # (k,)
 
@@ -94,7 +95,7 @@ def _no_detections() -> Detections:
 
 _NO_DETECTIONS = _no_detections()
 _NO_SIGHTINGS = CameraSightings(
-    np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp), [], np.zeros((0, 2)), np.zeros(0)
+    np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp), (), np.zeros((0, 2)), np.zeros(0)
 )
 for _arr in (_NO_SIGHTINGS.observer, _NO_SIGHTINGS.target, _NO_SIGHTINGS.offset,
              _NO_SIGHTINGS.dist):
