@@ -21,7 +21,7 @@ from coop_loc_env.world import World
 from estimators.geometry import wrap_angle
 
 
-@dataclass
+@dataclass(frozen=True)
 class Detections:
     """Robot-detector output for one step: ``k`` sightings of ``target`` by ``observer``.
 
