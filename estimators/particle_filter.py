@@ -1120,7 +1120,9 @@ class ParticleFilter:
         denom = np.outer(std, std)
         with np.errstate(divide="ignore", invalid="ignore"):
             corr = np.where(denom > 0, cov / np.where(denom > 0, denom, 1.0), 0.0)
-        circ_std = np.sqrt(-2.0 * np.log(max(resultant, 1e-300)))
+        # float32 headings can give a resultant a hair above 1: clamp, or the log turns
+        # positive and the square root NaN.
+        circ_std = np.sqrt(-2.0 * np.log(min(max(resultant, 1e-300), 1.0)))
         # egocentric histogram
         c, s = np.cos(mean[2]), np.sin(mean[2])
         fwd = c * d[0] + s * d[1]

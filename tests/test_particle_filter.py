@@ -592,6 +592,14 @@ def test_belief_features_fixed_size_and_informative():
     assert len(pf.belief_features(hist_cells=3, heading_bins=4)) == len(belief_feature_names(3, 4))
 
 
+@pytest.mark.parametrize("heading", [-2.9, -0.5, 0.2, 0.5])
+def test_belief_features_of_a_collapsed_heading_stay_finite(heading):
+    # float32 headings that all agree give a mean resultant a hair above 1
+    pf = ParticleFilter(room(), np.random.default_rng(0), MCLConfig(n_particles=3000))
+    pf.init_gaussian(np.array([5.0, 3.0, heading]), np.diag([0.1, 0.1, 1e-9]) ** 2, n=7)
+    assert np.all(np.isfinite(pf.belief_features()))
+
+
 def test_bad_inputs_raise_value_errors():
     g = room()
     pf = ParticleFilter(g, np.random.default_rng(0), MCLConfig(n_particles=50))
