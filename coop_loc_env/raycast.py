@@ -29,20 +29,32 @@ class RayScene:
 CHANNEL = {"laser": 0, "sonar": 1, "sight": 2}
 
 
+def _circle_hits(
+    origins: np.ndarray, dirs: np.ndarray, centers: np.ndarray, radii: np.ndarray
+) -> np.ndarray:
+    """``(R, C)`` distance along each ray to each circle's entry point (its exit point
+    for a ray starting inside); NaN where the ray's line misses, negative behind it."""
+    fx = origins[:, 0:1] - centers[:, 0]
+    fy = origins[:, 1:2] - centers[:, 1]
+    b = fx * dirs[:, 0:1] + fy * dirs[:, 1:2]
+    disc = b * b - (fx * fx + fy * fy - radii * radii)
+    with np.errstate(invalid="ignore"):
+        sq = np.sqrt(disc)  # NaN where the line misses
+    np.negative(b, out=b)
+    t = b - sq
+    np.add(b, sq, out=t, where=t < 0)  # origin inside the circle: exit point
+    return t
+
+
 def ray_circles(
     origins: np.ndarray, dirs: np.ndarray, centers: np.ndarray, radii: np.ndarray
 ) -> np.ndarray:
     """Distance along each ray to each circle, ``inf`` on a miss. Shape ``(R, C)``."""
     if len(centers) == 0:
         return np.full((len(origins), 0), np.inf)
-    fx = origins[:, 0:1] - centers[:, 0]
-    fy = origins[:, 1:2] - centers[:, 1]
-    b = fx * dirs[:, 0:1] + fy * dirs[:, 1:2]
-    disc = b * b - (fx * fx + fy * fy - radii * radii)
-    sq = np.sqrt(np.maximum(disc, 0.0))
-    t = -b - sq
-    t = np.where(t < 0, -b + sq, t)  # origin inside the circle: exit point
-    t[(disc < 0) | (t < 0)] = np.inf
+    t = _circle_hits(origins, dirs, centers, radii)
+    with np.errstate(invalid="ignore"):
+        t[~(t >= 0)] = np.inf  # NaN (a miss) fails the test too
     return t
 
 
@@ -50,22 +62,12 @@ def circles_block(
     origins: np.ndarray, dirs: np.ndarray, centers: np.ndarray, radii: np.ndarray,
     reach: np.ndarray,
 ) -> np.ndarray:
-    """Whether any circle cuts each ray closer than ``reach`` (``(R,)`` bool).
-
-    The hit distance per (ray, circle) is :func:`ray_circles`'
-    (entry point, or the exit point for a ray starting inside), computed the same way.
-    """
+    """Whether any circle cuts each ray closer than ``reach`` (``(R,)`` bool): the same
+    as ``ray_circles(...).min(1) < reach`` without the table of ``inf``."""
     if len(centers) == 0:
         return np.zeros(len(origins), dtype=bool)
-    fx = origins[:, 0:1] - centers[:, 0]
-    fy = origins[:, 1:2] - centers[:, 1]
-    b = fx * dirs[:, 0:1] + fy * dirs[:, 1:2]
-    disc = b * b - (fx * fx + fy * fy - radii * radii)
-    with np.errstate(invalid="ignore"):
-        sq = np.sqrt(disc)  # NaN where the ray misses: every comparison below is False
-        np.negative(b, out=b)
-        t = b - sq
-        np.add(b, sq, out=t, where=t < 0)  # origin inside the circle: exit point
+    t = _circle_hits(origins, dirs, centers, radii)
+    with np.errstate(invalid="ignore"):  # NaN (a miss) fails both tests
         return np.logical_or.reduce((t >= 0) & (t < reach[:, None]), axis=1)
 
 
@@ -205,8 +207,8 @@ class FanCaster:
         Args:
             poses: ``(n, 3)`` robot poses (rows indexed by ``ray_robot``).
             extra_centers, extra_radii: moving circles (the robots) ``(E, 2)``, ``(E,)``;
-                the circle with a ray's own robot index is skipped. A read-only
-                ``extra_radii`` is taken as constant: its combined radii are reused.
+                the circle with a ray's own robot index is skipped. The combined
+                radii are reused while ``extra_radii`` holds the same values.
         """
         rays = len(self.ray_robot)
         dist = np.full(rays, np.inf)
@@ -225,14 +227,8 @@ class FanCaster:
             self._cast_circles(poses, centers, radii, n_static, dirs, origins, dist)
         if len(self.seg_a):
             np.minimum(dist, ray_segments(origins, dirs, self.seg_a, self.seg_b).min(1), out=dist)
-        if self.bounds is not None:  # ray_box, merged column by column (no reduction)
-            wall = np.where(dirs > 0, self._bounds_xy, 0.0)
-            wall -= origins
-            with np.errstate(divide="ignore"):
-                wall /= dirs
-            np.abs(wall, out=wall)
-            np.minimum(dist, wall[:, 0], out=dist)
-            np.minimum(dist, wall[:, 1], out=dist)
+        if self._bounds_xy is not None:
+            ray_box(origins, dirs, self._bounds_xy, out=dist)
         return dist
 
     def _dense_circles(self, poses, centers, radii, n_static, dirs, origins, dist) -> None:
@@ -338,10 +334,23 @@ class FanCaster:
 _KEY_STRIDE = 8.0  # > 2 pi: separates robots in the sorted ray keys
 
 
-def ray_box(origins: np.ndarray, dirs: np.ndarray, size: tuple[float, float]) -> np.ndarray:
-    """Distance from points inside ``[0, w] x [0, h]`` along ``dirs`` to the box's walls."""
+def ray_box(
+    origins: np.ndarray,
+    dirs: np.ndarray,
+    size: tuple[float, float] | np.ndarray,
+    out: np.ndarray | None = None,
+) -> np.ndarray:
+    """Distance from points inside ``[0, w] x [0, h]`` along ``dirs`` to the box's walls.
+
+    With ``out``, the element-wise minimum of ``out`` and those distances is written
+    into ``out`` (column by column, without a reduction) and returned.
+    """
     wall = np.where(dirs > 0, size, 0.0)
     wall -= origins
     with np.errstate(divide="ignore"):
         wall /= dirs
-    return np.abs(wall, out=wall).min(1)
+    np.abs(wall, out=wall)
+    if out is None:
+        return wall.min(1)
+    np.minimum(out, wall[:, 0], out=out)
+    return np.minimum(out, wall[:, 1], out=out)

@@ -102,6 +102,21 @@ for _arr in (_NO_SIGHTINGS.observer, _NO_SIGHTINGS.target, _NO_SIGHTINGS.offset,
     _arr.flags.writeable = False
 
 
+def _noisy_ranges(
+    ranges: np.ndarray, std: np.ndarray | float, rmax: np.ndarray | float,
+    rng: np.random.Generator,
+) -> np.ndarray:
+    """True ``ranges`` plus Gaussian noise of ``std``, clipped to ``[0, rmax]``; beams
+    that returned nothing (``ranges >= rmax``) read exactly ``rmax``. A new array."""
+    out = rng.standard_normal(ranges.shape)
+    out *= std
+    out += ranges
+    np.maximum(out, 0.0, out=out)
+    np.minimum(out, rmax, out=out)
+    np.copyto(out, rmax, where=ranges >= rmax)
+    return out
+
+
 def _due(step: int, dt: float, rate: float) -> bool:
     """Whether a sensor of ``rate`` Hz fires during env step ``step`` (0-based)."""
     return int((step + 1) * dt * rate + 1e-9) > int(step * dt * rate + 1e-9)
@@ -188,7 +203,7 @@ class SensorSuite:
         )[:, None]
         self._no_range = ~self.has_range
         self._robot_radii = np.full(n, self.cfg.robot_radius)
-        self._robot_radii.flags.writeable = False  # constant: the caster reuses its radii
+        self._robot_radii.flags.writeable = False  # constant for the episode
         # Fast path: one caster whose rays are exactly the (robot, beam) grid, row-major,
         # with one noise level and one maximum range for the whole team (all lasers).
         grid = len(self._ray_groups) == 1 and np.array_equal(
@@ -337,9 +352,7 @@ class SensorSuite:
             ranges[rob, self._ray_beam] = dist
         else:
             np.minimum.at(ranges, (rob, self._ray_beam), dist)
-        rmax = self.range_max[:, None]
-        noisy = ranges + self.range_std[:, None] * rng.standard_normal(ranges.shape)
-        out = np.where(ranges >= rmax, rmax, np.clip(noisy, 0.0, rmax))
+        out = _noisy_ranges(ranges, self.range_std[:, None], self.range_max[:, None], rng)
         out[self._beam_pad] = np.nan
         out[self._no_range | ~active] = np.nan
         return out
@@ -351,13 +364,7 @@ class SensorSuite:
         n = len(poses)
         ranges = self._ray_groups[0][1].cast(poses, poses[:, :2], self._robot_radii)
         ranges = ranges.reshape(n, self.max_beams)
-        rmax, std = float(self.range_max[0]), float(self.range_std[0])
-        out = rng.standard_normal(ranges.shape)
-        out *= std
-        out += ranges
-        np.maximum(out, 0.0, out=out)
-        np.minimum(out, rmax, out=out)
-        np.copyto(out, rmax, where=ranges >= rmax)
+        out = _noisy_ranges(ranges, float(self.range_std[0]), float(self.range_max[0]), rng)
         if np.count_nonzero(active) < n:
             out[~active] = np.nan
         return out
@@ -548,4 +555,3 @@ class SensorSuite:
             std[:, 1] = cfg.detection_bearing_std
         std[:, 2] = cfg.detection_orientation_std
         return std
-

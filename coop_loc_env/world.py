@@ -331,4 +331,3 @@ class World:
         self._angles = state[:, 2].copy()  # unwrapped, as pymunk keeps them
         self.poses[:, 2] = (self.poses[:, 2] + np.pi) % (2 * np.pi) - np.pi
         return self.contacts["counts"] - before
-
