@@ -125,7 +125,10 @@ def team_odometry(
 
 @functools.lru_cache(maxsize=16)
 def _arange(n: int) -> np.ndarray:
-    return np.arange(n)
+    """``np.arange(n)``, made once per ``n`` and read-only (it is shared)."""
+    out = np.arange(n)
+    out.flags.writeable = False
+    return out
 
 
 def _odometry_variance(slip: np.ndarray, encoder_std: float, scale: float) -> np.ndarray:

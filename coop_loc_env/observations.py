@@ -64,7 +64,7 @@ class ObservationBuilder:
         self._bind_views()
         self.range[:] = 1.0
         self._det_written = False
-        self._range_key: np.ndarray | None = None
+        self._range_key: bytes | None = None
         self._range_mixed = True
 
     def _bind_views(self) -> None:
@@ -123,13 +123,13 @@ class ObservationBuilder:
             self.incl[m, 1] = readings.roll[m]
         m = readings.range_mask
         fired = np.count_nonzero(m)
-        if fired == m.size:
-            scale = max_range[:, None] if self._mixed_range(max_range) else float(max_range[0])
-            self.range[:] = _pool(readings.ranges / scale, cfg.laser_obs_bins)
-        elif fired:  # pool every row (each on its own), keep the robots that scanned
+        if fired:
             scale = max_range[:, None] if self._mixed_range(max_range) else float(max_range[0])
             pooled = _pool(readings.ranges / scale, cfg.laser_obs_bins)
-            np.copyto(self.range, pooled, where=m[:, None])
+            if fired == m.size:
+                self.range[:] = pooled
+            else:  # every row pooled on its own: keep the robots that scanned
+                np.copyto(self.range, pooled, where=m[:, None])
         det = readings.detections
         if self._det_written:
             self.det[:] = 0.0
@@ -151,9 +151,10 @@ class ObservationBuilder:
                 slot[i] = s + 1
 
     def _mixed_range(self, max_range: np.ndarray) -> bool:
-        """Whether the robots' maximum ranges differ (cached per array)."""
-        if self._range_key is not max_range:
-            self._range_key = max_range
+        """Whether the robots' maximum ranges differ (cached per set of values)."""
+        key = max_range.tobytes()
+        if self._range_key != key:
+            self._range_key = key
             self._range_mixed = len(set(np.asarray(max_range).tolist())) > 1
         return self._range_mixed
 

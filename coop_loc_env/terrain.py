@@ -98,14 +98,17 @@ class HeightField:
 
     def gradient(self, points: np.ndarray) -> np.ndarray:
         """``(dz/dx, dz/dy)`` at ``points``, shape ``(k, 2)``."""
-        return np.stack([self._bilinear(self.dzdx, points), self._bilinear(self.dzdy, points)], 1)
+        return np.stack(self._slopes(points), 1)
+
+    def _slopes(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``dz/dx`` and ``dz/dy`` at ``points``, each ``(k,)`` (cells looked up once)."""
+        cells = self._cells(points)
+        return self._bilinear(self.dzdx, points, cells), self._bilinear(self.dzdy, points, cells)
 
     def pitch_roll(self, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Pitch (nose up positive) and roll of robots at ``poses (k, 3)``."""
         poses = np.asarray(poses, dtype=float).reshape(-1, 3)
-        cells = self._cells(poses[:, :2])  # both slope components at the same cells
-        gx = self._bilinear(self.dzdx, poses[:, :2], cells)
-        gy = self._bilinear(self.dzdy, poses[:, :2], cells)
+        gx, gy = self._slopes(poses[:, :2])
         c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
         along = gx * c + gy * s
         across = -gx * s + gy * c

@@ -286,19 +286,14 @@ class TerrainMap:
         return ids
 
     def _flat_index(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Flat cell indices of finite world coordinates and the mask of those inside."""
-        fi = (x - self.origin[0]) * (1.0 / self.resolution)
-        fj = (y - self.origin[1]) * (1.0 / self.resolution)
-        # Negative values truncate towards 0, so test the floats, then cast.
-        inside = (fi >= 0) & (fi < self.shape[0]) & (fj >= 0) & (fj < self.shape[1])
-        flat = fi.astype(np.intp)
-        flat *= self.shape[1]
-        flat += fj.astype(np.intp)
-        return flat, inside
+        """:meth:`_flat_index_xy` of world coordinates ``x``, ``y`` of any (equal) shape."""
+        flat, inside = self._flat_index_xy(np.stack([np.ravel(x), np.ravel(y)], 1))
+        return flat.reshape(np.shape(x)), inside.reshape(np.shape(x))
 
     def _flat_index_xy(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`_flat_index` of points ``(k, 2)``."""
+        """Flat cell indices of finite world points ``(k, 2)`` and the mask of those inside."""
         f = (xy - self._origin_xy if self._origin_xy is not None else xy) * (1.0 / self.resolution)
+        # Negative values truncate towards 0, so test the floats, then cast.
         ok = f >= 0
         ok &= f < self._shape_xy
         inside = ok[:, 0] & ok[:, 1]
