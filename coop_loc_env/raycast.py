@@ -183,6 +183,13 @@ class FanCaster:
         robot_major = bool(np.all(np.diff(self.ray_slot) >= 0))
         same_fan = len(counts) > 0 and bool(np.all(counts == counts[0]))
         self.fans = (len(counts), int(counts[0]), 2) if robot_major and same_fan else None
+        # Fan angles per robot (rows), and the team size for which the fans' robots are
+        # 0 .. n - 1 in order (then poses are sliced, not gathered).
+        self._fan_angles = (
+            self.ray_angle.reshape(self.fans[:2]) if self.fans is not None else None
+        )
+        all_rows = np.array_equal(self.robots, np.arange(len(self.robots)))
+        self._robots_are_all = len(self.robots) if all_rows else -1
         self._own_key: tuple[int, int] | None = None
         self._extra_key: bytes | None = None  # the extra radii (as bytes) of the cached table
         self._radii_all = self.radii
@@ -211,17 +218,20 @@ class FanCaster:
                 radii are reused while ``extra_radii`` holds the same values.
         """
         rays = len(self.ray_robot)
+        centers, radii, n_static = self.centers, self.radii, len(self.radii)
+        if extra_centers is not None and len(extra_centers):
+            centers = np.concatenate([centers, extra_centers])
+            radii = self._all_radii(extra_radii)
+        dense = len(radii) * rays <= self.dense_limit
+        if dense and self.fans is not None and not len(self.seg_a):
+            return self._cast_fans(poses, centers, radii, n_static)
         dist = np.full(rays, np.inf)
         if rays == 0:
             return dist
         heading = poses[self.ray_robot, 2] + self.ray_angle
         dirs = np.exp(1j * heading).view(np.float64).reshape(rays, 2)  # (cos, sin)
         origins = poses[self.ray_robot, :2]
-        centers, radii, n_static = self.centers, self.radii, len(self.radii)
-        if extra_centers is not None and len(extra_centers):
-            centers = np.concatenate([centers, extra_centers])
-            radii = self._all_radii(extra_radii)
-        if len(radii) * rays <= self.dense_limit:
+        if dense:
             self._dense_circles(poses, centers, radii, n_static, dirs, origins, dist)
         else:
             self._cast_circles(poses, centers, radii, n_static, dirs, origins, dist)
@@ -230,6 +240,39 @@ class FanCaster:
         if self._bounds_xy is not None:
             ray_box(origins, dirs, self._bounds_xy, out=dist)
         return dist
+
+    def _cast_fans(
+        self, poses: np.ndarray, centers: np.ndarray, radii: np.ndarray, n_static: int
+    ) -> np.ndarray:
+        """:meth:`cast` for equal fans, rays robot-major, circles and box only (small teams).
+
+        Every ray meets every circle in one ``(robots, circles, rays)`` table (see
+        :meth:`_dense_circles` for the algebra); the nearest positive ``1 / t`` is
+        reduced over the circles axis, with ``0`` (no hit) as the starting value.
+        """
+        n_fans, n_rays, _ = self.fans
+        rows = slice(None) if self._robots_are_all == len(poses) else self.robots
+        xy = poses[rows, None, :2]  # (robots, 1, 2)
+        heading = poses[rows, 2:3] + self._fan_angles  # (robots, rays)
+        dirs = np.exp(1j * heading).view(np.float64).reshape(n_fans, n_rays, 2)
+        rel = centers[None] - xy  # (robots, circles, 2)
+        q = np.einsum("rck,rck->rc", rel, rel)  # |c - o|^2
+        q -= self._squared(radii)
+        if len(radii) > n_static:
+            own = self._own_circles(len(radii), n_static)
+            q[own[0], own[1]] = np.inf
+        b = np.matmul(rel, dirs.transpose(0, 2, 1))  # (robots, circles, rays)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            disc = b * b
+            disc -= q[:, :, None]
+            np.sqrt(disc, out=disc)  # NaN where a ray misses
+            b -= disc
+            np.reciprocal(b, out=b)
+            inv = np.fmax.reduce(b, axis=1, initial=0.0)  # 0 where no circle is hit
+            dist = np.divide(1.0, inv, out=inv)  # inf there
+        if self._bounds_xy is not None:
+            ray_box(xy, dirs, self._bounds_xy, out=dist)
+        return dist.reshape(-1)
 
     def _dense_circles(self, poses, centers, radii, n_static, dirs, origins, dist) -> None:
         """Every ray against every circle, in few array operations (small teams).
@@ -342,8 +385,9 @@ def ray_box(
 ) -> np.ndarray:
     """Distance from points inside ``[0, w] x [0, h]`` along ``dirs`` to the box's walls.
 
-    With ``out``, the element-wise minimum of ``out`` and those distances is written
-    into ``out`` (column by column, without a reduction) and returned.
+    ``dirs`` has shape ``(..., 2)`` and ``origins`` broadcasts against it; the result
+    has ``dirs``' leading shape. With ``out``, the element-wise minimum of ``out`` and
+    those distances is written into ``out`` (per axis, without a reduction) and returned.
     """
     wall = np.where(dirs > 0, size, 0.0)
     wall -= origins
@@ -351,6 +395,6 @@ def ray_box(
         wall /= dirs
     np.abs(wall, out=wall)
     if out is None:
-        return wall.min(1)
-    np.minimum(out, wall[:, 0], out=out)
-    return np.minimum(out, wall[:, 1], out=out)
+        return wall.min(-1)
+    np.minimum(out, wall[..., 0], out=out)
+    return np.minimum(out, wall[..., 1], out=out)

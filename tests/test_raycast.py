@@ -83,6 +83,38 @@ def test_fan_caster_matches_brute_force_cast(seed, dense_limit):
         np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9)
 
 
+@pytest.mark.parametrize("robots", [[0, 1, 2, 3], [1, 3, 4]])
+@pytest.mark.parametrize("seed", range(3))
+def test_equal_fans_match_brute_force_cast(seed, robots):
+    """Equal fans, robot-major (the one-table path), also for a subset of the team."""
+    from coop_loc_env.raycast import FanCaster
+
+    rng = np.random.default_rng(seed)
+    n_circles, n_robots = 30, 5
+    scene = RayScene(
+        circle_centers=rng.uniform(0, 20, (n_circles, 2)),
+        circle_radii=rng.uniform(0.1, 1.5, n_circles),
+        circle_mask=np.ones((n_circles, 3), bool),
+        seg_a=np.zeros((0, 2)), seg_b=np.zeros((0, 2)), seg_mask=np.zeros((0, 3), bool),
+        bounds=(20.0, 20.0),
+    )
+    spots = rng.uniform(0.5, 19.5, (400, 2))
+    gap = np.linalg.norm(spots[:, None] - scene.circle_centers[None], axis=2) - scene.circle_radii
+    spots = spots[gap.min(1) > 0.4]
+    poses = np.column_stack([spots[:n_robots], rng.uniform(-4, 4, n_robots)])
+    ray_robot = np.repeat(robots, 30)
+    ray_angle = np.tile(np.linspace(-np.pi / 2, np.pi / 2, 30), len(robots))
+    radii = np.full(n_robots, 0.35)
+    fan = FanCaster(scene, 0, ray_robot, ray_angle, np.full(len(ray_robot), 1e3))
+    assert fan.fans == (len(robots), 30, 2)
+    got = fan.cast(poses, poses[:, :2], radii)
+    heading = poses[ray_robot, 2] + ray_angle
+    dirs = np.stack([np.cos(heading), np.sin(heading)], 1)
+    want, _ = cast(scene, poses[ray_robot, :2], dirs, 0, poses[:, :2], radii, ray_robot)
+    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9)
+    assert np.isfinite(got).all()  # the walls stop every ray
+
+
 def test_fan_caster_ignores_circles_beyond_its_range_but_not_walls():
     from coop_loc_env.raycast import FanCaster
 
