@@ -10,6 +10,7 @@ from gymnasium import spaces
 from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
 
+from coop_loc_env.camera import CameraPipeline
 from coop_loc_env.config import ScenarioConfig
 from coop_loc_env.depth_from_motion import CameraRecord, DepthFromMotion
 from coop_loc_env.estimation import GAUSSIAN_FEATURE_NAMES, make_backends
@@ -79,9 +80,11 @@ class CoopLocParallelEnv(ParallelEnv):
         self._speed_limits = np.stack([self.world.max_speed, self.world.max_turn_rate], axis=1)
         self.sensors = SensorSuite(cfg, self.world)
         self.sensors.camera_lists = False  # depth from motion reads the camera_sightings
+        self.sensors.defer_camera = True  # the camera pipeline runs when its records are read
         self.backends = make_backends(cfg, self.world)
         self.mapper = TeamMapper(cfg, self.world)
         self.depth = DepthFromMotion(cfg, len(self.world.layout.ooi_centers))
+        self.camera = CameraPipeline(self.sensors, self.depth, self.world.layout.ooi_centers)
         belief_size = max(b.feature_size for b in self.backends)
         belief_names = GAUSSIAN_FEATURE_NAMES if belief_size == len(GAUSSIAN_FEATURE_NAMES) else ()
         for b in self.backends:
@@ -136,6 +139,9 @@ class CoopLocParallelEnv(ParallelEnv):
     @property
     def last_readings(self) -> Readings | None:
         """The sensor readings of the last step (``None`` right after :meth:`reset`)."""
+        if self._last_readings is not None and not self._camera_filled:
+            self.camera.fill(self._last_readings)  # the camera runs when first read
+            self._camera_filled = True
         return self._last_readings
 
     @property
@@ -151,7 +157,7 @@ class CoopLocParallelEnv(ParallelEnv):
         range with its standard deviation.
         """
         self._check_agent_name(agent)
-        return list(self._camera[self.agent_name_mapping[agent]])
+        return list(self.camera.records()[self.agent_name_mapping[agent]])
 
     def mark_object(self, agent: str, x: float, y: float, radius: float = 0.0) -> int:
         """``agent`` reports an object of interest at world ``(x, y)`` to the team map.
@@ -171,7 +177,7 @@ class CoopLocParallelEnv(ParallelEnv):
         self._est_mean = np.zeros((n, 3))
         self._est_cov = np.repeat(np.eye(3)[None], n, axis=0)
         self._last_readings: Readings | None = None
-        self._camera: list[list[CameraRecord]] = [[] for _ in range(n)]
+        self._camera_filled = False
         self._new_cells = np.zeros(n, dtype=np.int64)
 
     def reset(
@@ -185,7 +191,7 @@ class CoopLocParallelEnv(ParallelEnv):
         self.world.reset(rng)
         for backend in self.backends:
             backend.reset(self.world.poses, rng)
-        self.depth.reset(self.world.poses)
+        self.camera.reset(self.world.poses, rng)
         self.observations.reset()
         self._gather_beliefs()
         self.mapper.reset(self.world.poses, self._est_mean, self._est_cov)
@@ -211,12 +217,9 @@ class CoopLocParallelEnv(ParallelEnv):
         poses = self.world.poses
         # The wheel encoders see the command at every substep.
         readings = self.sensors.read(self._step_count, poses, cmd, rng, self._active)
-        self._camera = self.depth.process(
-            readings.camera, readings.camera_mask, poses, self.world.layout.ooi_centers, rng,
-            readings.camera_sightings,
-        )
-        readings.camera = [[(c.kind, c.id, c.bearing, c.range) for c in cs] for cs in self._camera]
+        self.camera.add_step(poses, readings.camera_mask)
         self._last_readings = readings
+        self._camera_filled = False
         for backend in self.backends:
             backend.step(readings, self._active)
         self._gather_beliefs()

@@ -148,6 +148,9 @@ class SensorSuite:
         # Whether read() fills Readings.camera with (kind, id, bearing, noisy range) lists;
         # the env turns it off, as depth from motion replaces those ranges.
         self.camera_lists = True
+        # Whether read() leaves the camera's frame to the caller (it still sets
+        # camera_mask); the env does, and runs camera_frame when the camera is read.
+        self.defer_camera = False
         self._odo_std = np.array([cfg.odom_v_std, cfg.odom_w_std])
         self._any_detector = bool(self.has_detector.any())
         self._not_self: np.ndarray | None = None
@@ -258,11 +261,14 @@ class SensorSuite:
             range_mask = self.has_range & active
             ranges = self._scan(poses, rng, active)
         camera_mask = idle["mask"]
-        camera: list[list[tuple[str, int, float, float]]] = [[] for _ in range(n)]
+        camera: list[list[tuple[str, int, float, float]]] = []  # deferred: the caller fills it
         sightings = None
+        if not self.defer_camera:
+            camera = [[] for _ in range(n)]
         if _due(step, dt, cfg.camera_rate) and self._any_camera:
             camera_mask = self.has_camera & active
-            camera, sightings = self._camera(poses, rng, camera_mask)
+            if not self.defer_camera:
+                camera, sightings = self.camera_frame(poses, rng, camera_mask)
         detections = _NO_DETECTIONS
         if _due(step, dt, cfg.detector_rate) and self._any_detector and n > 1:
             detections = self._detect(poses, rng, active)
@@ -370,7 +376,7 @@ class SensorSuite:
         return out
 
     # ------------------------------------------------------------------ camera
-    def _camera(
+    def camera_frame(
         self, poses: np.ndarray, rng: np.random.Generator, mask: np.ndarray
     ) -> tuple[list[list[tuple[str, int, float, float]]], CameraSightings]:
         """Objects of interest and robots in the camera's view, bearing quantized to pixels.

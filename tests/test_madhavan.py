@@ -28,7 +28,9 @@ def test_scenario_is_registered():
 
 def test_outage_std_grows_and_falls_at_cooperative_updates(result):
     a, b = result["outage_s"]
-    assert 19.0 <= a <= 24.0 and b - a >= 8.0  # DGPS lost around t = 21 s, as in the paper
+    # DGPS lost around t = 21 s, as in the paper; where exactly depends on the satellites
+    # drawn at the canopy's edge (18-22 s over seeds 0-7).
+    assert 17.0 <= a <= 24.0 and b - a >= 8.0
     fix = result["gps_fix"]
     t = result["time_s"]
     inside = (t >= a) & (t < b)

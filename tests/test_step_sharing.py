@@ -43,7 +43,7 @@ def test_depth_from_camera_sightings_matches_depth_from_camera_lists():
         env.step({a: rng.uniform(-1, 1, 2) for a in env.agents})
         poses = env.world.poses
         mask = rng.random(len(poses)) < 0.8
-        cam, sightings = sensors._camera(poses, np.random.default_rng(2), mask)
+        cam, sightings = sensors.camera_frame(poses, np.random.default_rng(2), mask)
         a = by_lists.process(cam, mask, poses, env.world.layout.ooi_centers,
                              np.random.default_rng(3))
         b = by_arrays.process([[] for _ in cam], mask, poses, env.world.layout.ooi_centers,
