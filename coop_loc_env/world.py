@@ -240,10 +240,11 @@ class World:
             self._velocity_rows.append(pymunk.batch.Buffer())
             self._velocity_rows[-1].set_float_buf(row)
         self._state_batch = pymunk.batch.Buffer()
+        self._batch = _BatchCalls.make(self.space, self._velocity_rows, self._state_batch)
 
     def __getstate__(self) -> dict:
         state = self.__dict__.copy()
-        for key in ("_velocity_buffer", "_velocity_rows", "_state_batch"):
+        for key in ("_velocity_buffer", "_velocity_rows", "_state_batch", "_batch"):
             state.pop(key, None)
         return state
 
@@ -318,16 +319,94 @@ class World:
         vel[:-1, :n, 0] = vk * np.cos(heading[:-1])
         vel[:-1, :n, 1] = vk * np.sin(heading[:-1])
         vel[:-1, :n, 2] = wk
-        space, set_bodies = self.space, pymunk.batch.set_space_bodies
-        for row in self._velocity_rows[:-1]:
-            set_bodies(space, _VELOCITIES, row)
-            space.step(dt)
-        set_bodies(space, _VELOCITIES, self._velocity_rows[-1])  # stop the robots
-        batch = self._state_batch
-        batch.clear()
-        pymunk.batch.get_space_bodies(space, _POSE_FIELDS, batch)
-        state = np.frombuffer(batch.float_buf(), dtype=np.float64).reshape(-1, 3)[:n]
+        space, batch = self.space, self._batch
+        if batch is not None:
+            for k in range(n_sub):
+                batch.set_velocities(k)
+                space.step(dt)
+            batch.set_velocities(n_sub)  # stop the robots
+            state = batch.poses()[:n]
+        else:
+            set_bodies = pymunk.batch.set_space_bodies
+            for row in self._velocity_rows[:-1]:
+                set_bodies(space, _VELOCITIES, row)
+                space.step(dt)
+            set_bodies(space, _VELOCITIES, self._velocity_rows[-1])  # stop the robots
+            self._state_batch.clear()
+            pymunk.batch.get_space_bodies(space, _POSE_FIELDS, self._state_batch)
+            state = np.frombuffer(self._state_batch.float_buf(), dtype=np.float64)
+            state = state.reshape(-1, 3)[:n]
         self.poses[:] = state
         self._angles = state[:, 2].copy()  # unwrapped, as pymunk keeps them
         self.poses[:, 2] = (self.poses[:, 2] + np.pi) % (2 * np.pi) - np.pi
         return self.contacts["counts"] - before
+
+
+class _BatchCalls:
+    """``pymunk.batch.set_space_bodies`` / ``get_space_bodies`` with their C argument
+    structs built once.
+
+    The public functions allocate and fill a ``pmBatchedData`` struct on every
+    call, and the world makes seven calls per step; here each is the same single
+    C call (``cpSpaceEachBody`` with pymunk's batch iterator). Only body data is
+    set and read this way: the world still steps through ``Space.step``, which
+    keeps pymunk's locking, deferred removals and post-step callbacks.
+    :meth:`make` returns ``None`` where this pymunk lacks these internals.
+    """
+
+    def __init__(
+        self, space: pymunk.Space, rows: list[pymunk.batch.Buffer], state: pymunk.batch.Buffer
+    ) -> None:
+        from pymunk._chipmunk import ffi, lib
+
+        self._lib, self._ffi = lib, ffi
+        self._space_ptr = space._space
+        self._set_fn = ffi.addressof(lib, "pmSpaceBodySetIteratorFuncBatched")
+        self._get_fn = ffi.addressof(lib, "pmSpaceBodyGetIteratorFuncBatched")
+        self._rows = rows  # keeps the buffers (and the numpy rows they point to) alive
+        self._set_data = [self._struct(_VELOCITIES, row) for row in rows]
+        self._state_arr = state._float_arr
+        self._get_data = self._struct(_POSE_FIELDS, state)
+        self._view: np.ndarray | None = None
+        self._view_key: tuple = (None, -1)
+
+    def _struct(self, fields: pymunk.batch.BodyFields, buffer: pymunk.batch.Buffer):
+        data = self._ffi.new("pmBatchedData *")
+        data.fields = fields.value
+        data.floatArray = buffer._float_arr
+        data.intArray = buffer._int_arr
+        return data
+
+    @classmethod
+    def make(
+        cls, space: pymunk.Space, rows: list[pymunk.batch.Buffer], state: pymunk.batch.Buffer
+    ) -> _BatchCalls | None:
+        """The prepared calls, or ``None`` when this pymunk lacks the expected internals."""
+        try:
+            return cls(space, rows, state)
+        except (AttributeError, ImportError, TypeError):
+            return None
+
+    def set_velocities(self, k: int) -> None:
+        """``set_space_bodies(space, VELOCITY | ANGULAR_VELOCITY, rows[k])``."""
+        data = self._set_data[k]
+        arr = data.floatArray
+        num = arr.num
+        arr.num = 0  # pymunk's iterator reads from the start
+        self._lib.cpSpaceEachBody(self._space_ptr, self._set_fn, data)
+        arr.num = num
+
+    def poses(self) -> np.ndarray:
+        """``(bodies, 3)`` positions and angles (``get_space_bodies`` into the state buffer).
+
+        The array views pymunk's memory and is overwritten by the next call.
+        """
+        arr = self._state_arr
+        arr.num = 0  # as Buffer.clear(): overwrite from the start
+        self._lib.cpSpaceEachBody(self._space_ptr, self._get_fn, self._get_data)
+        key = (arr.arr, arr.num)
+        if key[0] != self._view_key[0] or key[1] != self._view_key[1]:
+            buf = self._ffi.buffer(arr.arr, self._ffi.sizeof("cpFloat") * arr.num)
+            self._view = np.frombuffer(buf, dtype=np.float64).reshape(-1, 3)
+            self._view_key = key
+        return self._view
