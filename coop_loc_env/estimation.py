@@ -42,17 +42,22 @@ class EstimatorBackend(Protocol):
         ...
 
 
-_FEATURE_LOW = np.array([-3.0, -3.0, -3.0, -1.0, -1.0, -1.0])  # log10 stds, correlations
-_FEATURE_HIGH = np.array([2.0, 2.0, 2.0, 1.0, 1.0, 1.0])
-_OFF_DIAG = np.array([1, 2, 5])  # cells (0, 1), (0, 2), (1, 2) of a row-major 3x3
-_ROW = np.array([0, 0, 1])
-_COL = np.array([1, 2, 2])
+# Per feature column: the bounds it is clipped to (log10 stds, correlations; the
+# others are unbounded) and what is subtracted after the scaling (positions).
+_FEATURE_LOW = np.array([-np.inf] * 4 + [-3.0] * 3 + [-1.0] * 3)
+_FEATURE_HIGH = np.array([np.inf] * 4 + [2.0] * 3 + [1.0] * 3)
+_FEATURE_SHIFT = np.array([1.0, 1.0] + [0.0] * 8)
+# Cells of a row-major 3x3 covariance: the off-diagonal (0, 1), (0, 2), (1, 2), then
+# the variances of their rows (0, 0, 4) and columns (4, 8, 8); every other one of the
+# variances is the diagonal (0, 4, 8).
+_CELLS = np.array([1, 2, 5, 0, 0, 4, 4, 8, 8])
 
 
 @functools.lru_cache(maxsize=16)
-def _position_scale(w: float, h: float) -> np.ndarray:
-    """``(2 / w, 2 / h)`` as a read-only array (made once per world size)."""
-    scale = np.array([2.0 / w, 2.0 / h])
+def _feature_scale(w: float, h: float) -> np.ndarray:
+    """Per feature column factor: ``2 / w``, ``2 / h`` for the positions, ``0.5`` turning
+    ``log10 var`` into ``log10 std``, 1 elsewhere; read-only, made once per world size."""
+    scale = np.array([2.0 / w, 2.0 / h, 1.0, 1.0, 0.5, 0.5, 0.5, 1.0, 1.0, 1.0])
     scale.flags.writeable = False
     return scale
 
@@ -64,24 +69,27 @@ def gaussian_features(
 
     ``mean (k, 3)``, ``cov (k, 3, 3)``. Layout per row: ``[x/W*2-1, y/H*2-1,
     cos(phi), sin(phi), log10 std_x, log10 std_y, log10 std_phi, rho_xy,
-    rho_xphi, rho_yphi]`` (log stds clipped to [-3, 2]).
+    rho_xphi, rho_yphi]`` (log stds clipped to [-3, 2], correlations to [-1, 1]).
     """
     w, h = world_size
     k = len(mean)
     flat = cov.reshape(k, 9)
     out = np.empty((k, 10))
-    var = np.maximum(flat[:, ::4], 1e-12)  # the diagonal (cells 0, 4, 8)
+    cells = flat[:, _CELLS]
+    var = np.maximum(cells[:, 3:], 1e-12)
     std = np.sqrt(var)
-    np.divide(flat[:, _OFF_DIAG], std[:, _ROW] * std[:, _COL], out=out[:, 7:])
-    np.multiply(mean[:, :2], _position_scale(w, h), out=out[:, :2])
-    out[:, :2] -= 1.0
-    out[:, 2] = np.cos(mean[:, 2])
-    out[:, 3] = np.sin(mean[:, 2])
-    np.log10(var, out=out[:, 4:7])
-    out[:, 4:7] *= 0.5
-    tail = out[:, 4:]  # clipped with ufuncs: np.clip's wrapper costs more than the work
-    np.maximum(tail, _FEATURE_LOW, out=tail)
-    np.minimum(tail, _FEATURE_HIGH, out=tail)
+    np.divide(cells[:, :3], std[:, :3] * std[:, 3:], out=out[:, 7:])
+    out[:, :2] = mean[:, :2]
+    heading = mean[:, 2]
+    np.cos(heading, out=out[:, 2])
+    np.sin(heading, out=out[:, 3])
+    np.log10(var[:, ::2], out=out[:, 4:7])
+    # Whole rows at once (contiguous, so cheaper than the column slices): scaling by
+    # 1 and shifting by 0 leave the other columns exactly as they are.
+    out *= _feature_scale(w, h)
+    out -= _FEATURE_SHIFT
+    np.maximum(out, _FEATURE_LOW, out=out)  # np.clip's wrapper costs more than the work
+    np.minimum(out, _FEATURE_HIGH, out=out)
     return out
 
 
