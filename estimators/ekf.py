@@ -25,6 +25,7 @@ them symmetric positive definite in floating point.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -347,52 +348,62 @@ def _propagate(
     The headings along the way follow from a cumulative sum, and the Jacobians
     ``Fx_t = I + a_t e02 + b_t e12`` commute, so their product and each noise
     term's propagation through the later Jacobians are sums.
+
+    The noise entering at substep ``t`` is ``G_t diag(qv_t, qw_t) G_t^T`` with
+    ``G_t = [[c_t, 0], [s_t, 0], [0, 1]]`` (``qv = dt^2 var_v``, ``qw = dt^2
+    var_w``); the later Jacobians ``I + a'_t e02 + b'_t e12`` (``a'_t``, ``b'_t``:
+    sums over ``j > t``) turn ``G_t`` into ``L_t = [[c_t, a'_t], [s_t, b'_t], [0,
+    1]]``, so the total is ``sum_t qv_t l0 l0^T + qw_t l1 l1^T`` over the columns
+    ``l0 = (c, s, 0)``, ``l1 = (a', b', 1)`` of the ``L_t``: one contraction over
+    the ``2 T`` columns. Arrays keep the robots on the last axis, so each numpy
+    call is one long inner loop whatever the team size.
     """
     n_sub, k = v.shape
-    phi0 = mean[:, 2].copy()
-    # Heading before each substep t: phi0 + dt * sum_{j<t} w_j.
-    turned = np.add.accumulate(w, axis=0)  # np.cumsum without its wrapper
-    phi = np.empty((n_sub, k))
-    phi[0] = phi0
-    np.multiply(turned[:-1], dt, out=phi[1:])
-    phi[1:] += phi0
-    c, s = np.cos(phi), np.sin(phi)
-    dv = dt * v
-    # ab[..., 0] = a = -dv sin(phi), ab[..., 1] = b = dv cos(phi): the Jacobian entries.
-    ab = np.empty((n_sub, k, 2))
-    np.multiply(-dv, s, out=ab[..., 0])
-    np.multiply(dv, c, out=ab[..., 1])
-    ab_cum = np.add.accumulate(ab, axis=0)
-    ab_tot = ab_cum[-1]
-    mean[:, 0] += ab_tot[:, 1]
-    mean[:, 1] -= ab_tot[:, 0]
-    mean[:, 2] = wrap_angle(phi0 + dt * turned[-1])
-    qv = dt * dt * var_v
-    qw = dt * dt * var_w
-    # Later Jacobians applied to the noise entering at substep t: sums over j > t.
-    after = ab_tot - ab_cum  # (T, k, 2): a_after, b_after
+    # phi[t]: heading before substep t (t < T); phi[T]: heading after the last one.
+    phi = np.empty((n_sub + 1, k))
+    phi[0] = mean[:, 2]
+    np.multiply(w, dt, out=phi[1:])
+    np.add.accumulate(phi, axis=0, out=phi)
+    # cols[i, m, t]: entry i of column m of L_t (for each robot).
+    cols = np.empty((3, 2, n_sub, k))
+    cols[2] = _ZERO_ONE
+    heading = phi[:-1]
+    np.cos(heading, out=cols[0, 0])
+    np.sin(heading, out=cols[1, 0])
+    # ba = (b, a) = (dv cos(phi), -dv sin(phi)) with dv = dt v: the Jacobian entries.
+    ba = cols[:2, 0] * (v * _signed(dt))
+    ba_cum = np.add.accumulate(ba, axis=1)
+    ba_tot = ba_cum[:, -1]  # (B, A): sums over all substeps
+    # Later Jacobians applied to the noise entering at substep t: a'_t, b'_t.
+    np.subtract(ba_tot[:, None], ba_cum, out=cols[1::-1, 1])
+    xy = mean[:, :2]
+    xy += (ba_tot * _PLUS_MINUS).T  # x += B, y -= A
+    mean[:, 2] = wrap_angle(phi[-1])
     # F P F^T with F = I + A e02 + B e12: rows 0 and 1 gain A, B times row 2, then columns.
-    p[:, :2, :] += ab_tot[:, :, None] * p[:, 2:3, :]
-    p[:, :, :2] += p[:, :, 2:3] * ab_tot[:, None, :]
-    # Noise M_t = [[qv c^2, qv cs, 0], [qv cs, qv s^2, 0], [0, 0, qw]] pushed through
-    # F = I + A e02 + B e12: adds A^2 qw, AB qw, B^2 qw, A qw, B qw terms.
-    a_after, b_after = after[..., 0], after[..., 1]
-    terms = np.empty((n_sub, k, 6))  # s00, s01, s11, s02, s12, s22 before summing over t
-    qv_c = qv * c
-    np.multiply(a_after, qw, out=terms[..., 3])
-    np.multiply(b_after, qw, out=terms[..., 4])
-    np.multiply(qv_c, c, out=terms[..., 0])
-    terms[..., 0] += a_after**2 * qw
-    np.multiply(qv_c, s, out=terms[..., 1])
-    terms[..., 1] += a_after * b_after * qw
-    np.multiply(qv * s, s, out=terms[..., 2])
-    terms[..., 2] += b_after**2 * qw
-    terms[..., 5] = qw
-    p += terms.sum(0)[:, _NOISE_TERMS].reshape(k, 3, 3)
+    ab_tot = ba_tot[::-1].T  # (k, 2): A, B
+    top = p[:, :2, :]
+    top += ab_tot[:, :, None] * p[:, 2:3, :]
+    left = p[:, :, :2]
+    left += p[:, :, 2:3] * ab_tot[:, None, :]
+    q = np.empty((2, n_sub, k))  # qv, qw: the weights of l0, l1
+    dt2 = dt * dt
+    np.multiply(var_v, dt2, out=q[0])
+    np.multiply(var_w, dt2, out=q[1])
+    # (l_i l_j) q is symmetric in i, j, so the covariance stays exactly symmetric.
+    cols = cols.reshape(3, 2 * n_sub, k)
+    p += np.einsum("irk,jrk,rk->kij", cols, cols, q.reshape(2 * n_sub, k))
 
 
-# The summed noise term each covariance cell receives (cells row-major in 3x3).
-_NOISE_TERMS = np.array([0, 1, 3, 1, 2, 4, 3, 4, 5])
+_ZERO_ONE = np.array([0.0, 1.0])[:, None, None]  # third entry of l0, l1
+_PLUS_MINUS = np.array([1.0, -1.0])[:, None]
+
+
+@functools.lru_cache(maxsize=8)
+def _signed(dt: float) -> np.ndarray:
+    """``(dt, -dt)`` shaped ``(2, 1, 1)``, read-only (made once per ``dt``)."""
+    out = np.array([dt, -dt])[:, None, None]
+    out.flags.writeable = False
+    return out
 
 
 def relative_measurement(
