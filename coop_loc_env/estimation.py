@@ -116,19 +116,28 @@ def team_odometry(
     """The step's odometry of ``robots``: ``(v, w)`` each ``(substeps, k)``, zero for robots
     no longer active, and the substep length in seconds. ``whole_team`` says (when known)
     whether ``robots`` is ``0 .. n-1`` in order."""
+    odo, dt_sub = _team_odometry(cfg, readings, robots, active, whole_team)
+    return odo[..., 0], odo[..., 1], dt_sub
+
+
+def _team_odometry(
+    cfg: ScenarioConfig,
+    readings: Readings,
+    robots: np.ndarray,
+    active: np.ndarray,
+    whole_team: bool | None,
+) -> tuple[np.ndarray, float]:
+    """:func:`team_odometry` with ``(v, w)`` stacked on a last axis: ``(substeps, k, 2)``
+    (the readings' own array when nothing is zeroed or selected)."""
     dt_sub = cfg.dt / cfg.odometry_substeps
     odo = readings.odometry
     if whole_team is None:
         whole_team = len(robots) == odo.shape[1] and bool((robots == _arange(len(robots))).all())
     if whole_team:
         if np.count_nonzero(active) == active.size:
-            return odo[..., 0], odo[..., 1], dt_sub  # views
-        return np.where(active, odo[..., 0], 0.0), np.where(active, odo[..., 1], 0.0), dt_sub
-    odo = odo[:, robots]
-    act = active[robots]
-    v = np.where(act, odo[..., 0], 0.0)
-    w = np.where(act, odo[..., 1], 0.0)
-    return v, w, dt_sub
+            return odo, dt_sub
+        return np.where(active[:, None], odo, 0.0), dt_sub
+    return np.where(active[robots, None], odo[:, robots], 0.0), dt_sub
 
 
 @functools.lru_cache(maxsize=16)
@@ -139,10 +148,12 @@ def _arange(n: int) -> np.ndarray:
     return out
 
 
-def _odometry_variance(slip: np.ndarray, encoder_std: float, scale: float) -> np.ndarray:
-    """``scale * (encoder_std^2 + slip^2)`` in place on ``slip`` (a fresh array)."""
+def _odometry_variance(
+    slip: np.ndarray, encoder_var: np.ndarray | float, scale: float
+) -> np.ndarray:
+    """``scale * (encoder_var + slip^2)`` in place on ``slip`` (a fresh array)."""
     slip *= slip
-    slip += encoder_std**2
+    slip += encoder_var
     if scale != 1.0:
         slip *= scale
     return slip
@@ -178,6 +189,8 @@ class EKFBackend:
         self.robots = np.asarray(robots, dtype=int)
         self._local = {int(g): i for i, g in enumerate(self.robots)}
         self._whole_team = bool(np.array_equal(self.robots, np.arange(cfg.n_robots)))
+        self._encoder_var = np.array([cfg.odom_v_std**2, cfg.odom_w_std**2])  # (V, w)
+        self._encoder_var.flags.writeable = False
         self.ekf: PoseEKF | None = None
 
     def reset(self, true_poses: np.ndarray, rng: np.random.Generator) -> None:
@@ -190,12 +203,11 @@ class EKFBackend:
         cfg = self.cfg
         ekf = self.ekf
         g = self.robots
-        v, w, dt_sub = team_odometry(cfg, readings, g, active, self._whole_team)
+        odo, dt_sub = _team_odometry(cfg, readings, g, active, self._whole_team)
         # Encoder noise plus the wheel slip the robot's maker specifies, inflated by
-        # ``ekf_process_noise_scale`` to cover what the model leaves out.
-        var_v = _odometry_variance(cfg.slip_std * v, cfg.odom_v_std, cfg.ekf_process_noise_scale)
-        var_w = _odometry_variance(cfg.slip_std * w, cfg.odom_w_std, cfg.ekf_process_noise_scale)
-        ekf.predict_sequence(v, w, dt_sub, var_v, var_w)
+        # ``ekf_process_noise_scale`` to cover what the model leaves out; (V, w) together.
+        var = _odometry_variance(cfg.slip_std * odo, self._encoder_var, cfg.ekf_process_noise_scale)
+        ekf.predict_sequence(odo[..., 0], odo[..., 1], dt_sub, var[..., 0], var[..., 1])
         stats = {"accepted": 0, "rejected": 0, "cooperative": 0}
         sel = np.nonzero(readings.gps_mask[g])[0] if np.count_nonzero(readings.gps_mask) else ()
         if len(sel):
