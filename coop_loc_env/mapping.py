@@ -82,6 +82,7 @@ class TeamMapper:
         self._ids_cache: dict[bytes, np.ndarray] = {}
         self._no_fix_cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._dt_sub = cfg.dt / cfg.odometry_substeps
+        self._gps_offset = self.map.datum - float(cfg.gps_base_altitude)
         self.last_new_cells = np.zeros(n, dtype=np.int64)
 
     @property
@@ -102,8 +103,8 @@ class TeamMapper:
         self._pitch[:] = 0.0
         n = self.cfg.n_robots
         zeros = np.zeros(n)
-        self.map.update(
-            np.arange(n), est_mean, est_cov, zeros, np.full(n, np.nan), zeros, zeros,
+        self.map.update(  # with self._all, which the map then knows as checked
+            self._all, est_mean, est_cov, zeros, np.full(n, np.nan), zeros, zeros,
             self.cfg.gps_base_altitude,
         )
         self.last_new_cells = np.zeros(n, dtype=np.int64)
@@ -133,21 +134,22 @@ class TeamMapper:
             return self.last_new_cells
         fix = readings.gps_mask  # only active robots get a fix
         if np.count_nonzero(fix):
-            alt = np.where(fix, readings.gps_altitude, np.nan)
+            # DGPS altitude -> elevation in the map frame, as TerrainMap.update computes it.
+            alt = np.where(fix, self._gps_offset + readings.gps_altitude, np.nan)
             nos = np.where(fix, readings.satellites, 0)
             if not whole:
                 alt, nos = alt[ids], nos[ids]
         else:
             alt, nos = self._no_fix(ids.size)
-        distance = readings.odometry[:, :, 0].sum(axis=0)
+        distance = np.add.reduce(readings.odometry[:, :, 0], 0)
+        pos_var = est_cov[:, 0, 0] + est_cov[:, 1, 1]
         pitch = self._pitch
         if not whole:
             distance, pitch = distance[ids], pitch[ids]
-            est_mean, est_cov = est_mean[ids], est_cov[ids]
+            est_mean, pos_var = est_mean[ids], pos_var[ids]
         distance *= self._dt_sub
-        cells = self.map.update(
-            ids, est_mean, est_cov, pitch, alt, nos, distance, self.cfg.gps_base_altitude
-        )
+        # The env built these arrays itself (float, right shapes): skip update's checks.
+        cells = self.map._update(ids, est_mean, pos_var, pitch, alt, nos, distance)
         if whole:
             new = cells
         else:
@@ -187,7 +189,7 @@ class TeamMapper:
         err_after = after - truth
         err_before = before - truth
         err_before *= was_mapped
-        self._sq_error += float(err_after @ err_after - err_before @ err_before)
+        self._sq_error += float(np.dot(err_after, err_after) - np.dot(err_before, err_before))
         self._covered += int(np.count_nonzero(self._drivable_flat[cells] > was_mapped))
 
     def coverage(self) -> float:

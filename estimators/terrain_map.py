@@ -58,6 +58,7 @@ and rendering, not for every step.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import numpy as np
@@ -150,6 +151,7 @@ class TerrainMap:
         # The same as arrays, made once for the per-step cell lookups (None: origin at 0).
         self._shape_xy = np.array(self.shape, dtype=float)
         self._origin_xy = None if self.origin == (0.0, 0.0) else np.array(self.origin)
+        self._strides = np.array([ny, 1], dtype=np.intp)  # flat index = cell @ strides
         self.datum = float(datum)
         self.pitch_std = float(pitch_std)
         self.gps_alt_std = float(gps_alt_std)
@@ -297,10 +299,7 @@ class TerrainMap:
         ok = f >= 0
         ok &= f < self._shape_xy
         inside = ok[:, 0] & ok[:, 1]
-        cell = f.astype(np.intp)
-        flat = cell[:, 0] * self.shape[1]
-        flat += cell[:, 1]
-        return flat, inside
+        return f.astype(np.intp) @ self._strides, inside
 
     def update(
         self,
@@ -347,14 +346,37 @@ class TerrainMap:
         nos = _vector("nos", nos, n)
         distance = _vector("distance", distance, n)
         pos_var = covs[:, 0, 0] + covs[:, 1, 1]
-        tan_p = np.tan(pitch)
+        gps_elev = (self.datum - float(base_alt)) + gps_alt
+        return self._update(ids, poses, pos_var, pitch, gps_elev, nos, distance)
 
+    def _update(
+        self,
+        ids: np.ndarray,
+        poses: np.ndarray,
+        pos_var: np.ndarray,
+        pitch: np.ndarray,
+        gps_elev: np.ndarray,
+        nos: np.ndarray,
+        distance: np.ndarray,
+    ) -> np.ndarray:
+        """:meth:`update` on checked inputs (its one implementation).
+
+        For callers that built the arrays themselves (the env's
+        :class:`~coop_loc_env.mapping.TeamMapper`): ``ids`` distinct valid robot
+        ids, ``poses`` ``(N, 3)`` floats, ``pos_var`` the position variance
+        ``P_xx + P_yy``, ``gps_elev`` the DGPS elevation in the map frame
+        (``datum + Zg - Zg0``, NaN = no fix) and the other arguments ``(N,)``
+        arrays as in :meth:`update`. Non-finite poses, variances, pitch or
+        distance are still rejected before anything is written.
+        """
+        n = ids.size
+        tan_p = np.tan(pitch)
         elev, var = fuse_elevation(
             self._robot_elev[ids],
             self._robot_var[ids],
             distance,
             pitch,
-            (self.datum - float(base_alt)) + gps_alt,
+            gps_elev,
             nos,
             self.pitch_std,
             self.gps_alt_std,
@@ -364,12 +386,8 @@ class TerrainMap:
         # Sample variance: elevation + position error seen through the slope.
         slope2 = np.maximum(tan_p * tan_p, self.slope_floor**2)
         var_s = np.maximum(var + slope2 * pos_var, self.min_var)
-        # One finiteness check covers poses, pitch, distance and covariances (one reduction).
-        check = elev + var_s
-        check += poses[:, 0]
-        check += poses[:, 1]
-        check += poses[:, 2]
-        if not np.isfinite(np.add.reduce(check)):
+        # One finiteness check covers poses, pitch, distance and covariances (two reductions).
+        if not math.isfinite(np.add.reduce(elev + var_s) + np.add.reduce(poses, None)):
             raise ValueError(
                 f"est_poses, pose_covs, pitch and distance must be finite, got {poses!r}, "
                 f"{pos_var!r}, {pitch!r}, {distance!r}"
@@ -383,7 +401,8 @@ class TerrainMap:
             vals, vars_, owner = elev, var_s, ids
         else:
             xy = (poses[:, None, :2] + fp).reshape(-1, 2)
-            c, s = np.cos(poses[:, 2:3]), np.sin(poses[:, 2:3])
+            heading = poses[:, 2]  # 1-D: the trigonometry runs faster than on a column
+            c, s = np.cos(heading)[:, None], np.sin(heading)[:, None]
             vals = (elev[:, None] + tan_p[:, None] * (c * self._fp_x + s * self._fp_y)).ravel()
             vars_ = (var_s[:, None] + self._footprint_var).ravel()
             owner = self._owner if ids is self._valid_ids else np.repeat(ids, fp.shape[0])
@@ -425,14 +444,19 @@ class TerrainMap:
         flat: np.ndarray,
         vals: np.ndarray,
         conf: np.ndarray,
+        stored: np.ndarray | None = None,
     ) -> np.ndarray:
-        """Write samples where they beat the stored confidence; return the winners' indices."""
+        """Write samples where they beat the stored confidence; return the winners' indices.
+
+        ``stored`` is ``confs[flat]`` when the caller has looked it up already.
+        """
         best = self._best_per_cell(flat, conf)
+        if stored is None:
+            stored = confs[flat]
         if len(best) == len(flat):  # every sample is its cell's best
-            idx = (conf > confs[flat]).nonzero()[0]
+            idx = (conf > stored).nonzero()[0]
         else:
-            win = conf[best] > confs[flat[best]]
-            idx = best[win]
+            idx = best[conf[best] > stored[best]]
         fw = flat[idx]
         elev[fw] = vals[idx]
         confs[fw] = conf[idx]
@@ -442,9 +466,10 @@ class TerrainMap:
         self, flat: np.ndarray, vals: np.ndarray, conf: np.ndarray, owner: np.ndarray
     ) -> np.ndarray:
         """Merge samples into the team map; return newly mapped cells per robot id."""
-        was_unmapped = self._conf[flat] <= 0
+        stored = self._conf[flat]
+        was_unmapped = stored <= 0
         before = self._elev[flat] if self.merge_listener is not None else None
-        idx = self._keep_best(self._elev, self._conf, flat, vals, conf)
+        idx = self._keep_best(self._elev, self._conf, flat, vals, conf, stored)
         newly = idx[was_unmapped[idx]]
         if self.merge_listener is not None:
             cells = flat[idx]
