@@ -27,7 +27,11 @@ class HeightField:
         xs = np.linspace(0.0, self.width, nx)
         ys = np.linspace(0.0, self.height, ny)
         self.xs, self.ys = xs, ys
-        self._corner_tables: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._lerp_tables: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        # Constants of the per-step cell lookups (see _cells).
+        self._inv_res = 1.0 / self.resolution
+        self._f_max = np.array([nx - 1.000001, ny - 1.000001])
+        self._strides = np.array([1, nx - 1], dtype=np.intp)  # flat cell = (i, j) @ strides
         gx, gy = np.meshgrid(xs, ys, indexing="xy")
         z = np.zeros_like(gx)
         for _ in range(cfg.terrain_hills):
@@ -56,14 +60,11 @@ class HeightField:
 
     def _cells(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Flat cell index ``(k,)`` and position within the cell ``(k, 2)`` of ``points``."""
-        p = np.asarray(points, dtype=float).reshape(-1, 2)
-        nx, ny = len(self.xs), len(self.ys)
-        f = p * (1.0 / self.resolution)
+        f = np.asarray(points, dtype=float).reshape(-1, 2) * self._inv_res
         np.maximum(f, 0.0, out=f)
-        np.minimum(f, (nx - 1.000001, ny - 1.000001), out=f)
+        np.minimum(f, self._f_max, out=f)
         cell = f.astype(np.intp)
-        frac = f - cell
-        return cell[:, 1] * (nx - 1) + cell[:, 0], frac
+        return cell @ self._strides, f - cell
 
     def _bilinear(
         self,
@@ -76,20 +77,30 @@ class HeightField:
         ``cells`` is :meth:`_cells` of ``points`` when already known.
         """
         index, frac = self._cells(points) if cells is None else cells
-        corners = self._corners(grid)[index]  # (k, 4)
-        tx, ty = frac[:, 0], frac[:, 1]
-        low = corners[:, 0] + tx * (corners[:, 1] - corners[:, 0])
-        high = corners[:, 2] + tx * (corners[:, 3] - corners[:, 2])
-        return low + ty * (high - low)
+        g = self._lerp_table(grid)[index]  # (k, 4)
+        tx = frac[:, 0]
+        low = g[:, 0] + tx * g[:, 1]
+        high = g[:, 2] + tx * g[:, 3]
+        return low + frac[:, 1] * (high - low)
 
-    def _corners(self, grid: np.ndarray) -> np.ndarray:
-        """``(cells, 4)`` table of each cell's corner values (00, 10, 01, 11), cached per grid."""
+    @staticmethod
+    def _corners(grid: np.ndarray) -> np.ndarray:
+        """``(cells, 4)`` table of each cell's corner values (00, 10, 01, 11)."""
+        corners = np.stack([grid[:-1, :-1], grid[:-1, 1:], grid[1:, :-1], grid[1:, 1:]], -1)
+        return corners.reshape(-1, 4)
+
+    def _lerp_table(self, grid: np.ndarray) -> np.ndarray:
+        """``(cells, 4)`` table ``(z00, z10 - z00, z01, z11 - z01)`` per cell, cached per grid.
+
+        The differences are those the interpolation along x takes, made once.
+        """
         key = id(grid)
-        table = self._corner_tables.get(key)
+        table = self._lerp_tables.get(key)
         if table is None or table[0] is not grid:
-            corners = np.stack([grid[:-1, :-1], grid[:-1, 1:], grid[1:, :-1], grid[1:, 1:]], -1)
-            table = (grid, corners.reshape(-1, 4))
-            self._corner_tables[key] = table
+            c = self._corners(grid)
+            lerp = np.stack([c[:, 0], c[:, 1] - c[:, 0], c[:, 2], c[:, 3] - c[:, 2]], 1)
+            table = (grid, lerp)
+            self._lerp_tables[key] = table
         return table[1]
 
     def elevation(self, points: np.ndarray) -> np.ndarray:
