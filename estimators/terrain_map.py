@@ -151,7 +151,6 @@ class TerrainMap:
         # The same as arrays, made once for the per-step cell lookups (None: origin at 0).
         self._shape_xy = np.array(self.shape, dtype=float)
         self._origin_xy = None if self.origin == (0.0, 0.0) else np.array(self.origin)
-        self._strides = np.array([ny, 1], dtype=np.intp)  # flat index = cell @ strides
         self.datum = float(datum)
         self.pitch_std = float(pitch_std)
         self.gps_alt_std = float(gps_alt_std)
@@ -299,7 +298,10 @@ class TerrainMap:
         ok = f >= 0
         ok &= f < self._shape_xy
         inside = ok[:, 0] & ok[:, 1]
-        return f.astype(np.intp) @ self._strides, inside
+        cell = f.astype(np.intp)
+        flat = cell[:, 0] * self.shape[1]
+        flat += cell[:, 1]
+        return flat, inside
 
     def update(
         self,
@@ -425,11 +427,14 @@ class TerrainMap:
         return np.zeros(n, dtype=np.int64)
 
     @staticmethod
-    def _best_per_cell(flat: np.ndarray, conf: np.ndarray) -> np.ndarray:
-        """Indices of the highest-confidence sample of each distinct cell in ``flat``."""
+    def _best_per_cell(flat: np.ndarray, conf: np.ndarray) -> np.ndarray | None:
+        """Indices of the highest-confidence sample of each distinct cell in ``flat``.
+
+        None when no cell is sampled twice (every sample is its cell's best).
+        """
         lst = flat.tolist()
-        if len(set(lst)) == len(lst):  # no cell sampled twice: all samples are the best
-            return np.arange(len(lst))
+        if len(set(lst)) == len(lst):
+            return None
         order = np.lexsort((conf, flat))
         f = flat[order]
         last = np.empty(f.size, dtype=bool)
@@ -445,22 +450,25 @@ class TerrainMap:
         vals: np.ndarray,
         conf: np.ndarray,
         stored: np.ndarray | None = None,
-    ) -> np.ndarray:
-        """Write samples where they beat the stored confidence; return the winners' indices.
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Write samples where they beat the stored confidence.
 
         ``stored`` is ``confs[flat]`` when the caller has looked it up already.
+        Returns the winners' indices into the samples, their cells and the
+        values written there.
         """
         best = self._best_per_cell(flat, conf)
         if stored is None:
             stored = confs[flat]
-        if len(best) == len(flat):  # every sample is its cell's best
+        if best is None:  # every sample is its cell's best
             idx = (conf > stored).nonzero()[0]
         else:
             idx = best[conf[best] > stored[best]]
         fw = flat[idx]
-        elev[fw] = vals[idx]
+        won = vals[idx]
+        elev[fw] = won
         confs[fw] = conf[idx]
-        return idx
+        return idx, fw, won
 
     def _merge(
         self, flat: np.ndarray, vals: np.ndarray, conf: np.ndarray, owner: np.ndarray
@@ -469,11 +477,11 @@ class TerrainMap:
         stored = self._conf[flat]
         was_unmapped = stored <= 0
         before = self._elev[flat] if self.merge_listener is not None else None
-        idx = self._keep_best(self._elev, self._conf, flat, vals, conf, stored)
-        newly = idx[was_unmapped[idx]]
+        idx, cells, after = self._keep_best(self._elev, self._conf, flat, vals, conf, stored)
+        fresh = was_unmapped[idx]
+        newly = idx[fresh]
         if self.merge_listener is not None:
-            cells = flat[idx]
-            self.merge_listener(cells, before[idx], self._elev[cells], ~was_unmapped[idx])
+            self.merge_listener(cells, before[idx], after, ~fresh)
         self.newly_mapped_cells = int(newly.size)
         self.n_mapped += self.newly_mapped_cells
         return np.bincount(owner[newly], minlength=self.n_robots)

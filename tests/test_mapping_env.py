@@ -175,3 +175,67 @@ def test_kalman_fusion_weights_give_a_better_map():
         env.reset(seed=4)
         rmse[weights] = _drive(env, 100)[-1]["robot_0"]["map_rmse"]
     assert rmse["kalman"] < 0.7 * rmse["paper"]
+
+
+def test_env_map_equals_the_public_update_fed_the_same_samples():
+    """TeamMapper's unchecked path into TerrainMap gives the map update() gives."""
+    from estimators.terrain_map import TerrainMap
+
+    env = coop_loc_env.parallel_env("outdoor_terrain", n_robots=4, start_region=None)
+    env.reset(seed=5)
+    mapper = env.unwrapped.mapper
+    calls = []
+    core = mapper.map._update
+
+    def spy(ids, poses, pos_var, pitch, gps_elev, nos, distance):
+        calls.append([np.array(a, copy=True) for a in (ids, poses, pos_var, pitch, gps_elev, nos,
+                                                        distance)])
+        return core(ids, poses, pos_var, pitch, gps_elev, nos, distance)
+
+    start = mapper.map._elev.copy(), mapper.map._conf.copy()
+    start_robot = mapper.map.robot_elevation()
+    mapper.map._update = spy
+    rng = np.random.default_rng(0)
+    for _ in range(40):
+        env.step({a: rng.uniform(-1, 1, 2) for a in env.agents})
+    ref = TerrainMap(4, size=mapper.cfg.world_size, resolution=mapper.cfg.map_resolution,
+                     pitch_std=mapper.map.pitch_std, gps_alt_std=mapper.map.gps_alt_std,
+                     footprint_radius=mapper.cfg.map_footprint_radius,
+                     weights=mapper.map.weights)
+    ref._elev[:], ref._conf[:] = start
+    ref.set_robot_elevation(np.arange(4), *start_robot)
+    base = mapper.cfg.gps_base_altitude
+    for ids, poses, pos_var, pitch, gps_elev, nos, distance in calls:
+        covs = np.zeros((ids.size, 2, 2))
+        covs[:, 0, 0] = pos_var  # P_yy = 0: the same P_xx + P_yy
+        ref.update(ids, poses, covs, pitch, gps_elev - (ref.datum - base), nos, distance, base)
+    assert len(calls) == 40 and any(np.isfinite(c[4]).any() for c in calls)
+    np.testing.assert_allclose(ref.elevation, mapper.map.elevation, rtol=0, atol=1e-12,
+                               equal_nan=True)
+    assert np.array_equal(ref.mapped, mapper.map.mapped)
+
+
+def test_height_field_queries_are_clamped_bilinear_on_and_off_the_grid():
+    env = coop_loc_env.parallel_env("outdoor_terrain", n_robots=4, start_region=None)
+    env.reset(seed=2)
+    t = env.unwrapped.world.terrain
+    rng = np.random.default_rng(1)
+    pts = np.concatenate([
+        rng.uniform(-3, t.width + 3, (500, 2)),
+        [[0, 0], [t.width, t.height], [t.width, 0], [-1e-12, 1.0], [t.width + 1, t.height / 2]],
+    ])
+
+    def bilinear(grid):  # the textbook formula, clamped to the grid
+        f = np.clip(pts / t.resolution, 0, [len(t.xs) - 1.000001, len(t.ys) - 1.000001])
+        i, j = f.astype(int).T
+        tx, ty = (f - np.floor(f)).T
+        low = grid[j, i] + tx * (grid[j, i + 1] - grid[j, i])
+        high = grid[j + 1, i] + tx * (grid[j + 1, i + 1] - grid[j + 1, i])
+        return low + ty * (high - low)
+
+    assert np.array_equal(t.elevation(pts), bilinear(t.z))
+    assert np.array_equal(t.gradient(pts), np.stack([bilinear(t.dzdx), bilinear(t.dzdy)], 1))
+    steep = bilinear(t.slope) > t.tip_over_slope
+    among = rng.random(len(pts)) < 0.5
+    assert np.array_equal(t.is_steep(pts), steep)
+    assert np.array_equal(t.is_steep(pts, among), steep & among)

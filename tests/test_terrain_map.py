@@ -438,3 +438,28 @@ def test_end_to_end_map_error_grows_with_pose_error_and_kalman_beats_paper_weigh
     assert paper < 0.4  # about the DGPS altitude noise
     assert shifted > paper + 0.05
     assert kalman < 0.5 * paper
+
+
+def test_merge_listener_sees_exactly_the_cells_and_values_written():
+    m = TerrainMap(3, size=(10.0, 10.0), resolution=0.5, footprint_radius=0.5)
+    seen = []
+    m.merge_listener = lambda cells, before, after, was_mapped: seen.append(
+        (cells.copy(), before.copy(), after.copy(), was_mapped.copy())
+    )
+    rng = np.random.default_rng(4)
+    for step in range(30):
+        prev = m._elev.copy(), m._conf.copy()
+        # Robots 0 and 1 share a spot on some steps (same-step collisions).
+        xy = rng.uniform(0.2, 9.8, (3, 2))
+        if step % 3 == 0:
+            xy[1] = xy[0] + 0.1
+        poses = np.c_[xy, rng.uniform(-3, 3, 3)]
+        covs = np.tile(EYE, (3, 1, 1)) * rng.uniform(1, 100, (3, 1, 1))
+        new = m.update(np.arange(3), poses, covs, rng.normal(0, 0.1, 3), np.nan, 0, 0.1, 0.0)
+        cells, before, after, was_mapped = seen[-1]
+        changed = np.flatnonzero(m._conf != prev[1])
+        assert np.array_equal(np.sort(cells), changed)
+        assert np.array_equal(before, prev[0][cells])
+        assert np.array_equal(after, m._elev[cells])
+        assert np.array_equal(was_mapped, prev[1][cells] > 0)
+        assert new.sum() == np.count_nonzero(~was_mapped)
