@@ -311,14 +311,16 @@ class World:
         wk = w_cmd * slip[:, :, 1]
         # Bodies have infinite moment: contacts never change their turn rate, so the
         # heading at each substep's start is known in advance (summed in pymunk's order).
-        steps = np.empty((n_sub + 1, n))
-        steps[0] = self._angles
-        steps[1:] = wk * dt
-        heading = np.add.accumulate(steps, axis=0)  # np.cumsum without its wrapper
-        vel = self._velocity_buffer
-        vel[:-1, :n, 0] = vk * np.cos(heading[:-1])
-        vel[:-1, :n, 1] = vk * np.sin(heading[:-1])
-        vel[:-1, :n, 2] = wk
+        heading = np.empty((n_sub + 1, n))
+        heading[0] = self._angles
+        np.multiply(wk, dt, out=heading[1:])
+        np.add.accumulate(heading, axis=0, out=heading)  # np.cumsum without its wrapper
+        vel = self._velocity_buffer[:-1, :n]
+        np.cos(heading[:-1], out=vel[..., 0])
+        vel[..., 0] *= vk
+        np.sin(heading[:-1], out=vel[..., 1])
+        vel[..., 1] *= vk
+        vel[..., 2] = wk
         space, batch = self.space, self._batch
         if batch is not None:
             for k in range(n_sub):
