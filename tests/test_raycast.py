@@ -45,6 +45,28 @@ def test_cast_excludes_own_robot_and_reports_robot_hits():
     assert np.isinf(far[0])
 
 
+def _random_scene(
+    rng: np.random.Generator, n_circles: int, circle_mask: np.ndarray, n_segments: int
+) -> RayScene:
+    """Random circles (and segments) in a 20 m x 20 m box."""
+    return RayScene(
+        circle_centers=rng.uniform(0, 20, (n_circles, 2)),
+        circle_radii=rng.uniform(0.1, 1.5, n_circles),
+        circle_mask=circle_mask,
+        seg_a=rng.uniform(0, 20, (n_segments, 2)), seg_b=rng.uniform(0, 20, (n_segments, 2)),
+        seg_mask=np.ones((n_segments, 3), bool),
+        bounds=(20.0, 20.0),
+    )
+
+
+def _poses_outside_circles(rng: np.random.Generator, scene: RayScene, n: int) -> np.ndarray:
+    """``n`` random poses whose robots stand outside every circle of ``scene``."""
+    spots = rng.uniform(0.5, 19.5, (400, 2))
+    gap = np.linalg.norm(spots[:, None] - scene.circle_centers[None], axis=2) - scene.circle_radii
+    spots = spots[gap.min(1) > 0.4]
+    return np.column_stack([spots[:n], rng.uniform(-4, 4, n)])
+
+
 @pytest.mark.parametrize("dense_limit", [0, 10**9])
 @pytest.mark.parametrize("seed", range(5))
 def test_fan_caster_matches_brute_force_cast(seed, dense_limit):
@@ -52,19 +74,9 @@ def test_fan_caster_matches_brute_force_cast(seed, dense_limit):
     from coop_loc_env.raycast import FanCaster
 
     rng = np.random.default_rng(seed)
-    n_circles, n_robots = 40, 6
-    scene = RayScene(
-        circle_centers=rng.uniform(0, 20, (n_circles, 2)),
-        circle_radii=rng.uniform(0.1, 1.5, n_circles),
-        circle_mask=rng.random((n_circles, 3)) < 0.7,
-        seg_a=rng.uniform(0, 20, (3, 2)), seg_b=rng.uniform(0, 20, (3, 2)),
-        seg_mask=np.ones((3, 3), bool),
-        bounds=(20.0, 20.0),
-    )
-    spots = rng.uniform(0.5, 19.5, (400, 2))
-    gap = np.linalg.norm(spots[:, None] - scene.circle_centers[None], axis=2) - scene.circle_radii
-    spots = spots[gap.min(1) > 0.4]  # robots stand outside obstacles
-    poses = np.column_stack([spots[:n_robots], rng.uniform(-4, 4, n_robots)])
+    n_robots = 6
+    scene = _random_scene(rng, 40, rng.random((40, 3)) < 0.7, n_segments=3)
+    poses = _poses_outside_circles(rng, scene, n_robots)
     if dense_limit == 0:  # the culled path also handles a robot inside a circle
         poses[0, :2] = scene.circle_centers[0]
     # Mixed fans: 30 beams over 180 deg, and 8 x 3 sub-rays all around (wrapping past +-pi).
@@ -90,18 +102,9 @@ def test_equal_fans_match_brute_force_cast(seed, robots):
     from coop_loc_env.raycast import FanCaster
 
     rng = np.random.default_rng(seed)
-    n_circles, n_robots = 30, 5
-    scene = RayScene(
-        circle_centers=rng.uniform(0, 20, (n_circles, 2)),
-        circle_radii=rng.uniform(0.1, 1.5, n_circles),
-        circle_mask=np.ones((n_circles, 3), bool),
-        seg_a=np.zeros((0, 2)), seg_b=np.zeros((0, 2)), seg_mask=np.zeros((0, 3), bool),
-        bounds=(20.0, 20.0),
-    )
-    spots = rng.uniform(0.5, 19.5, (400, 2))
-    gap = np.linalg.norm(spots[:, None] - scene.circle_centers[None], axis=2) - scene.circle_radii
-    spots = spots[gap.min(1) > 0.4]
-    poses = np.column_stack([spots[:n_robots], rng.uniform(-4, 4, n_robots)])
+    n_robots = 5
+    scene = _random_scene(rng, 30, np.ones((30, 3), bool), n_segments=0)
+    poses = _poses_outside_circles(rng, scene, n_robots)
     ray_robot = np.repeat(robots, 30)
     ray_angle = np.tile(np.linspace(-np.pi / 2, np.pi / 2, 30), len(robots))
     radii = np.full(n_robots, 0.35)
