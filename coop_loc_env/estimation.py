@@ -51,6 +51,8 @@ _FEATURE_SHIFT = np.array([1.0, 1.0] + [0.0] * 8)
 # the variances of their rows (0, 0, 4) and columns (4, 8, 8); every other one of the
 # variances is the diagonal (0, 4, 8).
 _CELLS = np.array([1, 2, 5, 0, 0, 4, 4, 8, 8])
+_EYE2 = np.eye(2)
+_EYE2.flags.writeable = False
 
 
 @functools.lru_cache(maxsize=16)
@@ -187,7 +189,9 @@ class EKFBackend:
     def __init__(self, cfg: ScenarioConfig, robots: np.ndarray, world: World | None = None) -> None:
         self.cfg = cfg
         self.robots = np.asarray(robots, dtype=int)
-        self._local = {int(g): i for i, g in enumerate(self.robots)}
+        # Global robot index -> position in ``robots`` (-1: another backend's robot).
+        self._local_index = np.full(cfg.n_robots, -1)
+        self._local_index[self.robots] = np.arange(len(self.robots))
         self._whole_team = bool(np.array_equal(self.robots, np.arange(cfg.n_robots)))
         self._encoder_var = np.array([cfg.odom_v_std**2, cfg.odom_w_std**2])  # (V, w)
         self._encoder_var.flags.writeable = False
@@ -209,35 +213,37 @@ class EKFBackend:
         var = _odometry_variance(cfg.slip_std * odo, self._encoder_var, cfg.ekf_process_noise_scale)
         ekf.predict_sequence(odo[..., 0], odo[..., 1], dt_sub, var[..., 0], var[..., 1])
         stats = {"accepted": 0, "rejected": 0, "cooperative": 0}
-        sel = np.nonzero(readings.gps_mask[g])[0] if np.count_nonzero(readings.gps_mask) else ()
+        whole = self._whole_team
+        gps = readings.gps_mask
+        sel = np.nonzero(gps if whole else gps[g])[0] if np.count_nonzero(gps) else ()
         if len(sel):
-            var = readings.gps_var[g[sel]]
-            r = np.zeros((len(sel), 2, 2))
-            r[:, 0, 0] = r[:, 1, 1] = var
-            ok = ekf.update_position(sel, readings.gps_xy[g[sel]], r)
+            fixed = sel if whole else g[sel]
+            # Per-axis variance on the diagonal of each 2x2 noise matrix (finite: fixes only).
+            r = readings.gps_var[fixed][:, None, None] * _EYE2
+            ok = ekf.update_position(sel, readings.gps_xy[fixed], r)
             n_ok = np.count_nonzero(ok)
             stats["accepted"] += n_ok
             stats["rejected"] += len(ok) - n_ok
         compass = readings.compass_mask
-        sel = np.nonzero(compass[g])[0] if np.count_nonzero(compass) else ()
+        sel = np.nonzero(compass if whole else compass[g])[0] if np.count_nonzero(compass) else ()
         if len(sel):
             ok = ekf.update_heading(
-                sel, readings.compass[g[sel]], np.full(len(sel), cfg.compass_std**2)
+                sel,
+                readings.compass[sel if whole else g[sel]],
+                np.full(len(sel), cfg.compass_std**2),
             )
             n_ok = np.count_nonzero(ok)
             stats["accepted"] += n_ok
             stats["rejected"] += len(ok) - n_ok
         det = readings.detections
         if cfg.cooperative_updates and len(det):
-            rows = [
-                k
-                for k in range(len(det))
-                if int(det.observer[k]) in self._local and int(det.target[k]) in self._local
-            ]
-            if rows:
-                rows = np.asarray(rows)
-                ia = np.array([self._local[int(det.observer[k])] for k in rows])
-                ib = np.array([self._local[int(det.target[k])] for k in rows])
+            if whole:  # every detection is between two of this backend's robots
+                rows, ia, ib = slice(None), det.observer, det.target
+            else:
+                ia, ib = self._local_index[det.observer], self._local_index[det.target]
+                rows = np.nonzero((ia >= 0) & (ib >= 0))[0]
+                ia, ib = ia[rows], ib[rows]
+            if len(ia):
                 ok = ekf.update_relative(
                     ia,
                     ib,

@@ -56,6 +56,26 @@ class Belief:
 
 _EYE3 = np.eye(3)
 _EYE3.flags.writeable = False
+# Measurement Jacobians of the DGPS (x, y) and the compass (phi), shared by all robots.
+_H_POSITION = np.eye(3)[:2]
+_H_POSITION.flags.writeable = False
+_H_HEADING = np.eye(3)[2:]
+_H_HEADING.flags.writeable = False
+
+
+@functools.lru_cache(maxsize=16)
+def _arange(n: int) -> np.ndarray:
+    """``np.arange(n)``, made once per ``n`` and read-only (it is shared)."""
+    out = np.arange(n)
+    out.flags.writeable = False
+    return out
+
+
+def _wrap_in_place(angle: np.ndarray) -> None:
+    """:func:`~estimators.geometry.wrap_angle` on ``angle`` in place (the same operations)."""
+    angle += np.pi
+    angle %= 2.0 * np.pi
+    angle -= np.pi
 
 
 def _check_finite(name: str, value: np.ndarray) -> None:
@@ -180,27 +200,56 @@ class PoseEKF:
         nu = np.asarray(z, dtype=float) - h
         for d in angle_dims:
             nu[:, d] = wrap_angle(nu[:, d])
-        p = self.cov[idx]
-        ph_t = p @ np.swapaxes(jac, 1, 2)
-        s = jac @ ph_t + r
-        s_inv = np.linalg.inv(s)
+        return self._update(idx, self._rows(idx), nu, jac, r, gate_prob)
+
+    def _rows(self, idx: np.ndarray) -> np.ndarray | slice:
+        """``slice(None)`` when ``idx`` is every robot in order, or ``idx``."""
+        n = len(self.mean)
+        if len(idx) == n and (idx == _arange(n)).all():
+            return slice(None)
+        return idx
+
+    def _update(
+        self,
+        idx: np.ndarray,
+        sel: np.ndarray | slice,
+        nu: np.ndarray,
+        jac: np.ndarray,
+        r: np.ndarray,
+        gate_prob: float | None,
+    ) -> np.ndarray:
+        """:meth:`update` of robots ``idx`` (``sel``: ``idx`` or ``slice(None)`` for all of
+        them in order) from innovations ``nu (k, m)``; ``jac`` is ``(k, m, 3)`` or one
+        ``(m, 3)`` shared by all. Returns the accepted mask."""
+        p = self.cov[sel]
+        ph_t = p @ jac.mT
+        s = jac @ ph_t
+        s += r
+        # 1x1: the reciprocal is what LAPACK computes, without its per-call overhead.
+        s_inv = 1.0 / s if s.shape[-1] == 1 else np.linalg.inv(s)
         d2 = np.einsum("ki,kij,kj->k", nu, s_inv, nu)
         ok = self._gate(d2, nu.shape[1], gate_prob)
         n_ok = np.count_nonzero(ok)
         if not n_ok:
             return ok
         if n_ok < len(ok):  # keep the accepted rows (all accepted: use them as they are)
-            ph_t, s_inv, nu, idx, jac, p, r = (
-                ph_t[ok], s_inv[ok], nu[ok], idx[ok], jac[ok], p[ok], r[ok]
-            )
+            ph_t, s_inv, nu, sel, p, r = ph_t[ok], s_inv[ok], nu[ok], idx[ok], p[ok], r[ok]
+            if jac.ndim == 3:
+                jac = jac[ok]
         gain = ph_t @ s_inv
-        dx = np.einsum("kij,kj->ki", gain, nu)
-        sel = idx
-        self.mean[sel] += dx
-        self.mean[sel, 2] = wrap_angle(self.mean[sel, 2])
+        dx = (gain @ nu[:, :, None])[:, :, 0]
+        mean = self.mean if isinstance(sel, slice) else self.mean[sel]
+        mean += dx
+        _wrap_in_place(mean[:, 2])
         i_kh = _EYE3 - gain @ jac
-        p_new = i_kh @ p @ np.swapaxes(i_kh, 1, 2) + gain @ r @ np.swapaxes(gain, 1, 2)
-        self.cov[sel] = _symmetrize(p_new)
+        p_new = i_kh @ p @ i_kh.mT
+        p_new += gain @ r @ gain.mT
+        # Symmetrize in place: (P + P^T) / 2 (numpy buffers the overlapping transpose).
+        p_new += p_new.mT
+        p_new *= 0.5
+        if not isinstance(sel, slice):
+            self.mean[sel] = mean
+        self.cov[sel] = p_new
         return ok
 
     def _gate(self, d2: np.ndarray, dof: int, gate_prob: float | None) -> np.ndarray:
@@ -214,22 +263,26 @@ class PoseEKF:
     ) -> np.ndarray:
         """DGPS update: ``z = (x, y)``, ``H = [[1,0,0],[0,1,0]]``, noise ``r (k, 2, 2)``."""
         idx = np.asarray(idx, dtype=int)
-        jac = np.zeros((len(idx), 2, 3))
-        jac[:, 0, 0] = jac[:, 1, 1] = 1.0
-        return self.update(idx, z, self.mean[idx, :2], jac, r, gate_prob=gate_prob)
+        if len(idx) == 0:
+            return np.zeros(0, dtype=bool)
+        _check_finite("z", z)
+        sel = self._rows(idx)
+        nu = np.asarray(z, dtype=float) - self.mean[sel, :2]
+        return self._update(idx, sel, nu, _H_POSITION, np.asarray(r, dtype=float), gate_prob)
 
     def update_heading(
         self, idx: np.ndarray, z: np.ndarray, var: np.ndarray, gate_prob: float | None = None
     ) -> np.ndarray:
         """Compass update: ``z = phi``, ``H = [0, 0, 1]``, noise variance ``var (k,)``."""
         idx = np.asarray(idx, dtype=int)
-        jac = np.zeros((len(idx), 1, 3))
-        jac[:, 0, 2] = 1.0
-        r = np.asarray(var, dtype=float).reshape(-1, 1, 1)
+        if len(idx) == 0:
+            return np.zeros(0, dtype=bool)
         z = np.asarray(z, dtype=float).reshape(-1, 1)
-        return self.update(
-            idx, z, self.mean[idx, 2:3], jac, r, angle_dims=(0,), gate_prob=gate_prob
-        )
+        _check_finite("z", z)
+        sel = self._rows(idx)
+        nu = wrap_angle(z - self.mean[sel, 2:3])
+        r = np.asarray(var, dtype=float).reshape(-1, 1, 1)
+        return self._update(idx, sel, nu, _H_HEADING, r, gate_prob)
 
     def update_relative(
         self,

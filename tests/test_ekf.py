@@ -175,3 +175,84 @@ def test_bad_inputs_raise():
         ekf.update_relative([0], [0], np.ones((1, 3)), np.eye(3)[None])
     with pytest.raises(ValueError, match="NaN"):
         ekf.update_position([0], np.array([[np.nan, 0.0]]), np.eye(2)[None])
+
+
+def _reference_update(mean, cov, idx, z, h_rows, r, angle, gate):
+    """Textbook gated EKF update with a selection Jacobian, one robot at a time."""
+    mean, cov = mean.copy(), cov.copy()
+    ok = []
+    for i, zi, ri in zip(idx, z, r, strict=True):
+        jac = np.eye(3)[h_rows]
+        nu = zi - mean[i, h_rows]
+        if angle:
+            nu = wrap_angle(nu)
+        s = jac @ cov[i] @ jac.T + ri
+        accept = nu @ np.linalg.solve(s, nu) <= gate
+        ok.append(accept)
+        if accept:
+            gain = cov[i] @ jac.T @ np.linalg.inv(s)
+            mean[i] += gain @ nu
+            mean[i, 2] = wrap_angle(mean[i, 2])
+            a = np.eye(3) - gain @ jac
+            p = a @ cov[i] @ a.T + gain @ ri @ gain.T
+            cov[i] = 0.5 * (p + p.T)
+    return mean, cov, np.array(ok)
+
+
+@pytest.mark.parametrize("order", ["all", "permuted", "subset"])
+def test_position_and_heading_updates_match_a_reference(order):
+    rng = np.random.default_rng(7)
+    n = 6
+    a = rng.standard_normal((n, 3, 3))
+    cov = a @ a.transpose(0, 2, 1) + 0.1 * np.eye(3)
+    mean = rng.standard_normal((n, 3)) * [5.0, 5.0, 3.0]
+    idx = {"all": np.arange(n), "permuted": rng.permutation(n), "subset": np.array([4, 1])}[order]
+    k = len(idx)
+    z_xy = mean[idx, :2] + rng.standard_normal((k, 2)) * 2.0
+    z_xy[0] += 100.0  # an outlier the gate rejects
+    r = np.repeat(0.3 * np.eye(2)[None], k, axis=0)
+    ekf = PoseEKF(mean, cov)
+    ref_mean, ref_cov, ref_ok = _reference_update(
+        ekf.mean, ekf.cov, idx, z_xy, [0, 1], r, False, chi2_threshold(0.99, 2)
+    )
+    ok = ekf.update_position(idx, z_xy, r)
+    np.testing.assert_array_equal(ok, ref_ok)
+    assert not ok[0] and ok[1:].any()
+    np.testing.assert_allclose(ekf.mean, ref_mean, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(ekf.cov, ref_cov, rtol=1e-12, atol=1e-12)
+    np.testing.assert_array_equal(ekf.cov, ekf.cov.transpose(0, 2, 1))
+    # Compass: headings near +-pi exercise the wrapping of innovation and state.
+    z_phi = wrap_angle(ekf.mean[idx, 2] + np.pi - 0.05)
+    var = np.full(k, 0.2)
+    before_mean, before_cov = ekf.mean.copy(), ekf.cov.copy()
+    ok = ekf.update_heading(idx, z_phi, var)
+    ref_mean, ref_cov, ref_ok = _reference_update(
+        before_mean, before_cov, idx, z_phi[:, None], [2], var.reshape(-1, 1, 1), True,
+        chi2_threshold(0.99, 1),
+    )
+    np.testing.assert_array_equal(ok, ref_ok)
+    np.testing.assert_allclose(ekf.mean, ref_mean, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(ekf.cov, ref_cov, rtol=1e-12, atol=1e-12)
+    assert np.all(np.abs(ekf.mean[:, 2]) <= np.pi)
+
+
+def test_generic_update_equals_position_update():
+    rng = np.random.default_rng(3)
+    a = rng.standard_normal((4, 3, 3))
+    cov = a @ a.transpose(0, 2, 1) + np.eye(3)
+    mean = rng.standard_normal((4, 3))
+    idx = np.array([2, 0, 3])
+    z = mean[idx, :2] + 0.5
+    r = np.repeat(0.5 * np.eye(2)[None], 3, axis=0)
+    one, two = PoseEKF(mean, cov), PoseEKF(mean, cov)
+    jac = np.repeat(np.eye(3)[None, :2], 3, axis=0)
+    ok1 = one.update(idx, z, two.mean[idx, :2], jac, r)
+    ok2 = two.update_position(idx, z, r)
+    np.testing.assert_array_equal(ok1, ok2)
+    np.testing.assert_allclose(one.mean, two.mean, rtol=1e-13, atol=1e-14)
+    np.testing.assert_allclose(one.cov, two.cov, rtol=1e-13, atol=1e-14)
+    with pytest.raises(ValueError, match="NaN"):
+        two.update_position(idx, np.full((3, 2), np.nan), r)
+    with pytest.raises(ValueError, match="NaN"):
+        two.update_heading(idx, [0.0, np.inf, 0.0], np.ones(3))
+    assert two.update_heading([], [], []).shape == (0,)
