@@ -10,6 +10,7 @@ full rate through the physics substeps).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -320,21 +321,30 @@ class SensorSuite:
         clo, chi = cfg.gps_canopy_satellites
         open_sky = rng.integers(lo, hi + 1, size=n)
         canopy = rng.integers(clo, chi + 1, size=n)
-        blend = depth / 0.5
-        np.maximum(blend, 0.0, out=blend)  # np.clip without its wrapper
-        np.minimum(blend, 1.0, out=blend)
-        sats = np.rint((1 - blend) * open_sky + blend * canopy).astype(int)
-        sats = np.where(self.has_gps, sats, 0)
-        fix = self.has_gps & active & (sats >= 4)
+        if np.count_nonzero(depth):
+            blend = depth / 0.5
+            np.maximum(blend, 0.0, out=blend)  # np.clip without its wrapper
+            np.minimum(blend, 1.0, out=blend)
+            sats = np.rint((1 - blend) * open_sky + blend * canopy).astype(int)
+        else:  # all under open sky: the blend is 0 and the count is the open-sky draw
+            sats = open_sky
+        if np.count_nonzero(self.has_gps) < n:
+            sats = np.where(self.has_gps, sats, 0)
+        fix = active & (sats >= 4)  # robots without a receiver see 0 satellites
         safe = np.maximum(sats, 1)
         var = cfg.gps_std**2 * cfg.gps_reference_satellites / safe
-        noise = rng.standard_normal((n, 2)) * np.sqrt(var)[:, None]
+        noise = rng.standard_normal((n, 2))
+        noise *= np.sqrt(var)[:, None]
         multipath = rng.random(n) < cfg.gps_multipath_prob
-        noise += multipath[:, None] * rng.standard_normal((n, 2)) * cfg.gps_multipath_std
+        outlier = rng.standard_normal((n, 2))  # drawn every time: it keeps the stream fixed
+        if np.count_nonzero(multipath):
+            noise += multipath[:, None] * outlier * cfg.gps_multipath_std
         xy = poses[:, :2] + noise
         z_true = self.world.terrain.elevation(poses[:, :2])
         alt_std = cfg.gps_altitude_std * np.sqrt(cfg.gps_reference_satellites / safe)
         alt = z_true + cfg.gps_base_altitude + alt_std * rng.standard_normal(n)
+        if np.count_nonzero(fix) == n:  # every robot has a fix: nothing to blank out
+            return fix, xy, var, alt, sats
         return (
             fix,
             np.where(fix[:, None], xy, 0.0),
@@ -472,34 +482,40 @@ class SensorSuite:
         cfg = self.cfg
         n = len(poses)
         can = self.has_detector & active
-        fov = np.deg2rad(cfg.detector_fov_deg)
+        fov = math.radians(cfg.detector_fov_deg)  # the same product as np.deg2rad
         rel_xy = poses[None, :, :2] - poses[:, None, :2]  # [i, j] = p_j - p_i
         dist = np.hypot(rel_xy[..., 0], rel_xy[..., 1])
-        bearing = wrap_angle(np.arctan2(rel_xy[..., 1], rel_xy[..., 0]) - poses[:, None, 2])
-        in_view = np.outer(can, active)
+        in_view = can[:, None] & active
         in_view &= self._others(n)
         in_view &= dist <= cfg.detector_range
-        if fov < 2 * np.pi:  # all bearings lie in [-pi, pi): a full circle sees every one
-            in_view &= np.abs(bearing) <= fov / 2 + 1e-9
         oi, tj = np.nonzero(in_view)
         if len(oi):
-            # rel_xy holds the pair offsets already: the unit lines of sight directly.
+            # Bearings of the pairs in range only; rel_xy holds their offsets already.
+            pair_xy = rel_xy[oi, tj]
             pair_dist = dist[oi, tj]
+            bearing = wrap_angle(np.arctan2(pair_xy[:, 1], pair_xy[:, 0]) - poses[oi, 2])
+            if fov < 2 * np.pi:  # all bearings lie in [-pi, pi): a full circle sees every one
+                keep = np.abs(bearing) <= fov / 2 + 1e-9
+                oi, tj, pair_xy, pair_dist, bearing = (
+                    oi[keep], tj[keep], pair_xy[keep], pair_dist[keep], bearing[keep]
+                )
+        if len(oi):
             los = self._sight_clear(
-                poses[oi, :2], rel_xy[oi, tj] / np.maximum(pair_dist, 1e-9)[:, None], pair_dist
+                poses[oi, :2], pair_xy / np.maximum(pair_dist, 1e-9)[:, None], pair_dist
             )
-            oi, tj = oi[los], tj[los]
-        seen_any = np.zeros(n, dtype=bool)
-        seen_any[oi] = True
-        detected = rng.random(len(oi)) < cfg.detection_prob
-        oi, tj = oi[detected], tj[detected]
-        # False positives for robots with nothing in view.
-        fp_obs = np.nonzero(can & ~seen_any & (rng.random(n) < cfg.false_positive_prob))[0]
+            seen_any = np.zeros(n, dtype=bool)
+            seen_any[oi[los]] = True
+            detected = rng.random(np.count_nonzero(los)) < cfg.detection_prob
+            pick = np.nonzero(los)[0][detected]
+            oi, tj, pair_dist, bearing = oi[pick], tj[pick], pair_dist[pick], bearing[pick]
+            # False positives for robots with nothing in view.
+            fp_obs = np.nonzero(can & ~seen_any & (rng.random(n) < cfg.false_positive_prob))[0]
+        else:  # nothing in view (a size-0 detection draw would not touch the generator)
+            fp_obs = np.nonzero(can & (rng.random(n) < cfg.false_positive_prob))[0]
+            pair_dist = bearing = np.zeros(0)
         if len(oi) + len(fp_obs) == 0:
             return _NO_DETECTIONS  # (draws of size 0 below would not touch the generator)
-        true_z = np.stack(
-            [dist[oi, tj], bearing[oi, tj], wrap_angle(poses[tj, 2] - poses[oi, 2])], axis=1
-        )
+        true_z = np.stack([pair_dist, bearing, wrap_angle(poses[tj, 2] - poses[oi, 2])], axis=1)
         if len(fp_obs):
             fp_tgt = (fp_obs + rng.integers(1, n, size=len(fp_obs))) % n
             half = min(fov / 2, np.pi)
