@@ -61,6 +61,8 @@ _H_POSITION = np.eye(3)[:2]
 _H_POSITION.flags.writeable = False
 _H_HEADING = np.eye(3)[2:]
 _H_HEADING.flags.writeable = False
+_EYE6 = np.eye(6)
+_EYE6.flags.writeable = False
 
 
 @functools.lru_cache(maxsize=16)
@@ -330,11 +332,12 @@ class PoseEKF:
         idx_b = np.asarray(idx_b, dtype=int)
         z = np.asarray(z, dtype=float).reshape(-1, 3)
         r = np.asarray(r, dtype=float).reshape(-1, 3, 3)
-        if np.any(idx_a == idx_b):
+        if (idx_a == idx_b).any():
             raise ValueError("a robot cannot observe itself in a relative update")
         accepted = np.zeros(len(idx_a), dtype=bool)
-        priority = np.argsort(-np.trace(self.cov[idx_b], axis1=1, axis2=2), kind="stable")
-        for rows in _rounds(idx_a[priority], idx_b[priority], self.n)[:max_rounds]:
+        priority = np.argsort(-self.cov[idx_b].trace(axis1=1, axis2=2), kind="stable")
+        limit = max_rounds if max_rounds is None or max_rounds >= 0 else None
+        for rows in _rounds(idx_a[priority], idx_b[priority], self.n, limit)[:max_rounds]:
             rows = priority[rows]
             accepted[rows] = self._joint_update(
                 idx_a[rows], idx_b[rows], z[rows], r[rows], model, dims, gate_prob, fusion
@@ -342,48 +345,62 @@ class PoseEKF:
         return accepted
 
     def _joint_update(self, ia, ib, z, r, model, dims, gate_prob, fusion) -> np.ndarray:
-        dims = list(dims)
-        xa, xb = self.mean[ia], self.mean[ib]
-        h, ja, jb = relative_measurement(xa, xb, model)
-        h, ja, jb = h[:, dims], ja[:, dims], jb[:, dims]
-        z = z[:, dims]
-        r = r[:, dims][:, :, dims]
+        """One round of :meth:`update_relative` (each robot in at most one pair)."""
         k = len(ia)
-        jac = np.concatenate([ja, jb], axis=2)  # (k, m, 6)
-        pa, pb = self.cov[ia], self.cov[ib]
-        p = np.zeros((k, 6, 6))
-        p[:, :3, :3] = pa
-        p[:, 3:, 3:] = pb
-        if fusion == "ci":
-            w = _best_ci_weight(pa, pb, jac, r)[:, None, None]
-            p[:, :3, :3] /= w
-            p[:, 3:, 3:] /= 1 - w
-        nu = z - h
+        iab = np.concatenate((ia, ib))
+        xa, xb = self.mean[iab].reshape(2, k, 3)
+        h, jac = _relative_measurement(xa, xb, model)  # jac (k, 3, 6): [H_a, H_b]
         first_angle = 2 if model == "cartesian" else 1
-        for j, d in enumerate(dims):
-            if d >= first_angle:
-                nu[:, j] = wrap_angle(nu[:, j])
-        ph_t = p @ np.swapaxes(jac, 1, 2)
-        s = jac @ ph_t + r
+        if tuple(dims) == (0, 1, 2):
+            angles: list[int] | slice = slice(first_angle, None)
+        else:
+            dims = list(dims)
+            h, jac, z = h[:, dims], jac[:, dims], z[:, dims]
+            r = r[:, dims][:, :, dims]
+            angles = [j for j, d in enumerate(dims) if d >= first_angle]
+        pab = self.cov[iab].reshape(2, k, 3, 3)
+        pa, pb = pab
+        if fusion == "ci":
+            w = _best_ci_weight(pab, jac, r)[:, None, None]
+            pa_w, pb_w = pa / w, pb / (1 - w)
+        else:
+            pa_w, pb_w = pa, pb
+        p = np.zeros((k, 6, 6))
+        p[:, :3, :3] = pa_w
+        p[:, 3:, 3:] = pb_w
+        nu = z - h
+        nu[:, angles] = wrap_angle(nu[:, angles])
+        ph_t = p @ jac.mT
+        s = jac @ ph_t
+        s += r
         s_inv = np.linalg.inv(s)
         d2 = np.einsum("ki,kij,kj->k", nu, s_inv, nu)
-        ok = self._gate(d2, len(dims), gate_prob)
-        if not ok.any():
+        ok = self._gate(d2, nu.shape[1], gate_prob)
+        n_ok = np.count_nonzero(ok)
+        if not n_ok:
             return ok
-        gain = ph_t[ok] @ s_inv[ok]
-        dx = np.einsum("kij,kj->ki", gain, nu[ok])
-        i_kh = np.eye(6) - gain @ jac[ok]
-        p_new = i_kh @ p[ok] @ np.swapaxes(i_kh, 1, 2) + gain @ r[ok] @ np.swapaxes(gain, 1, 2)
-        p_new = _symmetrize(p_new)
-        for sl, rob, prior in ((slice(0, 3), ia[ok], pa[ok]), (slice(3, 6), ib[ok], pb[ok])):
+        if n_ok < len(ok):
+            ph_t, s_inv, nu, jac, p, r = ph_t[ok], s_inv[ok], nu[ok], jac[ok], p[ok], r[ok]
+            ia, ib, pa, pb = ia[ok], ib[ok], pa[ok], pb[ok]
+        gain = ph_t @ s_inv
+        dx = (gain @ nu[:, :, None])[:, :, 0]
+        i_kh = _EYE6 - gain @ jac
+        p_new = i_kh @ p @ i_kh.mT
+        p_new += gain @ r @ gain.mT
+        p_new += p_new.mT  # symmetrize in place (numpy buffers the overlapping transpose)
+        p_new *= 0.5
+        for sl, rob, prior in ((slice(0, 3), ia, pa), (slice(3, 6), ib, pb)):
             post = p_new[:, sl, sl]
-            keep = np.trace(post, axis1=1, axis2=2) < np.trace(prior, axis1=1, axis2=2)
-            if fusion == "naive":
-                keep[:] = True
-            rob = rob[keep]
-            self.mean[rob] += dx[keep, sl]
-            self.mean[rob, 2] = wrap_angle(self.mean[rob, 2])
-            self.cov[rob] = post[keep]
+            step = dx[:, sl]
+            if fusion == "ci":  # keep the prior where the update would not shrink it
+                keep = post.trace(axis1=1, axis2=2) < prior.trace(axis1=1, axis2=2)
+                if np.count_nonzero(keep) < len(keep):
+                    rob, post, step = rob[keep], post[keep], step[keep]
+            mean = self.mean[rob]
+            mean += step
+            _wrap_in_place(mean[:, 2])
+            self.mean[rob] = mean
+            self.cov[rob] = post
         return ok
 
 
@@ -468,74 +485,114 @@ def relative_measurement(
     For ``model="rbo"`` the range is floored at 1 mm so the bearing Jacobian
     stays finite when two estimates coincide.
     """
+    if model not in ("rbo", "cartesian"):
+        raise ValueError(f"unknown relative measurement model {model!r}")
+    xa = np.asarray(xa, dtype=float).reshape(-1, 3)
+    xb = np.asarray(xb, dtype=float).reshape(-1, 3)
+    if xa.shape != xb.shape:
+        raise ValueError(f"xa and xb must have the same shape, got {xa.shape} and {xb.shape}")
+    h, jac = _relative_measurement(xa, xb, model)
+    return h, jac[:, :, :3].copy(), jac[:, :, 3:].copy()
+
+
+# Constant entries of the stacked Jacobians [H_a, H_b] (3, 6) of the two models.
+_JAC_CONST = {
+    "cartesian": np.hstack([np.eye(3), -np.eye(3)]),
+    "rbo": np.array([[0.0] * 6, [0, 0, -1, 0, 0, 0], [0, 0, -1, 0, 0, 1]], dtype=float),
+}
+for _jac in _JAC_CONST.values():
+    _jac.flags.writeable = False
+_FLIP = np.array([1.0, -1.0])
+
+
+def _relative_measurement(
+    xa: np.ndarray, xb: np.ndarray, model: str
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`relative_measurement` of ``(k, 3)`` float poses with the Jacobians side by
+    side: ``(h (k, 3), [H_a, H_b] (k, 3, 6))``."""
     k = len(xa)
-    ja = np.zeros((k, 3, 3))
-    jb = np.zeros((k, 3, 3))
+    jac = np.empty((k, 3, 6))
+    jac[:] = _JAC_CONST[model]
     if model == "cartesian":
         h = xa - xb
-        h[:, 2] = wrap_angle(h[:, 2])
-        ja[:, [0, 1, 2], [0, 1, 2]] = 1.0
-        jb[:, [0, 1, 2], [0, 1, 2]] = -1.0
-        return h, ja, jb
-    dx = xb[:, 0] - xa[:, 0]
-    dy = xb[:, 1] - xa[:, 1]
-    q = np.maximum(dx * dx + dy * dy, 1e-6)
-    rng = np.sqrt(q)
-    h = np.stack(
-        [rng, wrap_angle(np.arctan2(dy, dx) - xa[:, 2]), wrap_angle(xb[:, 2] - xa[:, 2])], axis=1
-    )
-    ja[:, 0, 0], ja[:, 0, 1] = -dx / rng, -dy / rng
-    jb[:, 0, 0], jb[:, 0, 1] = dx / rng, dy / rng
-    ja[:, 1, 0], ja[:, 1, 1], ja[:, 1, 2] = dy / q, -dx / q, -1.0
-    jb[:, 1, 0], jb[:, 1, 1] = -dy / q, dx / q
-    ja[:, 2, 2] = -1.0
-    jb[:, 2, 2] = 1.0
-    return h, ja, jb
+        _wrap_in_place(h[:, 2])
+        return h, jac
+    d = xb[:, :2] - xa[:, :2]  # (dx, dy)
+    sq = d * d
+    q = sq[:, 0] + sq[:, 1]
+    np.maximum(q, 1e-6, out=q)
+    h = np.empty((k, 3))
+    rng = np.sqrt(q, out=h[:, 0])
+    np.arctan2(d[:, 1], d[:, 0], out=h[:, 1])
+    h[:, 2] = xb[:, 2]
+    h[:, 1:] -= xa[:, 2:3]
+    _wrap_in_place(h[:, 1:])
+    # Range row: (-dx, -dy, 0, dx, dy, 0) / range; bearing row: (dy, -dx, -1, -dy, dx, 0) / q.
+    ur = d / rng[:, None]
+    jac[:, 0, 3:5] = ur
+    np.negative(ur, out=jac[:, 0, :2])
+    bearing = jac[:, 1, :2]
+    np.multiply(d[:, ::-1] / q[:, None], _FLIP, out=bearing)
+    np.negative(bearing, out=jac[:, 1, 3:5])
+    return h, jac
 
 
 _CI_WEIGHTS = np.linspace(0.05, 0.95, 10)
+_CI_WEIGHTS.flags.writeable = False
+# The weights of robot a (w) and robot b (1 - w), shaped to divide (2, 1, k, m, m) blocks.
+_CI_SCALES = np.stack([_CI_WEIGHTS, 1 - _CI_WEIGHTS])[:, :, None, None, None]
+_CI_SCALES.flags.writeable = False
 
 
-def _best_ci_weight(pa: np.ndarray, pb: np.ndarray, jac: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """Covariance-intersection weight per pair (grid search).
+def _best_ci_weight(pab: np.ndarray, jac: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """Covariance-intersection weight per pair (grid search over ``_CI_WEIGHTS``).
+
+    ``pab (2, k, 3, 3)``: the priors ``P_a``, ``P_b``; ``jac (k, m, 6)``: ``[H_a, H_b]``;
+    ``r (k, m, m)``.
 
     Minimizes the summed trace of the two robots' covariances after the update,
     counting a robot whose inflated posterior would exceed its prior at its prior
     (the update leaves such a robot unchanged).
+
+    With ``P_a / w``, ``P_b / (1 - w)`` on the diagonal, ``U_a = P_a H_a^T``,
+    ``U_b = P_b H_b^T`` and ``S(w) = H_a U_a / w + H_b U_b / (1 - w) + R``, robot
+    ``a``'s posterior trace is ``tr P_a / w - tr(S(w)^-1 U_a^T U_a) / w^2`` (and
+    likewise for ``b`` with ``1 - w``): only ``m x m`` matrices per weight.
     """
-    w = _CI_WEIGHTS[:, None, None, None]
-    k = len(pa)
-    p = np.zeros((len(_CI_WEIGHTS), k, 6, 6))
-    p[:, :, :3, :3] = pa[None] / w
-    p[:, :, 3:, 3:] = pb[None] / (1 - w)
-    ph_t = p @ np.swapaxes(jac, 1, 2)[None]
-    s = jac[None] @ ph_t + r[None]
-    # Diagonal blocks of P - P H^T S^-1 H P: trace(P_ii) - sum over the block's rows.
-    reduction = np.einsum("wkij,wkij->wki", ph_t, ph_t @ np.linalg.inv(s))
-    diag = np.diagonal(p, axis1=2, axis2=3)
-    post_a = (diag[..., :3] - reduction[..., :3]).sum(-1)
-    post_b = (diag[..., 3:] - reduction[..., 3:]).sum(-1)
-    ta = np.trace(pa, axis1=1, axis2=2)[None]
-    tb = np.trace(pb, axis1=1, axis2=2)[None]
-    cost = np.minimum(post_a, ta) + np.minimum(post_b, tb)
-    return _CI_WEIGHTS[np.argmin(cost, axis=0)]
+    k, m = jac.shape[:2]
+    jab = jac.reshape(k, m, 2, 3).transpose(2, 0, 1, 3)  # (2, k, m, 3): H_a, H_b
+    u = pab @ jab.mT  # (2, k, 3, m)
+    s = (jab @ u)[:, None] / _CI_SCALES  # (2, weights, k, m, m)
+    s = s[0] + s[1]
+    s += r
+    gram = u.mT @ u  # (2, k, m, m)
+    reduction = np.einsum("wkij,gkij->gwk", np.linalg.inv(s), gram)
+    prior = pab.trace(axis1=2, axis2=3)[:, None]  # (2, 1, k)
+    scale = _CI_SCALES[..., 0, 0]  # (2, weights, 1): w and 1 - w
+    post = prior / scale - reduction / (scale * scale)
+    np.minimum(post, prior, out=post)
+    return _CI_WEIGHTS[np.argmin(post[0] + post[1], axis=0)]
 
 
-def _rounds(idx_a: np.ndarray, idx_b: np.ndarray, n: int) -> list[np.ndarray]:
-    """Split pairs into rounds in which every robot index appears at most once."""
-    remaining = np.arange(len(idx_a))
+def _rounds(
+    idx_a: np.ndarray, idx_b: np.ndarray, n: int, max_rounds: int | None = None
+) -> list[np.ndarray]:
+    """Split pairs into rounds in which every robot index appears at most once (greedy, in
+    order); only the first ``max_rounds`` rounds are formed (``None``: all)."""
+    a_list, b_list = idx_a.tolist(), idx_b.tolist()
+    remaining = list(range(len(a_list)))
     rounds = []
-    while len(remaining):
-        used = np.zeros(n, dtype=bool)
+    while remaining and (max_rounds is None or len(rounds) < max_rounds):
+        used = [False] * n
         take = []
         rest = []
         for row in remaining:
-            a, b = idx_a[row], idx_b[row]
+            a, b = a_list[row], b_list[row]
             if used[a] or used[b]:
                 rest.append(row)
             else:
                 used[a] = used[b] = True
                 take.append(row)
         rounds.append(np.asarray(take, dtype=int))
-        remaining = np.asarray(rest, dtype=int)
+        remaining = rest
     return rounds

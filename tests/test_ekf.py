@@ -256,3 +256,109 @@ def test_generic_update_equals_position_update():
     with pytest.raises(ValueError, match="NaN"):
         two.update_heading(idx, [0.0, np.inf, 0.0], np.ones(3))
     assert two.update_heading([], [], []).shape == (0,)
+
+
+def _reference_ci_weight(pa, pb, jac, r):
+    """The grid search on the full 6x6 inflated covariances (the direct form)."""
+    weights = np.linspace(0.05, 0.95, 10)
+    costs = []
+    for w in weights:
+        cost = []
+        for i in range(len(pa)):
+            p = np.zeros((6, 6))
+            p[:3, :3], p[3:, 3:] = pa[i] / w, pb[i] / (1 - w)
+            s = jac[i] @ p @ jac[i].T + r[i]
+            post = p - p @ jac[i].T @ np.linalg.solve(s, jac[i] @ p)
+            cost.append(
+                min(np.trace(post[:3, :3]), np.trace(pa[i]))
+                + min(np.trace(post[3:, 3:]), np.trace(pb[i]))
+            )
+        costs.append(cost)
+    return weights[np.argmin(np.array(costs), axis=0)]
+
+
+@pytest.mark.parametrize("model", ["rbo", "cartesian"])
+@pytest.mark.parametrize("dims", [(0, 1, 2), (0, 1)])
+def test_ci_weight_matches_the_direct_grid_search(model, dims):
+    from estimators.ekf import _best_ci_weight, _relative_measurement
+
+    rng = np.random.default_rng(11)
+    k = 40
+    a = rng.standard_normal((2, k, 3, 3)) * rng.uniform(0.05, 3.0, (2, k, 1, 1))
+    pab = a @ a.transpose(0, 1, 3, 2) + 1e-3 * np.eye(3)
+    xa, xb = rng.standard_normal((2, k, 3)) * [4.0, 4.0, 3.0]
+    _, jac = _relative_measurement(xa, xb, model)
+    r = np.repeat(np.diag([0.05, 0.01, 0.02])[None], k, axis=0)
+    jac, r = jac[:, list(dims)], r[:, list(dims)][:, :, list(dims)]
+    got = _best_ci_weight(pab, jac, r)
+    np.testing.assert_array_equal(got, _reference_ci_weight(pab[0], pab[1], jac, r))
+
+
+def test_relative_measurement_matches_its_formulas():
+    rng = np.random.default_rng(5)
+    xa, xb = rng.standard_normal((2, 30, 3)) * [5.0, 5.0, 3.0]
+    xb[0, :2] = xa[0, :2]  # coinciding estimates: range floored at 1 mm
+    h, ja, jb = relative_measurement(xa, xb)
+    dx, dy = xb[:, 0] - xa[:, 0], xb[:, 1] - xa[:, 1]
+    q = np.maximum(dx * dx + dy * dy, 1e-6)
+    rng_ = np.sqrt(q)
+    np.testing.assert_array_equal(h[:, 0], rng_)
+    np.testing.assert_array_equal(h[:, 1], wrap_angle(np.arctan2(dy, dx) - xa[:, 2]))
+    np.testing.assert_array_equal(h[:, 2], wrap_angle(xb[:, 2] - xa[:, 2]))
+    zero, one = np.zeros(30), np.ones(30)
+    want_a = np.stack(
+        [[-dx / rng_, -dy / rng_, zero], [dy / q, -dx / q, -one], [zero, zero, -one]]
+    ).transpose(2, 0, 1)
+    want_b = np.stack(
+        [[dx / rng_, dy / rng_, zero], [-dy / q, dx / q, zero], [zero, zero, one]]
+    ).transpose(2, 0, 1)
+    np.testing.assert_array_equal(ja, want_a)
+    np.testing.assert_array_equal(jb, want_b)
+    h, ja, jb = relative_measurement(xa, xb, "cartesian")
+    want = xa - xb
+    want[:, 2] = wrap_angle(want[:, 2])
+    np.testing.assert_array_equal(h, want)
+    np.testing.assert_array_equal(ja, np.broadcast_to(np.eye(3), (30, 3, 3)))
+    np.testing.assert_array_equal(jb, np.broadcast_to(-np.eye(3), (30, 3, 3)))
+    with pytest.raises(ValueError, match="model"):
+        relative_measurement(xa, xb, "polar")
+    with pytest.raises(ValueError, match="shape"):
+        relative_measurement(xa, xb[:3])
+
+
+def test_rounds_limit_keeps_the_first_rounds():
+    from estimators.ekf import _rounds
+
+    rng = np.random.default_rng(2)
+    a = rng.integers(0, 12, 80)
+    b = (a + rng.integers(1, 12, 80)) % 12
+    every = _rounds(a, b, 12)
+    assert sum(len(x) for x in every) == 80
+    for rows in every:
+        robots = np.concatenate([a[rows], b[rows]])
+        assert len(np.unique(robots)) == len(robots)
+    for limit in (0, 1, 3):
+        got = _rounds(a, b, 12, limit)
+        assert len(got) == min(limit, len(every))
+        for x, y in zip(got, every, strict=False):
+            np.testing.assert_array_equal(x, y)
+
+
+@pytest.mark.parametrize("fusion", ["ci", "naive"])
+def test_relative_update_with_partial_dims_and_rounds(fusion):
+    rng = np.random.default_rng(9)
+    n = 8
+    mean = rng.uniform(0, 10, (n, 3))
+    ekf = PoseEKF(mean, np.diag([0.5, 0.5, 0.1]))
+    ekf.cov[::2] *= 10.0
+    ia = np.array([0, 2, 4, 0, 6])
+    ib = np.array([1, 3, 5, 7, 1])
+    z = relative_pose(mean[ia], mean[ib]) + rng.normal(0, 0.01, (5, 3))
+    r = np.repeat(np.diag([0.05, 0.01, 0.02])[None], 5, axis=0)
+    before = ekf.cov.copy()
+    ok = ekf.update_relative(ia, ib, z, r, dims=(0, 1), fusion=fusion, max_rounds=1)
+    assert ok.tolist() == [True, True, True, False, False]  # 0 and 1 are in round 1 already
+    traces = np.trace(ekf.cov, axis1=1, axis2=2)
+    assert np.all(traces <= np.trace(before, axis1=1, axis2=2) + 1e-12) or fusion == "naive"
+    np.testing.assert_array_equal(ekf.cov, ekf.cov.transpose(0, 2, 1))
+    assert np.all(np.abs(ekf.mean[:, 2]) <= np.pi)
