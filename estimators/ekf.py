@@ -195,21 +195,26 @@ class PoseEKF:
         Returns:
             Boolean mask ``(k,)`` of accepted measurements.
         """
-        idx = np.asarray(idx, dtype=int)
-        if len(idx) == 0:
+        idx, sel, z = self._checked(idx, z)
+        if not len(idx):
             return np.zeros(0, dtype=bool)
-        _check_finite("z", z)
-        nu = np.asarray(z, dtype=float) - h
+        nu = z - h
         for d in angle_dims:
             nu[:, d] = wrap_angle(nu[:, d])
-        return self._update(idx, self._rows(idx), nu, jac, r, gate_prob)
+        return self._update(idx, sel, nu, jac, r, gate_prob)
 
-    def _rows(self, idx: np.ndarray) -> np.ndarray | slice:
-        """``slice(None)`` when ``idx`` is every robot in order, or ``idx``."""
+    def _checked(
+        self, idx: np.ndarray, z: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray | slice, np.ndarray]:
+        """``idx`` as ints, the rows it selects (``slice(None)`` when it is every robot in
+        order: views instead of copies) and ``z`` as floats, checked finite."""
+        idx = np.asarray(idx, dtype=int)
+        if not len(idx):
+            return idx, idx, np.zeros(0)
+        _check_finite("z", z)
         n = len(self.mean)
-        if len(idx) == n and (idx == _arange(n)).all():
-            return slice(None)
-        return idx
+        sel = slice(None) if len(idx) == n and (idx == _arange(n)).all() else idx
+        return idx, sel, np.asarray(z, dtype=float)
 
     def _update(
         self,
@@ -264,25 +269,20 @@ class PoseEKF:
         self, idx: np.ndarray, z: np.ndarray, r: np.ndarray, gate_prob: float | None = None
     ) -> np.ndarray:
         """DGPS update: ``z = (x, y)``, ``H = [[1,0,0],[0,1,0]]``, noise ``r (k, 2, 2)``."""
-        idx = np.asarray(idx, dtype=int)
-        if len(idx) == 0:
+        idx, sel, z = self._checked(idx, z)
+        if not len(idx):
             return np.zeros(0, dtype=bool)
-        _check_finite("z", z)
-        sel = self._rows(idx)
-        nu = np.asarray(z, dtype=float) - self.mean[sel, :2]
+        nu = z - self.mean[sel, :2]
         return self._update(idx, sel, nu, _H_POSITION, np.asarray(r, dtype=float), gate_prob)
 
     def update_heading(
         self, idx: np.ndarray, z: np.ndarray, var: np.ndarray, gate_prob: float | None = None
     ) -> np.ndarray:
         """Compass update: ``z = phi``, ``H = [0, 0, 1]``, noise variance ``var (k,)``."""
-        idx = np.asarray(idx, dtype=int)
-        if len(idx) == 0:
+        idx, sel, z = self._checked(idx, z)
+        if not len(idx):
             return np.zeros(0, dtype=bool)
-        z = np.asarray(z, dtype=float).reshape(-1, 1)
-        _check_finite("z", z)
-        sel = self._rows(idx)
-        nu = wrap_angle(z - self.mean[sel, 2:3])
+        nu = wrap_angle(z.reshape(-1, 1) - self.mean[sel, 2:3])
         r = np.asarray(var, dtype=float).reshape(-1, 1, 1)
         return self._update(idx, sel, nu, _H_HEADING, r, gate_prob)
 
@@ -383,7 +383,7 @@ class PoseEKF:
             ph_t, s_inv, nu, jac, p, r = ph_t[ok], s_inv[ok], nu[ok], jac[ok], p[ok], r[ok]
             ia, ib, pa, pb = ia[ok], ib[ok], pa[ok], pb[ok]
         gain = ph_t @ s_inv
-        dx = (gain @ nu[:, :, None])[:, :, 0]
+        dx = np.einsum("kij,kj->ki", gain, nu)
         i_kh = _EYE6 - gain @ jac
         p_new = i_kh @ p @ i_kh.mT
         p_new += gain @ r @ gain.mT
