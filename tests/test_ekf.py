@@ -279,11 +279,11 @@ def _reference_ci_weight(pa, pb, jac, r):
 
 @pytest.mark.parametrize("model", ["rbo", "cartesian"])
 @pytest.mark.parametrize("dims", [(0, 1, 2), (0, 1)])
-def test_ci_weight_matches_the_direct_grid_search(model, dims):
+@pytest.mark.parametrize("k", [2, 40])  # LAPACK inverses, cofactors (from 4 pairs on)
+def test_ci_weight_matches_the_direct_grid_search(model, dims, k):
     from estimators.ekf import _best_ci_weight, _relative_measurement
 
     rng = np.random.default_rng(11)
-    k = 40
     a = rng.standard_normal((2, k, 3, 3)) * rng.uniform(0.05, 3.0, (2, k, 1, 1))
     pab = a @ a.transpose(0, 1, 3, 2) + 1e-3 * np.eye(3)
     xa, xb = rng.standard_normal((2, k, 3)) * [4.0, 4.0, 3.0]
@@ -362,3 +362,14 @@ def test_relative_update_with_partial_dims_and_rounds(fusion):
     assert np.all(traces <= np.trace(before, axis1=1, axis2=2) + 1e-12) or fusion == "naive"
     np.testing.assert_array_equal(ekf.cov, ekf.cov.transpose(0, 2, 1))
     assert np.all(np.abs(ekf.mean[:, 2]) <= np.pi)
+
+
+def test_cofactors_give_the_inverse_and_determinant():
+    from estimators.ekf import _cofactors3
+
+    rng = np.random.default_rng(4)
+    a = rng.standard_normal((5, 7, 3, 3))
+    cof, det = _cofactors3(a)
+    np.testing.assert_allclose(det, np.linalg.det(a), rtol=1e-12)
+    np.testing.assert_allclose(cof.swapaxes(-1, -2) / det[..., None, None], np.linalg.inv(a),
+                               rtol=1e-10, atol=1e-12)
