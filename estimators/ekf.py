@@ -201,6 +201,7 @@ class PoseEKF:
         nu = z - h
         for d in angle_dims:
             nu[:, d] = wrap_angle(nu[:, d])
+        jac, r = np.asarray(jac, dtype=float), np.asarray(r, dtype=float)
         return self._update(idx, sel, nu, jac, r, gate_prob)
 
     def _checked(
