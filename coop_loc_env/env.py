@@ -235,11 +235,16 @@ class CoopLocParallelEnv(ParallelEnv):
         truncate = self._step_count >= cfg.max_cycles
 
         infos, rewards = self._infos(newly_tipped.astype(float), contacts, live)
-        active = self._active.tolist()
-        terminations = {a: not active[self.agent_name_mapping[a]] for a in live}
-        truncations = {a: bool(truncate) for a in live}
+        if truncate or np.count_nonzero(self._active) < self._active.size:
+            active = self._active.tolist()
+            terminations = {a: not active[self.agent_name_mapping[a]] for a in live}
+            truncations = dict.fromkeys(live, truncate)
+            going_on = [a for a in live if not (terminations[a] or truncate)]
+        else:  # every robot is still in and the episode goes on: so does every live agent
+            terminations, truncations = dict.fromkeys(live, False), dict.fromkeys(live, False)
+            going_on = live
         obs = self._observe_all(live)
-        self.agents = [a for a in live if not (terminations[a] or truncations[a])]
+        self.agents = going_on
         if self.render_mode == "human":
             self.render()
         return obs, rewards, terminations, truncations, infos
