@@ -185,6 +185,8 @@ class TeamMapper:
         self, cells: np.ndarray, before: np.ndarray, after: np.ndarray, was_mapped: np.ndarray
     ) -> None:
         """Keep the squared-error sum and the covered count up to date (``merge_listener``)."""
+        if not cells.size:  # a merge that wrote nothing
+            return
         truth = self._truth_flat[cells]
         err_after = after - truth
         err_before = before - truth

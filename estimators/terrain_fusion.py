@@ -137,11 +137,44 @@ def fuse_elevation(
         raise ValueError(f"weights must be 'paper' or 'kalman', got {weights!r}")
     nos = np.asarray(nos, dtype=float)
     tan_p = np.tan(pitch) if tan_pitch is None else tan_pitch
-    z_inc = prev_elev + distance * tan_p
+    return _fuse_elevation(
+        prev_elev,
+        prev_var,
+        distance,
+        tan_p,
+        tan_p * tan_p,
+        gps_elev,
+        nos if np.count_nonzero(nos) else None,  # no satellites anywhere: no fix at all
+        pitch_std,
+        gps_alt_std,
+        weights,
+    )
+
+
+def _fuse_elevation(
+    prev_elev: np.ndarray,
+    prev_var: np.ndarray,
+    distance: np.ndarray,
+    tan_p: np.ndarray,
+    tan2: np.ndarray,
+    gps_elev: np.ndarray,
+    nos: np.ndarray | None,
+    pitch_std: float,
+    gps_alt_std: float,
+    weights: str,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`fuse_elevation` (its one implementation) from ``tan_p = tan(pitch)``, ``tan2 =
+    tan_p^2`` and a known ``weights``; ``nos`` None when no robot sees a satellite
+    (``gps_elev`` is then ignored), otherwise checked here. Inputs are not modified."""
+    z_inc = distance * tan_p
+    z_inc += prev_elev
     # d/dtheta tan = sec^2, so var(d tan(theta)) = (d sec^2 sigma)^2 to first order.
-    dev = distance * (1.0 + tan_p * tan_p) * pitch_std
-    var_inc = prev_var + dev * dev
-    if not np.count_nonzero(nos):  # no satellites anywhere (a valid count): no fix at all
+    var_inc = tan2 + 1.0
+    var_inc *= distance
+    var_inc *= pitch_std
+    var_inc *= var_inc
+    var_inc += prev_var
+    if nos is None:
         return z_inc, var_inc
     nos = _as_nos(nos)
     gps_elev = np.asarray(gps_elev, dtype=float)

@@ -65,7 +65,13 @@ import numpy as np
 from scipy.interpolate import griddata
 from scipy.spatial import QhullError
 
-from estimators.terrain_fusion import fuse_elevation
+from estimators.terrain_fusion import _fuse_elevation
+
+# What a merge that writes nothing hands the listener: no cells, before/after values
+# or was-mapped flags (shared, so read-only).
+_NO_CELLS = (np.zeros(0, dtype=np.intp), np.zeros(0), np.zeros(0), np.zeros(0, dtype=bool))
+for _arr in _NO_CELLS:
+    _arr.flags.writeable = False
 
 
 def _vector(name: str, value: np.ndarray | float, n: int) -> np.ndarray:
@@ -150,6 +156,7 @@ class TerrainMap:
         self.shape = (nx, ny)
         # The same as arrays, made once for the per-step cell lookups (None: origin at 0).
         self._shape_xy = np.array(self.shape, dtype=float)
+        self._min_dim = float(min(self.shape))
         self._origin_xy = None if self.origin == (0.0, 0.0) else np.array(self.origin)
         self.datum = float(datum)
         self.pitch_std = float(pitch_std)
@@ -165,6 +172,7 @@ class TerrainMap:
         self._valid_ids: np.ndarray | None = None  # an id array already checked ...
         self._valid_bytes = b""  # ... and its contents then (a cache hit needs both)
         self._owner = np.zeros(0, dtype=np.intp)  # its samples' robot ids (footprint repeat)
+        self._valid_whole = False  # ... and whether it is every robot in id order
         self.reset()
 
     # ------------------------------------------------------------------ setup
@@ -284,6 +292,7 @@ class TerrainMap:
         if ids is robot_ids:
             self._valid_ids, self._valid_bytes = ids, ids.tobytes()
             self._owner = np.repeat(ids, self._footprint.shape[0])
+            self._valid_whole = lst == list(range(self.n_robots))
         return ids
 
     def _flat_index(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -291,17 +300,28 @@ class TerrainMap:
         flat, inside = self._flat_index_xy(np.stack([np.ravel(x), np.ravel(y)], 1))
         return flat.reshape(np.shape(x)), inside.reshape(np.shape(x))
 
-    def _flat_index_xy(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Flat cell indices of finite world points ``(k, 2)`` and the mask of those inside."""
+    def _flat_index_xy(
+        self, xy: np.ndarray, all_inside: bool = False
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """Flat cell indices of finite world points ``(k, 2)`` and the mask of those inside.
+
+        With ``all_inside=True`` the mask is None when every point is inside (two
+        reductions instead of the elementwise mask).
+        """
         f = (xy - self._origin_xy if self._origin_xy is not None else xy) * (1.0 / self.resolution)
-        # Negative values truncate towards 0, so test the floats, then cast.
-        ok = f >= 0
-        ok &= f < self._shape_xy
-        inside = ok[:, 0] & ok[:, 1]
         cell = f.astype(np.intp)
         flat = cell[:, 0] * self.shape[1]
         flat += cell[:, 1]
-        return flat, inside
+        if (
+            all_inside
+            and np.minimum.reduce(f, None) >= 0.0
+            and np.maximum.reduce(f, None) < self._min_dim
+        ):
+            return flat, None
+        # Negative values truncate towards 0, so test the floats.
+        ok = f >= 0
+        ok &= f < self._shape_xy
+        return flat, ok[:, 0] & ok[:, 1]
 
     def update(
         self,
@@ -372,49 +392,60 @@ class TerrainMap:
         distance are still rejected before anything is written.
         """
         n = ids.size
+        # Every robot in id order: its rows as views, its counts as the merge returns them.
+        whole = ids is self._valid_ids and self._valid_whole
+        rows = slice(None) if whole else ids
         tan_p = np.tan(pitch)
-        elev, var = fuse_elevation(
-            self._robot_elev[ids],
-            self._robot_var[ids],
+        tan2 = tan_p * tan_p
+        elev, var = _fuse_elevation(
+            self._robot_elev[rows],
+            self._robot_var[rows],
             distance,
-            pitch,
+            tan_p,
+            tan2,
             gps_elev,
-            nos,
+            nos if np.count_nonzero(nos) else None,  # no satellites anywhere: no fix at all
             self.pitch_std,
             self.gps_alt_std,
             self.weights,
-            tan_pitch=tan_p,
         )
         # Sample variance: elevation + position error seen through the slope.
-        slope2 = np.maximum(tan_p * tan_p, self.slope_floor**2)
-        var_s = np.maximum(var + slope2 * pos_var, self.min_var)
+        var_s = np.maximum(tan2, self.slope_floor**2)
+        var_s *= pos_var
+        var_s += var
+        np.maximum(var_s, self.min_var, out=var_s)
         # One finiteness check covers poses, pitch, distance and covariances (two reductions).
         if not math.isfinite(np.add.reduce(elev + var_s) + np.add.reduce(poses, None)):
             raise ValueError(
                 f"est_poses, pose_covs, pitch and distance must be finite, got {poses!r}, "
                 f"{pos_var!r}, {pitch!r}, {distance!r}"
             )
-        self._robot_elev[ids] = elev
-        self._robot_var[ids] = var
+        self._robot_elev[rows] = elev
+        self._robot_var[rows] = var
 
         fp = self._footprint
         if fp.shape[0] == 1:
             xy = poses[:, :2]
-            vals, vars_, owner = elev, var_s, ids
+            vals, conf, owner = elev, var_s, ids
         else:
             xy = (poses[:, None, :2] + fp).reshape(-1, 2)
             heading = poses[:, 2]  # 1-D: the trigonometry runs faster than on a column
-            c, s = np.cos(heading)[:, None], np.sin(heading)[:, None]
-            vals = (elev[:, None] + tan_p[:, None] * (c * self._fp_x + s * self._fp_y)).ravel()
-            vars_ = (var_s[:, None] + self._footprint_var).ravel()
+            # elev + tan(pitch) * (offset along the heading), built in place.
+            vals = np.cos(heading)[:, None] * self._fp_x
+            vals += np.sin(heading)[:, None] * self._fp_y
+            vals *= tan_p[:, None]
+            vals += elev[:, None]
+            vals = vals.reshape(-1)
+            conf = (var_s[:, None] + self._footprint_var).reshape(-1)
             owner = self._owner if ids is self._valid_ids else np.repeat(ids, fp.shape[0])
-        flat, inside = self._flat_index_xy(xy)
-        if np.count_nonzero(inside) < inside.size:
-            flat, vals, vars_, owner = flat[inside], vals[inside], vars_[inside], owner[inside]
-        conf = 1.0 / vars_
+        np.divide(1.0, conf, out=conf)  # a fresh array: confidence = 1 / variance
+        flat, inside = self._flat_index_xy(xy, all_inside=True)
+        if inside is not None and np.count_nonzero(inside) < inside.size:
+            flat, vals, conf, owner = flat[inside], vals[inside], conf[inside], owner[inside]
 
         if self.merge_every_step:  # the local map is this step's samples: merge them now
-            return self._merge(flat, vals, conf, owner)[ids]
+            new = self._merge(flat, vals, conf, owner)
+            return new if whole else new[ids]
         # Register into the local (segment) maps, keeping the best sample per cell.
         self._keep_best(
             self._local_elev.reshape(-1),
@@ -450,41 +481,50 @@ class TerrainMap:
         vals: np.ndarray,
         conf: np.ndarray,
         stored: np.ndarray | None = None,
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
         """Write samples where they beat the stored confidence.
 
         ``stored`` is ``confs[flat]`` when the caller has looked it up already.
-        Returns the winners' indices into the samples, their cells and the
-        values written there.
+        Returns the winners' indices into the samples, their cells, the values
+        written there and the values they replaced; None when no sample wins
+        (nothing is written).
         """
-        best = self._best_per_cell(flat, conf)
         if stored is None:
             stored = confs[flat]
-        if best is None:  # every sample is its cell's best
-            idx = (conf > stored).nonzero()[0]
-        else:
-            idx = best[conf[best] > stored[best]]
+        win = conf > stored
+        if not np.count_nonzero(win):  # the usual case on ground mapped before
+            return None
+        best = self._best_per_cell(flat, conf)
+        # Every sample is its cell's best, or only each cell's best may win.
+        idx = win.nonzero()[0] if best is None else best[win[best]]
         fw = flat[idx]
         won = vals[idx]
+        replaced = elev[fw]
         elev[fw] = won
         confs[fw] = conf[idx]
-        return idx, fw, won
+        return idx, fw, won, replaced
 
     def _merge(
         self, flat: np.ndarray, vals: np.ndarray, conf: np.ndarray, owner: np.ndarray
     ) -> np.ndarray:
         """Merge samples into the team map; return newly mapped cells per robot id."""
         stored = self._conf[flat]
-        was_unmapped = stored <= 0
-        before = self._elev[flat] if self.merge_listener is not None else None
-        idx, cells, after = self._keep_best(self._elev, self._conf, flat, vals, conf, stored)
-        fresh = was_unmapped[idx]
-        newly = idx[fresh]
+        kept = self._keep_best(self._elev, self._conf, flat, vals, conf, stored)
+        if kept is None:
+            self.newly_mapped_cells = 0
+            if self.merge_listener is not None:
+                self.merge_listener(*_NO_CELLS)
+            return np.zeros(self.n_robots, dtype=np.int64)
+        idx, cells, after, before = kept
+        was_mapped = stored[idx] > 0
         if self.merge_listener is not None:
-            self.merge_listener(cells, before[idx], after, ~fresh)
-        self.newly_mapped_cells = int(newly.size)
-        self.n_mapped += self.newly_mapped_cells
-        return np.bincount(owner[newly], minlength=self.n_robots)
+            self.merge_listener(cells, before, after, was_mapped)
+        n_new = idx.size - np.count_nonzero(was_mapped)
+        self.newly_mapped_cells = n_new
+        if not n_new:
+            return np.zeros(self.n_robots, dtype=np.int64)
+        self.n_mapped += n_new
+        return np.bincount(owner[idx[~was_mapped]], minlength=self.n_robots)
 
     def end_segment(self, robot_ids: np.ndarray | int | None = None) -> np.ndarray:
         """Merge the local maps of ``robot_ids`` (all by default) into the team map.

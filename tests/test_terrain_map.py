@@ -463,3 +463,42 @@ def test_merge_listener_sees_exactly_the_cells_and_values_written():
         assert np.array_equal(after, m._elev[cells])
         assert np.array_equal(was_mapped, prev[1][cells] > 0)
         assert new.sum() == np.count_nonzero(~was_mapped)
+
+
+def test_flat_index_all_inside_shortcut_agrees_with_the_mask():
+    # Non-square grid with an origin: points near every edge, inside and out.
+    m = TerrainMap(2, size=(6.0, 3.5), resolution=0.5, origin=(-1.0, 2.0))
+    rng = np.random.default_rng(9)
+    for lo, hi in (((-1.0, 2.0), (5.0, 5.5)), ((-1.3, 1.8), (5.2, 5.7)), ((2.0, 2.0), (4.9, 5.49))):
+        xy = rng.uniform(lo, hi, (40, 2))
+        flat, inside = m._flat_index_xy(xy)
+        flat2, inside2 = m._flat_index_xy(xy, all_inside=True)
+        assert np.array_equal(flat, flat2)
+        if inside2 is None:
+            assert inside.all()
+        else:
+            assert np.array_equal(inside, inside2)
+        i, j, ok = m.world_to_cell(xy)
+        assert np.array_equal(ok, inside)
+        assert np.array_equal(flat[ok], (i * m.shape[1] + j)[ok])
+
+
+def test_merges_that_write_nothing_leave_the_map_and_counts_alone():
+    m = TerrainMap(3, size=(10.0, 10.0), resolution=0.5, footprint_radius=0.5)
+    seen = []
+    m.merge_listener = lambda cells, *rest: seen.append(cells.size)
+    poses = np.array([[2.2, 2.2, 0.3], [5.1, 5.1, -1.0], [8.0, 3.0, 2.0]])
+    first = m.update(np.arange(3), poses, np.tile(EYE, (3, 1, 1)), 0.0, np.nan, 0, 0.0, 0.0)
+    assert first.tolist() == [5, 5, 5] and m.n_mapped == 15
+    state = m._elev.copy(), m._conf.copy()
+    for ids in (np.arange(3), np.array([2, 0])):  # whole team, then a subset out of order
+        # Less sure of where they are: every sample loses to what the map holds.
+        new = m.update(ids, poses[ids], np.tile(EYE * 100, (ids.size, 1, 1)), 0.0, np.nan, 0,
+                       0.0, 0.0)
+        assert new.tolist() == [0] * ids.size and m.newly_mapped_cells == 0
+        assert np.array_equal(m._elev, state[0]) and np.array_equal(m._conf, state[1])
+    assert seen == [15, 0, 0] and m.n_mapped == 15
+    # A subset out of order gets its own counts back (robot 2's cell at x = 10 is off the grid).
+    new = m.update(np.array([2, 0]), poses[[2, 0]] + [1.5, 1.5, 0.0], np.tile(EYE, (2, 1, 1)),
+                   0.0, np.nan, 0, 0.0, 0.0)
+    assert new.tolist() == [4, 5] and m.n_mapped == 24
