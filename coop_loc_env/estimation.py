@@ -151,14 +151,17 @@ def _arange(n: int) -> np.ndarray:
 
 
 def _odometry_variance(
-    slip: np.ndarray, encoder_var: np.ndarray | float, scale: float
+    odo: np.ndarray, slip_std: float, encoder_var: np.ndarray, scale: float
 ) -> np.ndarray:
-    """``scale * (encoder_var + slip^2)`` in place on ``slip`` (a fresh array)."""
-    slip *= slip
-    slip += encoder_var
+    """``scale * (encoder_var + (slip_std * odo)^2)`` of odometry ``(substeps, k, 2)`` with the
+    ``(V, w)`` axis first: a fresh C-ordered ``(2, substeps, k)``; ``encoder_var`` ``(2, 1, 1)``."""
+    var = np.empty((2, *odo.shape[:2]))
+    np.multiply(odo.transpose(2, 0, 1), slip_std, out=var)
+    var *= var
+    var += encoder_var
     if scale != 1.0:
-        slip *= scale
-    return slip
+        var *= scale
+    return var
 
 
 GAUSSIAN_FEATURE_NAMES = (
@@ -193,7 +196,7 @@ class EKFBackend:
         self._local_index = np.full(cfg.n_robots, -1)
         self._local_index[self.robots] = np.arange(len(self.robots))
         self._whole_team = bool(np.array_equal(self.robots, np.arange(cfg.n_robots)))
-        self._encoder_var = np.array([cfg.odom_v_std**2, cfg.odom_w_std**2])  # (V, w)
+        self._encoder_var = np.array([cfg.odom_v_std**2, cfg.odom_w_std**2])[:, None, None]  # V, w
         self._encoder_var.flags.writeable = False
         self.ekf: PoseEKF | None = None
 
@@ -210,8 +213,8 @@ class EKFBackend:
         odo, dt_sub = _team_odometry(cfg, readings, g, active, self._whole_team)
         # Encoder noise plus the wheel slip the robot's maker specifies, inflated by
         # ``ekf_process_noise_scale`` to cover what the model leaves out; (V, w) together.
-        var = _odometry_variance(cfg.slip_std * odo, self._encoder_var, cfg.ekf_process_noise_scale)
-        ekf.predict_sequence(odo[..., 0], odo[..., 1], dt_sub, var[..., 0], var[..., 1])
+        var = _odometry_variance(odo, cfg.slip_std, self._encoder_var, cfg.ekf_process_noise_scale)
+        ekf._predict_sequence(odo[..., 0], odo[..., 1], dt_sub, var)
         stats = {"accepted": 0, "rejected": 0, "cooperative": 0}
         whole = self._whole_team
         gps = readings.gps_mask

@@ -141,7 +141,7 @@ class PoseEKF:
         k = len(self.mean[sel])
         as_row = lambda x: np.broadcast_to(np.asarray(x, dtype=float), (k,))[None]  # noqa: E731
         mean, cov = self.mean[sel], self.cov[sel]
-        _propagate(mean, cov, as_row(v), as_row(w), dt, as_row(var_v), as_row(var_w))
+        _propagate(mean, cov, as_row(v), as_row(w), dt, _variances(var_v, var_w, (1, k)))
         self.mean[sel], self.cov[sel] = mean, cov
 
     def predict_sequence(
@@ -158,18 +158,14 @@ class PoseEKF:
         ``T`` sequential calls up to rounding (see :func:`_propagate`).
         """
         v = np.asarray(v, dtype=float)
-        shape = v.shape
-        var_v = np.asarray(var_v, dtype=float)
-        var_w = np.asarray(var_w, dtype=float)
-        _propagate(
-            self.mean,
-            self.cov,
-            v,
-            np.asarray(w, dtype=float),
-            dt,
-            var_v if var_v.shape == shape else np.broadcast_to(var_v, shape),
-            var_w if var_w.shape == shape else np.broadcast_to(var_w, shape),
-        )
+        w = np.asarray(w, dtype=float)
+        self._predict_sequence(v, w, dt, _variances(var_v, var_w, v.shape))
+
+    def _predict_sequence(self, v: np.ndarray, w: np.ndarray, dt: float, q: np.ndarray) -> None:
+        """:meth:`predict_sequence` (its one implementation) of float ``v``, ``w`` ``(T, n)``
+        with the variances stacked in a fresh C-ordered ``q`` ``(2, T, n)``: ``var_v`` then
+        ``var_w`` (overwritten)."""
+        _propagate(self.mean, self.cov, v, w, dt, q)
 
     # ------------------------------------------------------------------ updates
     def update(
@@ -411,10 +407,12 @@ def _propagate(
     v: np.ndarray,
     w: np.ndarray,
     dt: float,
-    var_v: np.ndarray,
-    var_w: np.ndarray,
+    q: np.ndarray,
 ) -> None:
-    """``T`` unicycle EKF predictions of ``k`` robots in place; inputs ``(T, k)``.
+    """``T`` unicycle EKF predictions of ``k`` robots in place; ``v``, ``w`` ``(T, k)``.
+
+    ``q`` ``(2, T, k)``, C-ordered, holds ``var_v`` and ``var_w``; it is scaled in
+    place (to ``dt^2`` times them).
 
     The headings along the way follow from a cumulative sum, and the Jacobians
     ``Fx_t = I + a_t e02 + b_t e12`` commute, so their product and each noise
@@ -449,24 +447,30 @@ def _propagate(
     np.subtract(ba_tot[:, None], ba_cum, out=cols[1::-1, 1])
     xy = mean[:, :2]
     xy += (ba_tot * _PLUS_MINUS).T  # x += B, y -= A
-    mean[:, 2] = wrap_angle(phi[-1])
+    last = phi[-1]
+    _wrap_in_place(last)
+    mean[:, 2] = last
     # F P F^T with F = I + A e02 + B e12: rows 0 and 1 gain A, B times row 2, then columns.
     ab_tot = ba_tot[::-1].T  # (k, 2): A, B
     top = p[:, :2, :]
     top += ab_tot[:, :, None] * p[:, 2:3, :]
     left = p[:, :, :2]
     left += p[:, :, 2:3] * ab_tot[:, None, :]
-    q = np.empty((2, n_sub, k))  # qv, qw: the weights of l0, l1
-    dt2 = dt * dt
-    np.multiply(var_v, dt2, out=q[0])
-    np.multiply(var_w, dt2, out=q[1])
+    q *= dt * dt  # qv, qw: the weights of l0, l1
     # (l_i l_j) q is symmetric in i, j, so the covariance stays exactly symmetric.
-    cols = cols.reshape(3, 2 * n_sub, k)
-    p += np.einsum("irk,jrk,rk->kij", cols, cols, q.reshape(2 * n_sub, k))
+    p += np.einsum("imtk,jmtk,mtk->kij", cols, cols, q)
 
 
 _ZERO_ONE = np.array([0.0, 1.0])[:, None, None]  # third entry of l0, l1
 _PLUS_MINUS = np.array([1.0, -1.0])[:, None]
+
+
+def _variances(var_v: np.ndarray | float, var_w: np.ndarray | float, shape: tuple) -> np.ndarray:
+    """``var_v`` and ``var_w`` (each broadcast to ``shape``) stacked in a fresh ``(2, *shape)``."""
+    q = np.empty((2, *shape))
+    q[0] = var_v
+    q[1] = var_w
+    return q
 
 
 @functools.lru_cache(maxsize=8)

@@ -373,3 +373,46 @@ def test_cofactors_give_the_inverse_and_determinant():
     np.testing.assert_allclose(det, np.linalg.det(a), rtol=1e-12)
     np.testing.assert_allclose(cof.swapaxes(-1, -2) / det[..., None, None], np.linalg.inv(a),
                                rtol=1e-10, atol=1e-12)
+
+
+@pytest.mark.parametrize("scale", [1.0, 2.5])
+def test_backend_prediction_equals_public_predict_sequence_with_textbook_variances(scale):
+    """EKFBackend's prediction (stacked odometry variances through the private core) gives
+    what predict_sequence gives with var = scale * (encoder var + (slip_std * odometry)^2)."""
+    from coop_loc_env.estimation import _odometry_variance, _team_odometry
+
+    env = coop_loc_env.parallel_env("outdoor_terrain", n_robots=4, start_region=None,
+                                    ekf_process_noise_scale=scale)
+    env.reset(seed=1)
+    backend = env.unwrapped.backends[0]
+    cfg = backend.cfg
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        env.step({a: rng.uniform(-1, 1, 2) for a in env.agents})
+    readings = env.unwrapped._last_readings
+    mine, ref = (PoseEKF(backend.ekf.mean, backend.ekf.cov) for _ in range(2))
+    # The prediction lines of EKFBackend.step.
+    odo, dt_sub = _team_odometry(cfg, readings, backend.robots, np.ones(4, bool), True)
+    var = _odometry_variance(odo, cfg.slip_std, backend._encoder_var, scale)
+    mine._predict_sequence(odo[..., 0], odo[..., 1], dt_sub, var)
+    odo = readings.odometry
+    var_v = scale * (cfg.odom_v_std**2 + (cfg.slip_std * odo[..., 0]) ** 2)
+    var_w = scale * (cfg.odom_w_std**2 + (cfg.slip_std * odo[..., 1]) ** 2)
+    ref.predict_sequence(odo[..., 0], odo[..., 1], cfg.dt / cfg.odometry_substeps, var_v, var_w)
+    assert np.array_equal(mine.mean, ref.mean) and np.array_equal(mine.cov, ref.cov)
+
+
+def test_predict_with_idx_and_scalar_variances_matches_a_one_step_sequence():
+    rng = np.random.default_rng(8)
+    a = rng.normal(size=(4, 3, 3))
+    cov = a @ np.swapaxes(a, 1, 2) + np.eye(3)
+    mean = rng.normal(size=(4, 3))
+    part, seq = PoseEKF(mean, cov), PoseEKF(mean[[3, 1]], cov[[3, 1]])
+    start = part.mean.copy(), part.cov.copy()
+    v, w = rng.normal(size=2), rng.normal(size=2)
+    part.predict(v, w, 0.1, 0.02, [0.001, 0.003], idx=np.array([3, 1]))
+    seq.predict_sequence(v[None], w[None], 0.1, 0.02, np.array([[0.001, 0.003]]))
+    assert np.array_equal(part.mean[[3, 1]], seq.mean) and np.array_equal(part.cov[[3, 1]], seq.cov)
+    # The robots not selected keep their beliefs.
+    assert np.array_equal(part.mean[[0, 2]], start[0][[0, 2]])
+    assert np.array_equal(part.cov[[0, 2]], start[1][[0, 2]])
