@@ -173,6 +173,8 @@ class TerrainMap:
         self._valid_bytes = b""  # ... and its contents then (a cache hit needs both)
         self._owner = np.zeros(0, dtype=np.intp)  # its samples' robot ids (footprint repeat)
         self._valid_whole = False  # ... and whether it is every robot in id order
+        self._pitch_key = b""  # pitch values whose tangent terms _pitch_cache holds
+        self._pitch_cache: tuple[np.ndarray, ...] = ()
         self.reset()
 
     # ------------------------------------------------------------------ setup
@@ -395,8 +397,7 @@ class TerrainMap:
         # Every robot in id order: its rows as views, its counts as the merge returns them.
         whole = ids is self._valid_ids and self._valid_whole
         rows = slice(None) if whole else ids
-        tan_p = np.tan(pitch)
-        tan2 = tan_p * tan_p
+        tan_p, tan2, slope2 = self._pitch_terms(pitch)
         elev, var = _fuse_elevation(
             self._robot_elev[rows],
             self._robot_var[rows],
@@ -410,12 +411,12 @@ class TerrainMap:
             self.weights,
         )
         # Sample variance: elevation + position error seen through the slope.
-        var_s = np.maximum(tan2, self.slope_floor**2)
-        var_s *= pos_var
+        var_s = slope2 * pos_var
         var_s += var
         np.maximum(var_s, self.min_var, out=var_s)
-        # One finiteness check covers poses, pitch, distance and covariances (two reductions).
-        if not math.isfinite(np.add.reduce(elev + var_s) + np.add.reduce(poses, None)):
+        # One finiteness check covers poses, pitch, distance and covariances: a NaN or an
+        # infinity in elev or var_s (> 0) makes their dot product NaN or infinite.
+        if not math.isfinite(np.dot(elev, var_s) + np.add.reduce(poses, None)):
             raise ValueError(
                 f"est_poses, pose_covs, pitch and distance must be finite, got {poses!r}, "
                 f"{pos_var!r}, {pitch!r}, {distance!r}"
@@ -456,6 +457,20 @@ class TerrainMap:
         )
         self.newly_mapped_cells = 0
         return np.zeros(n, dtype=np.int64)
+
+    def _pitch_terms(self, pitch: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``tan(pitch)``, its square and the squared slope ``max(tan^2, slope_floor^2)`` of
+        float64 pitches (read-only), kept while the pitch values repeat (the inclinometer
+        reads at 1 Hz and the env latches its pitch in between)."""
+        key = pitch.tobytes()
+        if key != self._pitch_key:
+            tan_p = np.tan(pitch)
+            tan2 = tan_p * tan_p
+            terms = tan_p, tan2, np.maximum(tan2, self.slope_floor**2)
+            for arr in terms:
+                arr.flags.writeable = False
+            self._pitch_key, self._pitch_cache = key, terms
+        return self._pitch_cache
 
     @staticmethod
     def _best_per_cell(flat: np.ndarray, conf: np.ndarray) -> np.ndarray | None:

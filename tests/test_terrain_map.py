@@ -502,3 +502,45 @@ def test_merges_that_write_nothing_leave_the_map_and_counts_alone():
     new = m.update(np.array([2, 0]), poses[[2, 0]] + [1.5, 1.5, 0.0], np.tile(EYE, (2, 1, 1)),
                    0.0, np.nan, 0, 0.0, 0.0)
     assert new.tolist() == [4, 5] and m.n_mapped == 24
+
+
+@pytest.mark.parametrize(
+    "field, value",
+    [
+        ("est_poses", [[1.0, 1.0, np.inf]]),
+        ("est_poses", [[1.0, -np.inf, 0.0]]),
+        ("pose_covs", [np.diag([np.inf, np.inf, 1.0])]),  # infinite variance at elevation 0
+        ("pose_covs", [EYE * np.nan]),
+        ("pitch", [np.nan]),
+        ("distance", [np.inf]),
+        ("distance", [np.nan]),
+    ],
+)
+def test_non_finite_inputs_are_rejected_before_anything_is_written(field, value):
+    m = TerrainMap(2, (5.0, 5.0), resolution=1.0, footprint_radius=1.0)
+    ok = dict(est_poses=[[1.0, 1.0, 0.0]], pose_covs=[EYE], pitch=[0.0], gps_alt=[np.nan],
+              nos=[0], distance=[0.0], base_alt=0.0)
+    with pytest.raises(ValueError, match="finite"):
+        m.update([0], **{**ok, field: value})
+    assert m.mapped.sum() == 0
+    assert m.robot_elevation()[0].tolist() == [0.0, 0.0]
+
+
+def test_pitch_changed_in_place_is_seen():
+    """The tangent terms are kept per pitch values, not per array object."""
+    a = TerrainMap(2, (10.0, 10.0), resolution=0.5, footprint_radius=0.5)
+    b = TerrainMap(2, (10.0, 10.0), resolution=0.5, footprint_radius=0.5)
+    pitch = np.array([0.1, -0.2])
+    ids = np.arange(2)
+    expected = np.zeros(2)  # dead-reckoned elevation: the rise d * tan(pitch) of each step
+    for step in range(6):
+        poses = np.array([[1.0 + step, 2.0, 0.3], [6.0, 1.0 + step, 1.2]])
+        covs = np.tile(EYE, (2, 1, 1))
+        if step % 2:
+            pitch[:] = pitch * -1.5  # same array, new values
+        a.update(ids, poses, covs, pitch, np.nan, 0, 0.4, 0.0)
+        b.update(ids, poses, covs, pitch.copy(), np.nan, 0, 0.4, 0.0)
+        b._pitch_key = b""  # b recomputes the tangents every time
+        expected = expected + 0.4 * np.tan(pitch)
+    np.testing.assert_array_equal(a.elevation, b.elevation)
+    np.testing.assert_array_equal(a.robot_elevation()[0], expected)
