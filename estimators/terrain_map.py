@@ -370,6 +370,10 @@ class TerrainMap:
         nos = _vector("nos", nos, n)
         distance = _vector("distance", distance, n)
         pos_var = covs[:, 0, 0] + covs[:, 1, 1]
+        for name, value in (("est_poses", poses), ("pose_covs", pos_var), ("pitch", pitch),
+                            ("distance", distance)):
+            if not np.isfinite(value).all():  # named here, before any arithmetic warns
+                raise ValueError(f"{name} must be finite, got {value!r}")
         gps_elev = (self.datum - float(base_alt)) + gps_alt
         return self._update(ids, poses, pos_var, pitch, gps_elev, nos, distance)
 
@@ -416,7 +420,7 @@ class TerrainMap:
         np.maximum(var_s, self.min_var, out=var_s)
         # One finiteness check covers poses, pitch, distance and covariances: a NaN or an
         # infinity in elev or var_s (> 0) makes their dot product NaN or infinite.
-        if not math.isfinite(np.dot(elev, var_s) + np.add.reduce(poses, None)):
+        if not math.isfinite(np.add.reduce(elev + var_s) + np.add.reduce(poses, None)):
             raise ValueError(
                 f"est_poses, pose_covs, pitch and distance must be finite, got {poses!r}, "
                 f"{pos_var!r}, {pitch!r}, {distance!r}"
