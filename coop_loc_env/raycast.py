@@ -202,6 +202,20 @@ class FanCaster:
         reach = np.zeros(self.ray_robot.max() + 1 if len(self.ray_robot) else 0)
         np.maximum.at(reach, self.ray_robot, np.asarray(max_range, dtype=float))
         self.reach = reach[self.robots]
+        # Candidate circles of equal fans (:meth:`_near_circles`): kept while no robot or
+        # extra circle has moved more than ``move_skin`` along x or y and no robot has
+        # turned more than ``turn_skin`` (rad) since they were listed; used while the
+        # longest list has at most ``cull_fraction`` of the circles.
+        self.move_skin = 0.5
+        self.turn_skin = 0.6
+        self.cull_fraction = 0.75
+        self._near: tuple | None = None
+        if self._fan_angles is not None:
+            lo, hi = self._fan_angles.min(1), self._fan_angles.max(1)
+            self._fan_mid, self._fan_half = 0.5 * (lo + hi), 0.5 * (hi - lo)
+            self._box = (
+                None if self._bounds_xy is None else self._bounds_xy.reshape(2, 1, 1)
+            )
 
     def cast(
         self,
@@ -211,6 +225,9 @@ class FanCaster:
     ) -> np.ndarray:
         """Distance along each ray (``inf`` on a miss), in the constructor's ray order.
 
+        A hit farther than the robot's longest ``max_range`` may be skipped (a farther
+        hit, a wall or ``inf`` comes back instead); nearer hits are exact.
+
         Args:
             poses: ``(n, 3)`` robot poses (rows indexed by ``ray_robot``).
             extra_centers, extra_radii: moving circles (the robots) ``(E, 2)``, ``(E,)``;
@@ -219,12 +236,14 @@ class FanCaster:
         """
         rays = len(self.ray_robot)
         centers, radii, n_static = self.centers, self.radii, len(self.radii)
-        if extra_centers is not None and len(extra_centers):
-            centers = np.concatenate([centers, extra_centers])
+        extra = extra_centers is not None and len(extra_centers) > 0
+        if extra:
             radii = self._all_radii(extra_radii)
         dense = len(radii) * rays <= self.dense_limit
         if dense and self.fans is not None and not len(self.seg_a):
-            return self._cast_fans(poses, centers, radii, n_static)
+            return self._cast_fans(poses, extra_centers if extra else None, radii, n_static)
+        if extra:
+            centers = np.concatenate([centers, extra_centers])
         dist = np.full(rays, np.inf)
         if rays == 0:
             return dist
@@ -242,37 +261,122 @@ class FanCaster:
         return dist
 
     def _cast_fans(
-        self, poses: np.ndarray, centers: np.ndarray, radii: np.ndarray, n_static: int
+        self,
+        poses: np.ndarray,
+        extra_centers: np.ndarray | None,
+        radii: np.ndarray,
+        n_static: int,
     ) -> np.ndarray:
         """:meth:`cast` for equal fans, rays robot-major, circles and box only (small teams).
 
-        Every ray meets every circle in one ``(robots, circles, rays)`` table (see
-        :meth:`_dense_circles` for the algebra); the nearest positive ``1 / t`` is
-        reduced over the circles axis, with ``0`` (no hit) as the starting value.
+        Each robot's rays meet its candidate circles (:meth:`_near_circles`; every
+        circle when the lists would not shrink the table much) in one
+        ``(circles, robots, rays)`` table (see :meth:`_dense_circles` for the algebra);
+        the nearest positive ``1 / t`` is reduced over the circles axis, with ``0``
+        (no hit) as the starting value. A padded slot of a candidate list, like a
+        robot's own body, has ``q = inf``, so none of its rays hits it.
         """
         n_fans, n_rays, _ = self.fans
         rows = slice(None) if self._robots_are_all == len(poses) else self.robots
-        xy = poses[rows, None, :2]  # (robots, 1, 2)
-        heading = poses[rows, 2:3] + self._fan_angles  # (robots, rays)
-        dirs = np.exp(1j * heading).view(np.float64).reshape(n_fans, n_rays, 2)
-        rel = centers[None] - xy  # (robots, circles, 2)
-        q = np.einsum("rck,rck->rc", rel, rel)  # |c - o|^2
-        q -= self._squared(radii)
-        if len(radii) > n_static:
-            own = self._own_circles(len(radii), n_static)
-            q[own[0], own[1]] = np.inf
-        b = np.matmul(rel, dirs.transpose(0, 2, 1))  # (robots, circles, rays)
+        pose = poses[rows]
+        parts = [self.centers.ravel(), pose.ravel()]
+        if extra_centers is not None:
+            parts.insert(1, extra_centers.ravel())
+        state = np.concatenate(parts)  # the circles' centres, then the fans' poses
+        centers = state[: 2 * len(radii)].reshape(-1, 2)
+        near = self._near
+        if (
+            near is None
+            or near[0] is not radii
+            or len(near[1]) != len(state)
+            or not (np.abs(state - near[1]) <= near[2]).all()  # also false for NaN
+        ):
+            near = self._near = self._near_circles(state, pose, centers, radii, n_static)
+        heading = pose[:, 2:3] + self._fan_angles  # (robots, rays)
+        dirs = np.empty((2, n_fans, n_rays))  # (cos, sin) planes
+        np.cos(heading, out=dirs[0])
+        np.sin(heading, out=dirs[1])
+        xy = pose[:, None, :2]  # (robots, 1, 2)
+        if near[3] is None:  # every circle
+            rel = centers[None] - xy  # (robots, circles, 2)
+            q = np.einsum("rck,rck->rc", rel, rel)  # |c - o|^2
+            q -= self._squared(radii)
+            if len(radii) > n_static:
+                own = self._own_circles(len(radii), n_static)
+                q[own[0], own[1]] = np.inf
+        else:
+            rel = np.take(centers, near[3], axis=0) - xy  # (robots, candidates, 2)
+            q = np.einsum("rck,rck->rc", rel, rel)
+            q -= near[4]  # -inf in the padding: q = inf there
+        # The table is laid out (circles, robots, rays), so that the reduction over the
+        # circles runs over whole planes.
+        b = np.empty((q.shape[1], n_fans, n_rays))
+        np.matmul(rel, dirs.transpose(1, 0, 2), out=b.transpose(1, 0, 2))
         with np.errstate(invalid="ignore", divide="ignore"):
             disc = b * b
-            disc -= q[:, :, None]
+            disc -= q.T[:, :, None]
             np.sqrt(disc, out=disc)  # NaN where a ray misses
             b -= disc
             np.reciprocal(b, out=b)
-            inv = np.fmax.reduce(b, axis=1, initial=0.0)  # 0 where no circle is hit
+            inv = np.fmax.reduce(b, axis=0, initial=0.0)  # 0 where no circle is hit
             dist = np.divide(1.0, inv, out=inv)  # inf there
-        if self._bounds_xy is not None:
-            ray_box(xy, dirs, self._bounds_xy, out=dist)
+        if self._box is not None:
+            ray_box(pose.T[:2, :, None], dirs, self._box, out=dist, axis=0)
         return dist.reshape(-1)
+
+    def _near_circles(
+        self,
+        state: np.ndarray,
+        pose: np.ndarray,
+        centers: np.ndarray,
+        radii: np.ndarray,
+        n_static: int,
+    ) -> tuple:
+        """Per robot, the circles its fan can hit within its reach while the scene moves
+        little (a Verlet list), for :meth:`_cast_fans`.
+
+        Until a new list, robot and circle close in by at most ``g = 2 sqrt(2)
+        move_skin`` and the fan turns by at most ``turn_skin``. A circle is listed when,
+        grown by ``g``, it lies within ``reach + r + g`` and reaches into the front
+        half-plane of one of the fan's two side directions (below); otherwise
+        no ray can hit it within reach (nor in front at all). The lists are padded to
+        the longest with slots of ``r^2 = -inf``.
+
+        Returns:
+            ``(radii, state, tolerance, index, r2)``: the radii and ``state`` (centres
+            then poses, flat) they were made for, the change of each ``state`` entry up
+            to which they stay valid, and the ``(robots, K)`` circle index and squared
+            radius of each slot; ``index`` is None when the lists would not shrink the
+            table.
+        """
+        n_fans, n_circles = len(pose), len(radii)
+        tolerance = np.full(len(state), self.move_skin)
+        tolerance[: 2 * n_static] = 0.0  # the scene's circles do not move
+        tolerance[2 * n_circles + 2 :: 3] = self.turn_skin  # headings
+        grown = radii + 2 * np.sqrt(2) * self.move_skin + 1e-9
+        rel = centers[None] - pose[:, None, :2]  # (robots, circles, 2)
+        keep = np.einsum("rck,rck->rc", rel, rel) <= (self.reach[:, None] + grown) ** 2
+        # Two directions per fan whose front half-planes together hold every ray of the
+        # fan turned by up to turn_skin either way: the fan's middle turned by
+        # +-(w - pi / 2), w its half-width plus turn_skin clipped to [pi / 2, pi] (at pi
+        # they are opposite and nothing is behind).
+        w = np.minimum(self._fan_half + self.turn_skin, np.pi) - np.pi / 2
+        np.maximum(w, 0.0, out=w)
+        turn = (pose[:, 2] + self._fan_mid)[:, None] + w[:, None] * _SIDES
+        sides = np.exp(1j * turn).view(np.float64).reshape(n_fans, 2, 2)
+        ahead = np.matmul(sides, rel.transpose(0, 2, 1))  # (robots, 2, circles)
+        keep &= np.maximum(ahead[:, 0], ahead[:, 1]) >= -grown
+        if n_circles > n_static:
+            own = self._own_circles(n_circles, n_static)
+            keep[own[0], own[1]] = False
+        count = keep.sum(1)
+        longest = int(count.max()) if n_fans else 0
+        if longest > self.cull_fraction * n_circles:
+            return radii, state, tolerance, None, None
+        index = np.argsort(~keep, axis=1, kind="stable")[:, :longest]
+        r2 = self._squared(radii)[index]
+        r2[np.arange(longest) >= count[:, None]] = -np.inf
+        return radii, state, tolerance, index, r2
 
     def _dense_circles(self, poses, centers, radii, n_static, dirs, origins, dist) -> None:
         """Every ray against every circle, in few array operations (small teams).
@@ -375,6 +479,7 @@ class FanCaster:
 
 
 _KEY_STRIDE = 8.0  # > 2 pi: separates robots in the sorted ray keys
+_SIDES = np.array([1.0, -1.0])  # the two sides of a fan
 
 
 def ray_box(
@@ -382,12 +487,16 @@ def ray_box(
     dirs: np.ndarray,
     size: tuple[float, float] | np.ndarray,
     out: np.ndarray | None = None,
+    axis: int = -1,
 ) -> np.ndarray:
     """Distance from points inside ``[0, w] x [0, h]`` along ``dirs`` to the box's walls.
 
-    ``dirs`` has shape ``(..., 2)`` and ``origins`` broadcasts against it; the result
-    has ``dirs``' leading shape. With ``out``, the element-wise minimum of ``out`` and
-    those distances is written into ``out`` (per axis, without a reduction) and returned.
+    ``dirs`` holds the (x, y) components along ``axis``: shape ``(..., 2)`` by default,
+    or ``(2, ...)`` with ``axis=0`` (then ``size`` and ``origins`` must broadcast that
+    way too, e.g. ``size`` as ``(2, 1, 1)``); ``origins`` broadcasts against it. The
+    result has ``dirs``' shape without that axis. With ``out``, the element-wise minimum
+    of ``out`` and those distances is written into ``out`` (per axis, without a
+    reduction) and returned.
     """
     wall = np.where(dirs > 0, size, 0.0)
     wall -= origins
@@ -395,6 +504,7 @@ def ray_box(
         wall /= dirs
     np.abs(wall, out=wall)
     if out is None:
-        return wall.min(-1)
-    np.minimum(out, wall[..., 0], out=out)
-    return np.minimum(out, wall[..., 1], out=out)
+        return wall.min(axis)
+    x, y = (wall[0], wall[1]) if axis == 0 else (wall[..., 0], wall[..., 1])
+    np.minimum(out, x, out=out)
+    return np.minimum(out, y, out=out)
