@@ -150,7 +150,10 @@ class FanCaster:
     interval the circle covers; the rays inside it are found by a binary
     search over the robot's rays sorted by angle, so the work grows with the
     number of actual ray-circle crossings rather than rays x circles.
-    Segments are tested against every ray of the channel.
+    Segments are tested against every ray of the channel. Small teams test
+    rays against circles in one table; with equal fans and no segments, each
+    robot's rows hold only its candidate circles, listed anew when the robots
+    have moved or turned enough (``move_skin``, ``turn_skin``).
 
     Args:
         scene: the static geometry.
@@ -299,15 +302,11 @@ class FanCaster:
         xy = pose[:, None, :2]  # (robots, 1, 2)
         if near[3] is None:  # every circle
             rel = centers[None] - xy  # (robots, circles, 2)
-            q = np.einsum("rck,rck->rc", rel, rel)  # |c - o|^2
-            q -= self._squared(radii)
-            if len(radii) > n_static:
-                own = self._own_circles(len(radii), n_static)
-                q[own[0], own[1]] = np.inf
         else:
             rel = np.take(centers, near[3], axis=0) - xy  # (robots, candidates, 2)
-            q = np.einsum("rck,rck->rc", rel, rel)
-            q -= near[4]  # -inf in the padding: q = inf there
+        q = rel * rel
+        q = np.add(q[..., 0], q[..., 1])  # |c - o|^2
+        q -= near[4]  # r^2, -inf for padding and own bodies: q = inf there
         # The table is laid out (circles, robots, rays), so that the reduction over the
         # circles runs over whole planes.
         b = np.empty((q.shape[1], n_fans, n_rays))
@@ -346,8 +345,9 @@ class FanCaster:
             ``(radii, state, tolerance, index, r2)``: the radii and ``state`` (centres
             then poses, flat) they were made for, the change of each ``state`` entry up
             to which they stay valid, and the ``(robots, K)`` circle index and squared
-            radius of each slot; ``index`` is None when the lists would not shrink the
-            table.
+            radius of each slot (``-inf`` for padding and a robot's own body); ``index``
+            is None when the lists would not shrink the table (``r2`` then covers every
+            circle).
         """
         n_fans, n_circles = len(pose), len(radii)
         tolerance = np.full(len(state), self.move_skin)
@@ -366,13 +366,14 @@ class FanCaster:
         sides = np.exp(1j * turn).view(np.float64).reshape(n_fans, 2, 2)
         ahead = np.matmul(sides, rel.transpose(0, 2, 1))  # (robots, 2, circles)
         keep &= np.maximum(ahead[:, 0], ahead[:, 1]) >= -grown
-        if n_circles > n_static:
-            own = self._own_circles(n_circles, n_static)
-            keep[own[0], own[1]] = False
+        own = self._own_circles(n_circles, n_static)
+        keep[own[0], own[1]] = False
         count = keep.sum(1)
         longest = int(count.max()) if n_fans else 0
         if longest > self.cull_fraction * n_circles:
-            return radii, state, tolerance, None, None
+            r2 = np.tile(self._squared(radii), (n_fans, 1))
+            r2[own[0], own[1]] = -np.inf
+            return radii, state, tolerance, None, r2
         index = np.argsort(~keep, axis=1, kind="stable")[:, :longest]
         r2 = self._squared(radii)[index]
         r2[np.arange(longest) >= count[:, None]] = -np.inf
