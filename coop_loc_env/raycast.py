@@ -207,12 +207,15 @@ class FanCaster:
         self.reach = reach[self.robots]
         # Candidate circles of equal fans (:meth:`_near_circles`): kept while no robot or
         # extra circle has moved more than ``move_skin`` along x or y and no robot has
-        # turned more than ``turn_skin`` (rad) since they were listed; used while the
-        # longest list has at most ``cull_fraction`` of the circles.
+        # turned more than ``turn_skin`` (rad) since they were listed (new values apply
+        # from the next lists); used while the longest list has at most ``cull_fraction``
+        # of the circles.
         self.move_skin = 0.5
         self.turn_skin = 0.6
         self.cull_fraction = 0.75
         self._near: tuple | None = None
+        self._near_key: tuple = (None,)  # what _near_const was made for
+        self._near_const: tuple = ()
         if self._fan_angles is not None:
             lo, hi = self._fan_angles.min(1), self._fan_angles.max(1)
             self._fan_mid, self._fan_half = 0.5 * (lo + hi), 0.5 * (hi - lo)
@@ -350,20 +353,24 @@ class FanCaster:
             circle).
         """
         n_fans, n_circles = len(pose), len(radii)
-        tolerance = np.full(len(state), self.move_skin)
-        tolerance[: 2 * n_static] = 0.0  # the scene's circles do not move
-        tolerance[2 * n_circles + 2 :: 3] = self.turn_skin  # headings
-        grown = radii + 2 * np.sqrt(2) * self.move_skin + 1e-9
+        key = (len(state), self.move_skin, self.turn_skin)
+        if self._near_key[0] is not radii or self._near_key[1:] != key:
+            tolerance = np.full(len(state), self.move_skin)
+            tolerance[: 2 * n_static] = 0.0  # the scene's circles do not move
+            tolerance[2 * n_circles + 2 :: 3] = self.turn_skin  # headings
+            grown = radii + 2 * np.sqrt(2) * self.move_skin + 1e-9
+            # Two directions per fan whose front half-planes together hold every ray of
+            # the fan turned by up to turn_skin either way: the fan's middle turned by
+            # +-(w - pi / 2), w its half-width plus turn_skin clipped to [pi / 2, pi]
+            # (at pi they are opposite and nothing is behind).
+            w = np.minimum(self._fan_half + self.turn_skin, np.pi) - np.pi / 2
+            sides = self._fan_mid[:, None] + np.maximum(w, 0.0)[:, None] * _SIDES
+            self._near_key = (radii, *key)
+            self._near_const = (tolerance, grown, (self.reach[:, None] + grown) ** 2, sides)
+        tolerance, grown, reach2, sides = self._near_const
         rel = centers[None] - pose[:, None, :2]  # (robots, circles, 2)
-        keep = np.einsum("rck,rck->rc", rel, rel) <= (self.reach[:, None] + grown) ** 2
-        # Two directions per fan whose front half-planes together hold every ray of the
-        # fan turned by up to turn_skin either way: the fan's middle turned by
-        # +-(w - pi / 2), w its half-width plus turn_skin clipped to [pi / 2, pi] (at pi
-        # they are opposite and nothing is behind).
-        w = np.minimum(self._fan_half + self.turn_skin, np.pi) - np.pi / 2
-        np.maximum(w, 0.0, out=w)
-        turn = (pose[:, 2] + self._fan_mid)[:, None] + w[:, None] * _SIDES
-        sides = np.exp(1j * turn).view(np.float64).reshape(n_fans, 2, 2)
+        keep = np.einsum("rck,rck->rc", rel, rel) <= reach2
+        sides = np.exp(1j * (pose[:, 2:3] + sides)).view(np.float64).reshape(n_fans, 2, 2)
         ahead = np.matmul(sides, rel.transpose(0, 2, 1))  # (robots, 2, circles)
         keep &= np.maximum(ahead[:, 0], ahead[:, 1]) >= -grown
         own = self._own_circles(n_circles, n_static)

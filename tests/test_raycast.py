@@ -234,6 +234,13 @@ def test_equal_fans_keep_circles_at_the_edge_of_the_fan_and_of_the_reach():
     assert got[2] == pytest.approx(reach - eps)  # straight ahead
     assert got[4] == pytest.approx(3.0 - np.sqrt(r * r - (r - eps) ** 2))  # left edge ray
     assert got[0] == pytest.approx(10.0) and got[0] > reach  # right edge ray: the wall
+    fan.move_skin, fan.turn_skin = 0.5, 0.6  # wider lists from the next move, same hits
+    again = fan.cast(poses, poses[:, :2], np.full(2, 0.3))[:5]
+    assert fan._near[3].shape[1] == 2
+    poses[1, 0] += 1e-6  # the other robot: a new list, robot 0 unmoved
+    again = fan.cast(poses, poses[:, :2], np.full(2, 0.3))[:5]
+    assert fan._near[3].shape[1] == 4
+    np.testing.assert_array_equal(np.minimum(again, reach), np.minimum(got, reach))
 
 
 def test_equal_fans_with_no_circle_within_reach_see_the_walls():
