@@ -322,8 +322,8 @@ class FanCaster:
             np.reciprocal(b, out=b)
             inv = np.fmax.reduce(b, axis=0, initial=0.0)  # 0 where no circle is hit
             dist = np.divide(1.0, inv, out=inv)  # inf there
-        if self._box is not None:
-            ray_box(pose.T[:2, :, None], dirs, self._box, out=dist, axis=0)
+            if self._box is not None:
+                _box_walls(pose.T[:2, :, None], dirs, self._box, dist, 0)
         return dist.reshape(-1)
 
     def _near_circles(
@@ -506,10 +506,21 @@ def ray_box(
     of ``out`` and those distances is written into ``out`` (per axis, without a
     reduction) and returned.
     """
+    with np.errstate(divide="ignore"):
+        return _box_walls(origins, dirs, size, out, axis)
+
+
+def _box_walls(
+    origins: np.ndarray,
+    dirs: np.ndarray,
+    size: tuple[float, float] | np.ndarray,
+    out: np.ndarray | None,
+    axis: int,
+) -> np.ndarray:
+    """:func:`ray_box` without its ``errstate`` (a zero direction component warns)."""
     wall = np.where(dirs > 0, size, 0.0)
     wall -= origins
-    with np.errstate(divide="ignore"):
-        wall /= dirs
+    wall /= dirs
     np.abs(wall, out=wall)
     if out is None:
         return wall.min(axis)
