@@ -175,7 +175,8 @@ def _apart(scene: RayScene, poses: np.ndarray) -> bool:
 @pytest.mark.parametrize("robots", [[0, 1, 2, 3], [1, 3, 4]])
 def test_equal_fans_keep_every_hit_within_reach_while_moving(fov, robots):
     """Candidate lists reused while robots drift, turn and jump lose no hit within the
-    range: the same distances as the whole table (bit for bit) and as brute force."""
+    range: the same distances as the whole table and as brute force. (Up to rounding:
+    numpy's matmul may round a table of one candidate circle differently, by an ulp.)"""
     from coop_loc_env.raycast import FanCaster
 
     rng = np.random.default_rng(int(fov * 10) + len(robots))
@@ -202,7 +203,9 @@ def test_equal_fans_keep_every_hit_within_reach_while_moving(fov, robots):
         got = fan.cast(poses, poses[:, :2], radii)
         listed += fan._near[3] is not None
         full = whole.cast(poses, poses[:, :2], radii)
-        np.testing.assert_array_equal(np.minimum(got, reach), np.minimum(full, reach))
+        np.testing.assert_allclose(
+            np.minimum(got, reach), np.minimum(full, reach), rtol=1e-13, atol=0.0
+        )
         heading = poses[ray_robot, 2] + ray_angle
         dirs = np.stack([np.cos(heading), np.sin(heading)], 1)
         want, _ = cast(scene, poses[ray_robot, :2], dirs, 0, poses[:, :2], radii, ray_robot)
