@@ -338,6 +338,8 @@ class CoopLocParallelEnv(ParallelEnv):
         if self.config.map_patch_obs:
             patch = self.mapper.patches(self._est_mean, self.config.map_patch_obs)
         obs = self.observations.build_all(belief, self._last_action, self.world.poses, patch)
+        if len(agents) == len(obs):  # every agent (a live list keeps their order): row views
+            return dict(zip(agents, obs, strict=True))
         return {a: obs[self.agent_name_mapping[a]] for a in agents}
 
     def _infos(

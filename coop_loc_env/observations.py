@@ -182,7 +182,8 @@ class ObservationBuilder:
             parts.append(np.stack([x / w * 2 - 1, y / h * 2 - 1, np.cos(th), np.sin(th)], 1))
         # Each block cast to float32 in place of one concatenated float64 matrix.
         obs = np.empty((n, self.size), dtype=np.float32)
-        obs[:, belief.shape[1] : self.belief_size] = 0.0  # belief padding
+        if belief.shape[1] < self.belief_size:
+            obs[:, belief.shape[1] : self.belief_size] = 0.0  # belief padding
         start = 0
         for part in parts:
             width = part.shape[1]

@@ -304,7 +304,9 @@ class World:
         dt = cfg.dt / n_sub
         n = len(v_cmd)
         before = self.contacts["counts"].copy()
-        slip = 1.0 + cfg.slip_std * rng.standard_normal((n_sub, n, 2))
+        slip = rng.standard_normal((n_sub, n, 2))  # 1 + slip_std * noise, in place
+        slip *= cfg.slip_std
+        slip += 1.0
         if not idle_zeroed and np.count_nonzero(active) < n:
             v_cmd, w_cmd = np.where(active, v_cmd, 0.0), np.where(active, w_cmd, 0.0)
         vk = v_cmd * slip[:, :, 0]  # (substeps, n)
@@ -317,9 +319,8 @@ class World:
         np.add.accumulate(heading, axis=0, out=heading)  # np.cumsum without its wrapper
         vel = self._velocity_buffer[:-1, :n]
         np.cos(heading[:-1], out=vel[..., 0])
-        vel[..., 0] *= vk
         np.sin(heading[:-1], out=vel[..., 1])
-        vel[..., 1] *= vk
+        vel[..., :2] *= vk[..., None]  # both velocity components in one multiply
         vel[..., 2] = wk
         space, batch = self.space, self._batch
         if batch is not None:
@@ -339,8 +340,11 @@ class World:
             state = np.frombuffer(self._state_batch.float_buf(), dtype=np.float64)
             state = state.reshape(-1, 3)[:n]
         self.poses[:] = state
-        self._angles = state[:, 2].copy()  # unwrapped, as pymunk keeps them
-        self.poses[:, 2] = (self.poses[:, 2] + np.pi) % (2 * np.pi) - np.pi
+        self._angles = angles = state[:, 2].copy()  # unwrapped, as pymunk keeps them
+        wrapped = angles + np.pi  # wrap_angle, in place on one contiguous temporary
+        wrapped %= 2 * np.pi
+        wrapped -= np.pi
+        self.poses[:, 2] = wrapped
         return self.contacts["counts"] - before
 
 
