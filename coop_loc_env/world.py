@@ -17,6 +17,7 @@ import pymunk.batch
 from coop_loc_env.config import Obstacle, ScenarioConfig
 from coop_loc_env.raycast import RayScene
 from coop_loc_env.terrain import HeightField
+from estimators.geometry import wrap_angle
 
 ROBOT_COLLISION_TYPE = 1
 _WALL_RADIUS = 0.05
@@ -340,11 +341,8 @@ class World:
             state = np.frombuffer(self._state_batch.float_buf(), dtype=np.float64)
             state = state.reshape(-1, 3)[:n]
         self.poses[:] = state
-        self._angles = angles = state[:, 2].copy()  # unwrapped, as pymunk keeps them
-        wrapped = angles + np.pi  # wrap_angle, in place on one contiguous temporary
-        wrapped %= 2 * np.pi
-        wrapped -= np.pi
-        self.poses[:, 2] = wrapped
+        self._angles = state[:, 2].copy()  # unwrapped, as pymunk keeps them
+        self.poses[:, 2] = wrap_angle(self._angles)
         return self.contacts["counts"] - before
 
 

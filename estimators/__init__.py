@@ -21,7 +21,7 @@ from estimators.detection_transfer import (
     detection_from_measurement,
 )
 from estimators.ekf import Belief, PoseEKF, chi2_threshold
-from estimators.geometry import compose_relative, relative_pose, wrap_angle
+from estimators.geometry import compose_relative, relative_pose, wrap_angle, wrap_angle_in_place
 from estimators.mle_online import TeamMLE
 from estimators.mrclam import load_mrclam
 from estimators.occupancy import OccupancyGrid
@@ -65,4 +65,5 @@ __all__ = [
     "relative_errors_per_robot",
     "relative_pose",
     "wrap_angle",
+    "wrap_angle_in_place",
 ]

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2
 
-from estimators.geometry import wrap_angle
+from estimators.geometry import wrap_angle, wrap_angle_in_place
 
 _CHI2_CACHE: dict[tuple[float, int], float] = {}
 
@@ -71,13 +71,6 @@ def _arange(n: int) -> np.ndarray:
     out = np.arange(n)
     out.flags.writeable = False
     return out
-
-
-def _wrap_in_place(angle: np.ndarray) -> None:
-    """:func:`~estimators.geometry.wrap_angle` on ``angle`` in place (the same operations)."""
-    angle += np.pi
-    angle %= 2.0 * np.pi
-    angle -= np.pi
 
 
 def _check_finite(name: str, value: np.ndarray) -> None:
@@ -244,7 +237,7 @@ class PoseEKF:
         dx = (gain @ nu[:, :, None])[:, :, 0]
         mean = self.mean if isinstance(sel, slice) else self.mean[sel]
         mean += dx
-        _wrap_in_place(mean[:, 2])
+        wrap_angle_in_place(mean[:, 2])
         i_kh = _EYE3 - gain @ jac
         p_new = i_kh @ p @ i_kh.mT
         p_new += gain @ r @ gain.mT
@@ -395,7 +388,7 @@ class PoseEKF:
                     rob, post, step = rob[keep], post[keep], step[keep]
             mean = self.mean[rob]
             mean += step
-            _wrap_in_place(mean[:, 2])
+            wrap_angle_in_place(mean[:, 2])
             self.mean[rob] = mean
             self.cov[rob] = post
         return ok
@@ -448,7 +441,7 @@ def _propagate(
     xy = mean[:, :2]
     xy += (ba_tot * _PLUS_MINUS).T  # x += B, y -= A
     last = phi[-1]
-    _wrap_in_place(last)
+    wrap_angle_in_place(last)
     mean[:, 2] = last
     # F P F^T with F = I + A e02 + B e12: rows 0 and 1 gain A, B times row 2, then columns.
     ab_tot = ba_tot[::-1].T  # (k, 2): A, B
@@ -520,7 +513,7 @@ def _relative_measurement(
     jac[:] = _JAC_CONST[model]
     if model == "cartesian":
         h = xa - xb
-        _wrap_in_place(h[:, 2])
+        wrap_angle_in_place(h[:, 2])
         return h, jac
     d = xb[:, :2] - xa[:, :2]  # (dx, dy)
     sq = d * d
@@ -531,7 +524,7 @@ def _relative_measurement(
     np.arctan2(d[:, 1], d[:, 0], out=h[:, 1])
     h[:, 2] = xb[:, 2]
     h[:, 1:] -= xa[:, 2:3]
-    _wrap_in_place(h[:, 1:])
+    wrap_angle_in_place(h[:, 1:])
     # Range row: (-dx, -dy, 0, dx, dy, 0) / range; bearing row: (dy, -dx, -1, -dy, dx, 0) / q.
     ur = d / rng[:, None]
     jac[:, 0, 3:5] = ur

@@ -14,6 +14,13 @@ def wrap_angle(angle: np.ndarray | float) -> np.ndarray | float:
     return (np.asarray(angle) + np.pi) % (2.0 * np.pi) - np.pi
 
 
+def wrap_angle_in_place(angle: np.ndarray) -> None:
+    """:func:`wrap_angle` written into the float array ``angle`` (the same operations)."""
+    angle += np.pi
+    angle %= 2.0 * np.pi
+    angle -= np.pi
+
+
 def relative_pose(pose_a: np.ndarray, pose_b: np.ndarray) -> np.ndarray:
     """Range, bearing and orientation of pose ``b`` seen from pose ``a``.
 

@@ -112,8 +112,6 @@ def fuse_elevation(
     pitch_std: float,
     gps_alt_std: float,
     weights: str = "paper",
-    *,
-    tan_pitch: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """One complementary-filter step of elevation per robot (all arguments shape ``(N,)``).
 
@@ -128,7 +126,6 @@ def fuse_elevation(
         weights: ``"paper"`` for the satellite-count weights, or ``"kalman"``
             for the variance-optimal gain ``f_gps = var_inc / (var_inc + var_gps)``
             (a 1-D Kalman filter, for comparison with the paper's choice).
-        tan_pitch: ``np.tan(pitch)`` when the caller has it already.
 
     Returns:
         ``(elev, var)``: fused elevation and its first-order variance.
@@ -136,7 +133,7 @@ def fuse_elevation(
     if weights not in ("paper", "kalman"):
         raise ValueError(f"weights must be 'paper' or 'kalman', got {weights!r}")
     nos = np.asarray(nos, dtype=float)
-    tan_p = np.tan(pitch) if tan_pitch is None else tan_pitch
+    tan_p = np.tan(pitch)
     return _fuse_elevation(
         prev_elev,
         prev_var,

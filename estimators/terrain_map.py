@@ -419,7 +419,7 @@ class TerrainMap:
         var_s += var
         np.maximum(var_s, self.min_var, out=var_s)
         # One finiteness check covers poses, pitch, distance and covariances: a NaN or an
-        # infinity in elev or var_s (> 0) makes their dot product NaN or infinite.
+        # infinity in elev or var_s (> 0) makes the sum NaN or infinite.
         if not math.isfinite(np.add.reduce(elev + var_s) + np.add.reduce(poses, None)):
             raise ValueError(
                 f"est_poses, pose_covs, pitch and distance must be finite, got {poses!r}, "

@@ -416,3 +416,13 @@ def test_predict_with_idx_and_scalar_variances_matches_a_one_step_sequence():
     # The robots not selected keep their beliefs.
     assert np.array_equal(part.mean[[0, 2]], start[0][[0, 2]])
     assert np.array_equal(part.cov[[0, 2]], start[1][[0, 2]])
+
+
+def test_wrap_angle_in_place_equals_wrap_angle():
+    from estimators.geometry import wrap_angle, wrap_angle_in_place
+
+    angles = np.concatenate([np.linspace(-20.0, 20.0, 401), [-np.pi, np.pi, 0.0, 3 * np.pi]])
+    out = angles.copy()
+    wrap_angle_in_place(out)
+    np.testing.assert_array_equal(out, wrap_angle(angles))
+    assert out.min() >= -np.pi and out.max() < np.pi
