@@ -27,7 +27,11 @@ marginalized; ``None`` solves the whole graph at every step (the paper's batch
 problem, cost growing with the episode). ``extras["mle_keyframe_interval"]``
 (s, default 1) is the odometry a robot integrates before an observation starts
 a fresh keyframe for it; ``0`` gives every observation its own nodes, at its own
-time, as in the paper's graph.
+time, as in the paper's graph; ``None``: keyframes only every ``MOTION_WINDOW_S``
+(10 s, the paper's sampled times), observations attached to them through the
+odometry since. ``extras["mle_keep_history"] = True`` also records
+the whole graph (``backend.mle.history``) whatever the window, e.g. to re-solve
+it offline or hand it to another solver.
 
 **Features** (``feature_names``): the Gaussian belief of the robot's latest pose
 (:func:`~coop_loc_env.estimation.gaussian_features`, 10 entries), then its
@@ -81,17 +85,18 @@ def relative_slots(cfg: ScenarioConfig) -> int:
     return k
 
 
-def window_options(cfg: ScenarioConfig) -> tuple[int | None, float]:
+def window_options(cfg: ScenarioConfig) -> tuple[int | None, float | None]:
     """``(window, keyframe_interval)`` from ``extras`` (see the module docstring)."""
     window = cfg.extras.get("mle_window", WINDOW_KEYFRAMES)
     if window is not None and (isinstance(window, bool) or not isinstance(window, int)
                                or window < 1):
         raise ValueError(f"extras['mle_window'] must be an integer >= 1 or None, got {window!r}")
     interval = cfg.extras.get("mle_keyframe_interval", KEYFRAME_INTERVAL_S)
-    if isinstance(interval, bool) or not isinstance(interval, int | float) or not interval >= 0:
-        raise ValueError(f"extras['mle_keyframe_interval'] must be a number >= 0, got "
+    if interval is not None and (isinstance(interval, bool) or not isinstance(
+            interval, int | float) or not interval >= 0):
+        raise ValueError(f"extras['mle_keyframe_interval'] must be a number >= 0 or None, got "
                          f"{interval!r}")
-    return window, float(interval)
+    return window, None if interval is None else float(interval)
 
 
 def relative_pose_features(poses: np.ndarray, slots: int, range_scale: float) -> np.ndarray:
@@ -175,6 +180,7 @@ class MLEBackend:
             motion_window=MOTION_WINDOW_S,
             window=self.window,
             keyframe_interval=self.keyframe_interval,
+            keep_history=bool(cfg.extras.get("mle_keep_history", False)),
             gate_prob=cfg.gate_prob if cfg.gate_prob < 1.0 else None,
         )
         self._cache: tuple[np.ndarray, np.ndarray] | None = None
