@@ -51,7 +51,14 @@ _FOX = {
     "detection_bearing_std": math.radians(2.2) * MEAN_TO_STD,  # mean angle error 2.2 deg
     "detection_orientation": False,  # polar coordinates only
     "false_positive_prob": 0.0,  # "false-positive detections were not considered"
-    "extras": {"mcl_detection_reset": 0.0, "mcl_random_every_step": True},
+    "extras": {
+        "mcl_detection_reset": 0.0,
+        # resample at every step (sampling importance resampling, as the paper's MCL)
+        # so that a few uniform particles (random_fraction) enter after every step;
+        # a constant fraction, not augmented MCL's adaptive injection
+        "mcl_random_every_step": True,
+        "mcl": {"augmented": False},
+    },
 }
 PAPER_OVERRIDES: dict[str, dict[str, Any]] = {
     "dispersal": _HOWARD_DISPERSAL,
@@ -78,6 +85,10 @@ def with_profile(scenario: str, profile: str, overrides: dict[str, Any] | None =
     extras = PAPER_OVERRIDES[scenario].get("extras")
     if extras is not None or "extras" in overrides:
         base = make_config(scenario).extras
-        out["extras"] = {**base, **(extras or {}), **overrides.pop("extras", {})}
+        merged = dict(base)
+        for key, val in (extras or {}).items():  # sub-dicts (e.g. "mcl") merged key by key
+            both = isinstance(val, dict) and isinstance(base.get(key), dict)
+            merged[key] = {**base[key], **val} if both else val
+        out["extras"] = {**merged, **overrides.pop("extras", {})}
     out.update(overrides)
     return out
