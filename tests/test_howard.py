@@ -119,6 +119,7 @@ def test_script_writes_json(tmp_path, capsys):
     assert "dispersal" in capsys.readouterr().out
     assert mod.main(["--set", "n_robots=0", "--no-progress"]) == 2
     paper = tmp_path / "p.json"
-    assert mod.main(["--profile", "paper", "--json", str(paper), "--plot", "",
-                     "--experiments", "circuit", "--circuit-duration", "2", "--no-progress"]) == 0
+    assert mod.main(["--profile", "paper", "--json", str(paper), "--plot",
+                     str(tmp_path / "p.png"), "--experiments", "circuit", "--circuit-duration",
+                     "2", "--no-progress"]) == 0
     assert json.loads(paper.read_text())["profile"] == "paper"
