@@ -65,3 +65,17 @@ def test_replay_logs_says_when_the_data_is_shorter_than_duration(capsys, tmp_pat
                                      "--duration", "5000", "--no-progress", "--json", str(out)])
     assert rc == 0
     assert "not the 5000 s of --duration" in capsys.readouterr().out
+
+
+def test_reproduce_madhavan_runs_longer_than_the_scenario_and_skips_an_empty_plot(
+    capsys, tmp_path: Path, monkeypatch
+):
+    monkeypatch.chdir(tmp_path)
+    mod = script("reproduce_madhavan")
+    # 60 s is 600 steps, past the scenario's max_cycles=500: the episode is made long enough
+    assert mod.main(["--duration", "60", "--plot", ""]) == 0
+    assert "std_peak_m" in capsys.readouterr().out
+    assert list(tmp_path.iterdir()) == []  # --plot '' writes nothing
+    line = run_failing(capsys, "reproduce_madhavan",
+                       ["--duration", "60", "--set", "max_cycles=500", "--plot", ""])
+    assert "at least 600" in line
