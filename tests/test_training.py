@@ -96,8 +96,16 @@ def test_learned_policy_checks_observation_shape(tmp_path):
                       batch_size=32, n_epochs=1, overrides={"n_robots": 2, "max_cycles": 10},
                       eval_freq=0, checkpoint_freq=0, progress_bar=False)
     train(cfg)
+    import torch
+
+    torch.set_num_threads(2)
     model = make_policy(str(tmp_path / "m" / "final_model.zip")).model
+    assert torch.get_num_threads() == 1  # acting on one team observation: one thread
+    torch.set_num_threads(2)
+    LearnedPolicy(model, threads=None)
+    assert torch.get_num_threads() == 2
     policy = LearnedPolicy(model)
+    assert torch.get_num_threads() == 1
     env = coop_loc_env.parallel_env("outdoor_terrain", n_robots=2, max_detections_obs=1)
     env.reset(seed=0)
     with pytest.raises(ValueError, match="expects observations of shape"):
