@@ -55,3 +55,24 @@ def test_particle_subsample_follows_the_weights():
     assert np.mean(xy[:, 0] == 0.0) == pytest.approx(0.9, abs=0.01)
     assert np.array_equal(particle_subsample(particles[:10], weights[:10], k=200),
                           particles[:10, :2])
+
+
+def test_error_plot_names_the_faint_lines(tmp_path, monkeypatch):
+    from matplotlib.figure import Figure
+
+    from policies import plots
+
+    saved = {}
+    real = Figure.savefig
+
+    def keep(fig, *a, **k):
+        saved["fig"] = fig
+        return real(fig, *a, **k)
+
+    monkeypatch.setattr(Figure, "savefig", keep)
+    eps = [{"seed": s, "series": {"time_s": np.arange(3.0),
+                                  "position_error_m": np.ones((3, 2))}} for s in (4, 5, 6)]
+    plots.plot_errors(eps, tmp_path / "e.png")
+    labels = [t.get_text() for t in saved["fig"].axes[0].get_legend().get_texts()]
+    assert labels == ["robot_0 (seed 4)", "robot_1 (seed 4)",
+                      "other episodes (seeds 5, 6), same colours"]
