@@ -26,7 +26,12 @@ from pettingzoo.utils import wrappers
 from coop_loc_env.aec import CoopLocAECEnv
 from coop_loc_env.config import Obstacle, RobotSpec, ScenarioConfig
 from coop_loc_env.env import CoopLocParallelEnv
-from coop_loc_env.scenarios import list_scenarios, make_config, register_scenario
+from coop_loc_env.scenarios import (
+    describe_scenario,
+    list_scenarios,
+    make_config,
+    register_scenario,
+)
 
 __version__ = "0.1.0"
 REGISTRY_NAMESPACE = "coop_loc"
@@ -37,6 +42,7 @@ __all__ = [
     "Obstacle",
     "RobotSpec",
     "ScenarioConfig",
+    "describe_scenario",
     "env",
     "env_id",
     "list_scenarios",

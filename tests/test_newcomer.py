@@ -98,3 +98,12 @@ def test_aec_env_checks_each_action_when_given_and_stays_usable(bad):
     for _ in range(6):
         ref.step(np.zeros(2, dtype=np.float32))
     np.testing.assert_array_equal(env.observe("robot_1"), ref.observe("robot_1"))
+
+
+def test_every_scenario_is_described():
+    for name in coop_loc_env.list_scenarios():
+        text = coop_loc_env.describe_scenario(name)
+        assert text and text != name and "\n" not in text
+    assert "symmetric ring of corridors" in coop_loc_env.describe_scenario("symmetric_hallway")
+    with pytest.raises(ValueError, match="unknown scenario 'nowhere'"):
+        coop_loc_env.describe_scenario("nowhere")
