@@ -76,3 +76,13 @@ def test_error_plot_names_the_faint_lines(tmp_path, monkeypatch):
     labels = [t.get_text() for t in saved["fig"].axes[0].get_legend().get_texts()]
     assert labels == ["robot_0 (seed 4)", "robot_1 (seed 4)",
                       "other episodes (seeds 5, 6), same colours"]
+
+
+def test_missing_matplotlib_names_an_install_that_works(monkeypatch):
+    import sys
+
+    from coop_loc_env import rendering
+
+    monkeypatch.setitem(sys.modules, "matplotlib.figure", None)  # import fails
+    with pytest.raises(ImportError, match=r"pip install -e '\.\[render\]'"):
+        rendering._import_matplotlib()
