@@ -326,10 +326,12 @@ class CoopLocParallelEnv(ParallelEnv):
                     raise ValueError(
                         f"action of {agent!r} must hold two real numbers, got {x!r} in {action!r}"
                     )
-        else:
+        elif isinstance(action, (bool, np.bool_)) or not isinstance(
+            action, (int, float, np.number)
+        ):
             raise ValueError(
-                f"action of {agent!r} must be an array or a list of two numbers, "
-                f"got {type(action).__name__}: {action!r}"
+                f"action of {agent!r} is not numeric (an array or a list of two numbers): "
+                f"{type(action).__name__} {action!r}"
             )
         try:
             a = np.asarray(action, dtype=float)
