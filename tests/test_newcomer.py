@@ -3,6 +3,8 @@ clear messages on misuse."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -107,3 +109,19 @@ def test_every_scenario_is_described():
     assert "symmetric ring of corridors" in coop_loc_env.describe_scenario("symmetric_hallway")
     with pytest.raises(ValueError, match="unknown scenario 'nowhere'"):
         coop_loc_env.describe_scenario("nowhere")
+
+
+# ---------------------------------------------------------------- README
+README = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+
+
+def test_readme_lists_every_scenario_and_reward_term():
+    table = README[README.index("## Scenarios"):README.index("## Reward")]
+    for name in coop_loc_env.list_scenarios():
+        assert f"| `{name}` | `{coop_loc_env.env_id(name)}` |" in table
+    env = _env()
+    _, rewards, _, _, infos = env.step({a: np.zeros(2) for a in env.agents})
+    reward_section = README[README.index("## Reward"):README.index("## Design notes")]
+    for key in infos["robot_0"]["reward_terms"]:
+        assert f"`{key}`" in reward_section
+    assert rewards["robot_0"] == sum(infos["robot_0"]["reward_terms"].values())
