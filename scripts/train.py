@@ -22,7 +22,7 @@ import argparse
 import sys
 
 from policies.runner import parse_overrides
-from policies.training import ALGOS, TrainConfig, train
+from policies.training import ALGOS, TrainConfig, train, trained_timesteps
 from policies.vec_env import REWARD_MODES
 
 
@@ -125,6 +125,11 @@ def main(argv: list[str] | None = None) -> int:
         import coop_loc_env
 
         coop_loc_env.make_config(cfg.scenario, **cfg.env_overrides())
+        steps = trained_timesteps(cfg)
+        if steps != cfg.timesteps:
+            print(f"note: training {steps} agent steps, not {cfg.timesteps}: the agent slots "
+                  f"(--n-envs x robots) step together, and PPO learns in whole rollouts of "
+                  f"--n-steps steps per slot")
         summary = train(cfg)
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)
