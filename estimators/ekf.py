@@ -21,6 +21,16 @@ operations, so a team of 50 robots costs about as much Python as a team of 1.
 
 Covariance updates use the Joseph form followed by symmetrization, which keeps
 them symmetric positive definite in floating point.
+
+A validation gate alone can lock a filter out: once the estimate has drifted
+(wheels spinning against a wall, a long outage), every later fix fails the
+gate and the filter never hears the truth again while its covariance stays
+small. :class:`GateMonitor` counts consecutive rejections per robot and sensor;
+past ``recover_after`` of them the filter concludes that it, not the sensor, is
+wrong, and widens the robot's covariance by the innovation (``P += d d^T`` with
+``d`` the state-space step the reading asks for) before fusing the reading. A
+single outlier (a multipath fix) is still rejected. Relative detections get
+the same treatment through track confirmation (see :meth:`PoseEKF.update_relative`).
 """
 
 from __future__ import annotations
@@ -73,6 +83,43 @@ def _arange(n: int) -> np.ndarray:
     return out
 
 
+class GateMonitor:
+    """Consecutive gate rejections per robot and sensor channel, and when to recover.
+
+    :meth:`record` takes a batch of gate decisions of one channel and returns
+    which rejected readings end a run of ``recover_after`` consecutive
+    rejections (counting the current one); those counters restart at zero.
+    ``recover_after=None`` never recovers. A recovery is counted in
+    :attr:`recoveries`.
+    """
+
+    def __init__(self, n: int, recover_after: int | None = 3) -> None:
+        if recover_after is not None and (
+            isinstance(recover_after, bool) or not isinstance(recover_after, int | np.integer)
+            or recover_after < 1
+        ):
+            raise ValueError(f"recover_after must be a positive int or None, got {recover_after!r}")
+        self.n = int(n)
+        self.recover_after = recover_after
+        self.counts: dict[str, np.ndarray] = {}
+        self.recoveries = 0
+
+    def record(self, channel: str, idx: np.ndarray, accepted: np.ndarray) -> np.ndarray:
+        """Update the counters of robots ``idx`` (distinct) on ``channel``; returns the
+        mask of ``idx`` that must recover now."""
+        if self.recover_after is None:
+            return np.zeros(len(idx), dtype=bool)
+        counts = self.counts.get(channel)
+        if counts is None:
+            counts = self.counts[channel] = np.zeros(self.n, dtype=int)
+        c = np.where(accepted, 0, counts[idx] + 1)
+        recover = c >= self.recover_after
+        c[recover] = 0
+        counts[idx] = c
+        self.recoveries += int(np.count_nonzero(recover))
+        return recover
+
+
 def _check_finite(name: str, value: np.ndarray) -> None:
     if not np.isfinite(value).all():
         raise ValueError(f"{name} contains NaN or inf: {value!r}")
@@ -89,9 +136,26 @@ class PoseEKF:
         mean: initial poses, shape ``(n, 3)``.
         cov: initial covariances, shape ``(n, 3, 3)`` (or ``(3, 3)`` for all).
         gate_prob: default chi-square gate probability (e.g. 0.99).
+        recover_after: consecutive gate rejections of one robot's sensor (or of one
+            observer-target pair's detections, when consistent with each other)
+            after which the filter widens the covariance and fuses the reading
+            (:class:`GateMonitor`); ``None`` never recovers.
+        confirm_distance: a relative detection that would move a robot's position
+            estimate by more than this (m) is fused only once a second detection
+            of the same pair, at most ``confirm_window`` predictions later (env
+            steps), agrees with it (``None``: no confirmation).
+        confirm_window: see ``confirm_distance``.
     """
 
-    def __init__(self, mean: np.ndarray, cov: np.ndarray, gate_prob: float = 0.99) -> None:
+    def __init__(
+        self,
+        mean: np.ndarray,
+        cov: np.ndarray,
+        gate_prob: float = 0.99,
+        recover_after: int | None = 3,
+        confirm_distance: float | None = 1.0,
+        confirm_window: int = 10,
+    ) -> None:
         mean = np.array(mean, dtype=float).reshape(-1, 3)
         cov = np.array(cov, dtype=float)
         if cov.shape == (3, 3):
@@ -105,6 +169,22 @@ class PoseEKF:
         self.mean[:, 2] = wrap_angle(self.mean[:, 2])
         self.cov = _symmetrize(cov)
         self.gate_prob = gate_prob
+        self.monitor = GateMonitor(len(mean), recover_after)
+        if confirm_distance is not None and not (
+            np.isfinite(confirm_distance) and confirm_distance >= 0
+        ):
+            raise ValueError(f"confirm_distance must be >= 0 or None, got {confirm_distance!r}")
+        if isinstance(confirm_window, bool) or not isinstance(confirm_window, int | np.integer) \
+                or confirm_window < 1:
+            raise ValueError(f"confirm_window must be a positive int, got {confirm_window!r}")
+        self.confirm_distance = confirm_distance
+        self.confirm_window = int(confirm_window)
+        # (lower, higher robot index) -> (update_relative call number, prediction count,
+        # position offset (2,) of the higher one as seen by the lower one, its covariance
+        # (2, 2)) of the last detection of the pair that waits for a confirming second one.
+        self._pending: dict[tuple[int, int], tuple[int, int, np.ndarray, np.ndarray]] = {}
+        self._relative_calls = 0
+        self._ticks = 0  # predictions so far: the clock of the confirmation window
 
     @property
     def n(self) -> int:
@@ -114,6 +194,14 @@ class PoseEKF:
     def belief(self, i: int) -> Belief:
         """Robot ``i``'s current belief (copies)."""
         return Belief(self.mean[i].copy(), self.cov[i].copy())
+
+    def inflate(self, idx: np.ndarray, q: np.ndarray) -> None:
+        """Add process noise ``q`` (``(k, 3, 3)`` or one ``(3, 3)``, symmetric PSD) to the
+        covariances of robots ``idx``: motion the odometry could not measure."""
+        idx = np.asarray(idx, dtype=int)
+        q = np.asarray(q, dtype=float)
+        _check_finite("q", q)
+        self.cov[idx] += _symmetrize(q)
 
     # ------------------------------------------------------------------ predict
     def predict(
@@ -130,6 +218,7 @@ class PoseEKF:
         ``v``, ``w``, ``var_v``, ``var_w`` are per robot (or scalars); ``idx``
         selects which robots to predict (default all).
         """
+        self._ticks += 1
         sel = slice(None) if idx is None else np.asarray(idx)
         k = len(self.mean[sel])
         as_row = lambda x: np.broadcast_to(np.asarray(x, dtype=float), (k,))[None]  # noqa: E731
@@ -158,6 +247,7 @@ class PoseEKF:
         """:meth:`predict_sequence` (its one implementation) of float ``v``, ``w`` ``(T, n)``
         with the variances stacked in a fresh C-ordered ``q`` ``(2, T, n)``: ``var_v`` then
         ``var_w`` (overwritten)."""
+        self._ticks += 1
         _propagate(self.mean, self.cov, v, w, dt, q)
 
     # ------------------------------------------------------------------ updates
@@ -170,6 +260,7 @@ class PoseEKF:
         r: np.ndarray,
         angle_dims: tuple[int, ...] = (),
         gate_prob: float | None = None,
+        channel: str | None = None,
     ) -> np.ndarray:
         """Gated EKF update of robots ``idx`` (distinct) with measurements ``z``.
 
@@ -180,9 +271,11 @@ class PoseEKF:
             angle_dims: measurement components that are angles (wrapped).
             gate_prob: chi-square gate probability (default ``self.gate_prob``);
                 ``1.0`` disables gating.
+            channel: the sensor's name for the lock-out recovery (consecutive
+                rejections are counted per robot and channel); ``None``: no recovery.
 
         Returns:
-            Boolean mask ``(k,)`` of accepted measurements.
+            Boolean mask ``(k,)`` of accepted measurements (recoveries included).
         """
         idx, sel, z = self._checked(idx, z)
         if not len(idx):
@@ -191,7 +284,7 @@ class PoseEKF:
         for d in angle_dims:
             nu[:, d] = wrap_angle(nu[:, d])
         jac, r = np.asarray(jac, dtype=float), np.asarray(r, dtype=float)
-        return self._update(idx, sel, nu, jac, r, gate_prob)
+        return self._update(idx, sel, nu, jac, r, gate_prob, channel)
 
     def _checked(
         self, idx: np.ndarray, z: np.ndarray
@@ -214,6 +307,7 @@ class PoseEKF:
         jac: np.ndarray,
         r: np.ndarray,
         gate_prob: float | None,
+        channel: str | None = None,
     ) -> np.ndarray:
         """:meth:`update` of robots ``idx`` (``sel``: ``idx`` or ``slice(None)`` for all of
         them in order) from innovations ``nu (k, m)``; ``jac`` is ``(k, m, 3)`` or one
@@ -227,6 +321,22 @@ class PoseEKF:
         d2 = np.einsum("ki,kij,kj->k", nu, s_inv, nu)
         ok = self._gate(d2, nu.shape[1], gate_prob)
         n_ok = np.count_nonzero(ok)
+        if channel is not None and self.monitor.recover_after is not None:
+            recover = self.monitor.record(channel, idx, ok)
+            if n_ok < len(ok) and recover.any():
+                # Locked out: widen the covariance by the step the reading asks for, in state
+                # space (H^+ nu), so the reading passes and is fused with an honest spread.
+                rows = np.nonzero(recover)[0]
+                jr = jac if jac.ndim == 2 else jac[rows]
+                step = (np.linalg.pinv(jr) @ nu[rows][:, :, None])[:, :, 0]
+                self.cov[idx[rows]] += step[:, :, None] * step[:, None, :]
+                ok = ok | recover
+                n_ok = np.count_nonzero(ok)
+                p = self.cov[sel]
+                ph_t = p @ jac.mT
+                s = jac @ ph_t
+                s += r
+                s_inv = 1.0 / s if s.shape[-1] == 1 else np.linalg.inv(s)
         if not n_ok:
             return ok
         if n_ok < len(ok):  # keep the accepted rows (all accepted: use them as they are)
@@ -258,23 +368,28 @@ class PoseEKF:
     def update_position(
         self, idx: np.ndarray, z: np.ndarray, r: np.ndarray, gate_prob: float | None = None
     ) -> np.ndarray:
-        """DGPS update: ``z = (x, y)``, ``H = [[1,0,0],[0,1,0]]``, noise ``r (k, 2, 2)``."""
+        """DGPS update: ``z = (x, y)``, ``H = [[1,0,0],[0,1,0]]``, noise ``r (k, 2, 2)``.
+
+        Gated, with the lock-out recovery of channel ``"position"``."""
         idx, sel, z = self._checked(idx, z)
         if not len(idx):
             return np.zeros(0, dtype=bool)
         nu = z - self.mean[sel, :2]
-        return self._update(idx, sel, nu, _H_POSITION, np.asarray(r, dtype=float), gate_prob)
+        r = np.asarray(r, dtype=float)
+        return self._update(idx, sel, nu, _H_POSITION, r, gate_prob, "position")
 
     def update_heading(
         self, idx: np.ndarray, z: np.ndarray, var: np.ndarray, gate_prob: float | None = None
     ) -> np.ndarray:
-        """Compass update: ``z = phi``, ``H = [0, 0, 1]``, noise variance ``var (k,)``."""
+        """Compass update: ``z = phi``, ``H = [0, 0, 1]``, noise variance ``var (k,)``.
+
+        Gated, with the lock-out recovery of channel ``"heading"``."""
         idx, sel, z = self._checked(idx, z)
         if not len(idx):
             return np.zeros(0, dtype=bool)
         nu = wrap_angle(z.reshape(-1, 1) - self.mean[sel, 2:3])
         r = np.asarray(var, dtype=float).reshape(-1, 1, 1)
-        return self._update(idx, sel, nu, _H_HEADING, r, gate_prob)
+        return self._update(idx, sel, nu, _H_HEADING, r, gate_prob, "heading")
 
     def update_relative(
         self,
@@ -298,7 +413,11 @@ class PoseEKF:
             r: measurement noise ``(k, 3, 3)``.
             dims: which of the three components to use (e.g. ``(0, 1)`` for
                 range and bearing only).
-            gate_prob: chi-square gate probability.
+            gate_prob: chi-square gate probability. The gate uses the innovation
+                covariance of the two marginals as they are (not the CI-inflated one).
+                Detections that fail it, or would move a robot by more than
+                ``confirm_distance``, wait for confirmation (:meth:`_confirm`); a
+                confirmed detection that fails the gate triggers a recovery.
             fusion: ``"naive"`` stacks the two marginals as if independent (the
                 paper's form; repeated meetings then double count and the
                 covariances become overconfident); ``"ci"`` (default) inflates
@@ -325,6 +444,7 @@ class PoseEKF:
         if (idx_a == idx_b).any():
             raise ValueError("a robot cannot observe itself in a relative update")
         accepted = np.zeros(len(idx_a), dtype=bool)
+        self._relative_calls += 1
         priority = np.argsort(-self.cov[idx_b].trace(axis1=1, axis2=2), kind="stable")
         limit = max_rounds if max_rounds is None or max_rounds >= 0 else None
         for rows in _rounds(idx_a[priority], idx_b[priority], self.n, limit)[:max_rounds]:
@@ -339,6 +459,7 @@ class PoseEKF:
         k = len(ia)
         iab = np.concatenate((ia, ib))
         xa, xb = self.mean[iab].reshape(2, k, 3)
+        z_full, r_full = z, r
         h, jac = _relative_measurement(xa, xb, model)  # jac (k, 3, 6): [H_a, H_b]
         first_angle = 2 if model == "cartesian" else 1
         if tuple(dims) == (0, 1, 2):
@@ -350,6 +471,16 @@ class PoseEKF:
             angles = [j for j, d in enumerate(dims) if d >= first_angle]
         pab = self.cov[iab].reshape(2, k, 3, 3)
         pa, pb = pab
+        nu = z - h
+        nu[:, angles] = wrap_angle(nu[:, angles])
+        # Gate on the innovation covariance of the marginals as they are. The CI inflation
+        # below bounds the unknown correlation for the fusion, but it also widens S (by up
+        # to 1 / w), which would let detections through that the beliefs call implausible.
+        ha, hb = jac[:, :, :3], jac[:, :, 3:]
+        s0 = ha @ pa @ ha.mT + hb @ pb @ hb.mT
+        s0 += r
+        d2 = np.einsum("ki,kij,kj->k", nu, np.linalg.inv(s0), nu)
+        ok = self._gate(d2, nu.shape[1], gate_prob)
         if fusion == "ci":
             w = _best_ci_weight(pab, jac, r)[:, None, None]
             pa_w, pb_w = pa / w, pb / (1 - w)
@@ -358,40 +489,126 @@ class PoseEKF:
         p = np.zeros((k, 6, 6))
         p[:, :3, :3] = pa_w
         p[:, 3:, 3:] = pb_w
-        nu = z - h
-        nu[:, angles] = wrap_angle(nu[:, angles])
         ph_t = p @ jac.mT
         s = jac @ ph_t
         s += r
-        s_inv = np.linalg.inv(s)
-        d2 = np.einsum("ki,kij,kj->k", nu, s_inv, nu)
-        ok = self._gate(d2, nu.shape[1], gate_prob)
-        n_ok = np.count_nonzero(ok)
-        if not n_ok:
-            return ok
-        if n_ok < len(ok):
-            ph_t, s_inv, nu, jac, p, r = ph_t[ok], s_inv[ok], nu[ok], jac[ok], p[ok], r[ok]
-            ia, ib, pa, pb = ia[ok], ib[ok], pa[ok], pb[ok]
-        gain = ph_t @ s_inv
+        gain = ph_t @ np.linalg.inv(s)
         dx = np.einsum("kij,kj->ki", gain, nu)
         i_kh = _EYE6 - gain @ jac
         p_new = i_kh @ p @ i_kh.mT
         p_new += gain @ r @ gain.mT
         p_new += p_new.mT  # symmetrize in place (numpy buffers the overlapping transpose)
         p_new *= 0.5
-        for sl, rob, prior in ((slice(0, 3), ia, pa), (slice(3, 6), ib, pb)):
-            post = p_new[:, sl, sl]
-            step = dx[:, sl]
-            if fusion == "ci":  # keep the prior where the update would not shrink it
-                keep = post.trace(axis1=1, axis2=2) < prior.trace(axis1=1, axis2=2)
-                if np.count_nonzero(keep) < len(keep):
-                    rob, post, step = rob[keep], post[keep], step[keep]
-            mean = self.mean[rob]
-            mean += step
+        sides = ((slice(0, 3), ia, pa), (slice(3, 6), ib, pb))
+        if fusion == "ci":  # keep a robot's prior where the update would not shrink it
+            moves = [p_new[:, sl, sl].trace(axis1=1, axis2=2) < prior.trace(axis1=1, axis2=2)
+                     for sl, _, prior in sides]
+        else:
+            moves = [np.ones(k, dtype=bool)] * 2
+        recover = np.zeros(k, dtype=bool)
+        if self.confirm_distance is not None and {0, 1} <= set(dims):
+            shift = np.maximum(*(
+                np.hypot(dx[:, sl][:, 0], dx[:, sl][:, 1]) * mv
+                for (sl, _, _), mv in zip(sides, moves, strict=True)
+            ))
+            ok, recover = self._confirm(
+                ia, ib, z_full, r_full, model, ok, shift > self.confirm_distance
+            )
+        for (sl, rob, _), mv in zip(sides, moves, strict=True):
+            take = ok & mv
+            if not take.any():
+                continue
+            mean = self.mean[rob[take]]
+            mean += dx[take, sl]
             wrap_angle_in_place(mean[:, 2])
-            self.mean[rob] = mean
-            self.cov[rob] = post
+            self.mean[rob[take]] = mean
+            self.cov[rob[take]] = p_new[take, sl, sl]
+        if recover.any():
+            ok[recover] = self._recover_relative(
+                ia[recover], ib[recover], z_full[recover], r_full[recover], model
+            )
         return ok
+
+    def _relative_offsets(
+        self, ia: np.ndarray, ib: np.ndarray, z: np.ndarray, r: np.ndarray, model: str
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Where detections ``z (k, 3)`` put the targets minus where they are believed to be,
+        ``(k, 2)``, with the covariance of the measurement noise in it ``(k, 2, 2)``. (The
+        estimates' own errors are left out: they change little between two detections,
+        so they cancel when two offsets are compared.)"""
+        xa, xb = self.mean[ia], self.mean[ib]
+        if model == "cartesian":
+            return xa[:, :2] - z[:, :2] - xb[:, :2], r[:, :2, :2].copy()
+        ang = xa[:, 2] + z[:, 1]
+        c, sn = np.cos(ang), np.sin(ang)
+        rng = z[:, 0]
+        offset = xa[:, :2] + rng[:, None] * np.stack([c, sn], axis=1) - xb[:, :2]
+        jac = np.empty((len(ia), 2, 2))  # d(point) / d(range, bearing)
+        jac[:, 0, 0], jac[:, 0, 1] = c, -rng * sn
+        jac[:, 1, 0], jac[:, 1, 1] = sn, rng * c
+        return offset, jac @ r[:, :2, :2] @ jac.mT
+
+    def _confirm(
+        self, ia, ib, z, r, model, ok: np.ndarray, big: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Track confirmation of relative detections.
+
+        A detection that fails the gate, or would move a robot by more than
+        ``confirm_distance``, counts only when the previous pending detection of
+        the same pair (either robot observing), from an earlier call and at most
+        ``confirm_window`` predictions old, puts the target at the same offset from its estimate (chi-square test at
+        the gate probability, with the two offsets' covariances plus
+        :data:`_CONFIRM_SLACK` for the motion in between). A false positive names
+        a random place, so two that agree are rare. Returns the accepted mask and
+        the mask of confirmed detections the gate rejected (to recover from).
+        """
+        need = np.nonzero(big | ~ok)[0]
+        accepted = ok & ~big
+        recover = np.zeros(len(ok), dtype=bool)
+        if not len(need):
+            return accepted, recover
+        call, tick = self._relative_calls, self._ticks
+        offset, cov = self._relative_offsets(ia[need], ib[need], z[need], r[need], model)
+        threshold = chi2_threshold(self.gate_prob, 2) if self.gate_prob < 1.0 else np.inf
+        for row, o, c in zip(need.tolist(), offset, cov, strict=True):
+            # One track per pair, whoever observes: seen from the target, the offset flips.
+            a, b = int(ia[row]), int(ib[row])
+            key = (a, b) if a < b else (b, a)
+            if a > b:
+                o = -o
+            prev = self._pending.pop(key, None)
+            if prev is not None and prev[0] < call and tick - prev[1] <= self.confirm_window:
+                diff = o - prev[2]
+                joint = c + prev[3] + _CONFIRM_SLACK**2 * _EYE2
+                if diff @ np.linalg.solve(joint, diff) <= threshold:
+                    if ok[row]:
+                        accepted[row] = True
+                    else:
+                        recover[row] = True
+                    continue
+            self._pending[key] = (call, tick, o, c)
+        return accepted, recover
+
+    def _recover_relative(self, ia, ib, z, r, model) -> np.ndarray:
+        """Re-initialize from confirmed detections the gate rejected: the more uncertain
+        robot of each pair moves to where the detection puts it (by the offset ``o`` the
+        two detections agree on) and its position covariance widens by ``o o^T``."""
+        offset, _ = self._relative_offsets(ia, ib, z, r, model)
+        trace_a = self.cov[ia, 0, 0] + self.cov[ia, 1, 1]
+        trace_b = self.cov[ib, 0, 0] + self.cov[ib, 1, 1]
+        target_lost = trace_b >= trace_a
+        lost = np.where(target_lost, ib, ia)
+        self.mean[lost, :2] += np.where(target_lost[:, None], offset, -offset)
+        self.cov[lost, :2, :2] += offset[:, :, None] * offset[:, None, :]
+        self.monitor.recoveries += len(lost)
+        return np.ones(len(ia), dtype=bool)
+
+
+# Std (m) of how much the offset between a robot's estimate and where a detection puts it
+# may change between two confirming detections (odometry drift over the window).
+_CONFIRM_SLACK = 0.3
+_EYE2 = np.eye(2)
+_EYE2.flags.writeable = False
 
 
 def _propagate(
