@@ -119,6 +119,23 @@ class GateMonitor:
         self.recoveries += int(np.count_nonzero(recover))
         return recover
 
+    def record_one(self, channel: str, i: int, accepted: bool) -> bool:
+        """:meth:`record` of one reading of robot ``i``; returns whether to recover now."""
+        if self.recover_after is None:
+            return False
+        counts = self.counts.get(channel)
+        if counts is None:
+            counts = self.counts[channel] = np.zeros(self.n, dtype=int)
+        if accepted:
+            counts[i] = 0
+            return False
+        counts[i] += 1
+        if counts[i] < self.recover_after:
+            return False
+        counts[i] = 0
+        self.recoveries += 1
+        return True
+
 
 def _check_finite(name: str, value: np.ndarray) -> None:
     if not np.isfinite(value).all():
@@ -556,8 +573,9 @@ class PoseEKF:
         A detection that fails the gate, or would move a robot by more than
         ``confirm_distance``, counts only when the previous pending detection of
         the same pair (either robot observing), from an earlier call and at most
-        ``confirm_window`` predictions old, puts the target at the same offset from its estimate (chi-square test at
-        the gate probability, with the two offsets' covariances plus
+        ``confirm_window`` predictions old, puts the target at the same offset
+        from its estimate (chi-square test at the gate probability, with the two
+        offsets' covariances plus
         :data:`_CONFIRM_SLACK` for the motion in between). A false positive names
         a random place, so two that agree are rare. Returns the accepted mask and
         the mask of confirmed detections the gate rejected (to recover from).
