@@ -27,8 +27,9 @@ A validation gate alone can lock a filter out: once the estimate has drifted
 gate and the filter never hears the truth again while its covariance stays
 small. :class:`GateMonitor` counts consecutive rejections per robot and sensor;
 past ``recover_after`` of them the filter concludes that it, not the sensor, is
-wrong, and widens the robot's covariance by the innovation (``P += d d^T`` with
-``d`` the state-space step the reading asks for) before fusing the reading. A
+wrong, and widens the robot's covariance in the subspace the sensor observes
+until the reading is an ordinary one (:func:`observed_inflation`) before fusing
+it. A
 single outlier (a multipath fix) is still rejected. Relative detections get
 the same treatment through track confirmation (see :meth:`PoseEKF.update_relative`).
 """
@@ -36,6 +37,7 @@ the same treatment through track confirmation (see :meth:`PoseEKF.update_relativ
 from __future__ import annotations
 
 import functools
+from collections.abc import Hashable
 from dataclasses import dataclass
 
 import numpy as np
@@ -101,10 +103,10 @@ class GateMonitor:
             raise ValueError(f"recover_after must be a positive int or None, got {recover_after!r}")
         self.n = int(n)
         self.recover_after = recover_after
-        self.counts: dict[str, np.ndarray] = {}
+        self.counts: dict[Hashable, np.ndarray] = {}
         self.recoveries = 0
 
-    def record(self, channel: str, idx: np.ndarray, accepted: np.ndarray) -> np.ndarray:
+    def record(self, channel: Hashable, idx: np.ndarray, accepted: np.ndarray) -> np.ndarray:
         """Update the counters of robots ``idx`` (distinct) on ``channel``; returns the
         mask of ``idx`` that must recover now."""
         if self.recover_after is None:
@@ -119,7 +121,7 @@ class GateMonitor:
         self.recoveries += int(np.count_nonzero(recover))
         return recover
 
-    def record_one(self, channel: str, i: int, accepted: bool) -> bool:
+    def record_one(self, channel: Hashable, i: int, accepted: bool) -> bool:
         """:meth:`record` of one reading of robot ``i``; returns whether to recover now."""
         if self.recover_after is None:
             return False
@@ -135,6 +137,18 @@ class GateMonitor:
         counts[i] = 0
         self.recoveries += 1
         return True
+
+
+def observed_inflation(p: np.ndarray, h: np.ndarray, factor: np.ndarray) -> np.ndarray:
+    """What to add to covariances ``p (k, d, d)`` so that the part a sensor with Jacobian
+    ``h`` (``(k, m, d)`` or one ``(m, d)``) observes grows by ``factor (k,)`` (>= 1):
+    ``(factor - 1) P H^T (H P H^T)^-1 H P``, so ``H P H^T`` becomes ``factor`` times
+    itself while directions the sensor cannot see keep their spread."""
+    ph_t = p @ np.swapaxes(h, -1, -2)
+    s = h @ ph_t
+    gain = ph_t @ np.linalg.pinv(s)
+    scale = np.maximum(np.asarray(factor, dtype=float), 1.0) - 1.0
+    return _symmetrize(scale[:, None, None] * (gain @ np.swapaxes(ph_t, -1, -2)))
 
 
 def _check_finite(name: str, value: np.ndarray) -> None:
@@ -341,12 +355,14 @@ class PoseEKF:
         if channel is not None and self.monitor.recover_after is not None:
             recover = self.monitor.record(channel, idx, ok)
             if n_ok < len(ok) and recover.any():
-                # Locked out: widen the covariance by the step the reading asks for, in state
-                # space (H^+ nu), so the reading passes and is fused with an honest spread.
+                # Locked out: widen the covariance in the subspace the sensor sees until the
+                # reading is an ordinary one (normalized innovation = its dof), then fuse it.
                 rows = np.nonzero(recover)[0]
+                sel_rows = idx[rows]
                 jr = jac if jac.ndim == 2 else jac[rows]
-                step = (np.linalg.pinv(jr) @ nu[rows][:, :, None])[:, :, 0]
-                self.cov[idx[rows]] += step[:, :, None] * step[:, None, :]
+                self.cov[sel_rows] += observed_inflation(
+                    self.cov[sel_rows], jr, d2[rows] / nu.shape[1]
+                )
                 ok = ok | recover
                 n_ok = np.count_nonzero(ok)
                 p = self.cov[sel]
@@ -471,7 +487,9 @@ class PoseEKF:
             )
         return accepted
 
-    def _joint_update(self, ia, ib, z, r, model, dims, gate_prob, fusion) -> np.ndarray:
+    def _joint_update(
+        self, ia, ib, z, r, model, dims, gate_prob, fusion, confirm: bool = True
+    ) -> np.ndarray:
         """One round of :meth:`update_relative` (each robot in at most one pair)."""
         k = len(ia)
         iab = np.concatenate((ia, ib))
@@ -523,7 +541,7 @@ class PoseEKF:
         else:
             moves = [np.ones(k, dtype=bool)] * 2
         recover = np.zeros(k, dtype=bool)
-        if self.confirm_distance is not None and {0, 1} <= set(dims):
+        if confirm and self.confirm_distance is not None and {0, 1} <= set(dims):
             shift = np.maximum(*(
                 np.hypot(dx[:, sl][:, 0], dx[:, sl][:, 1]) * mv
                 for (sl, _, _), mv in zip(sides, moves, strict=True)
@@ -542,7 +560,8 @@ class PoseEKF:
             self.cov[rob[take]] = p_new[take, sl, sl]
         if recover.any():
             ok[recover] = self._recover_relative(
-                ia[recover], ib[recover], z_full[recover], r_full[recover], model
+                ia[recover], ib[recover], z_full[recover], r_full[recover], model, dims,
+                fusion, ok[recover],
             )
         return ok
 
@@ -577,8 +596,9 @@ class PoseEKF:
         from its estimate (chi-square test at the gate probability, with the two
         offsets' covariances plus
         :data:`_CONFIRM_SLACK` for the motion in between). A false positive names
-        a random place, so two that agree are rare. Returns the accepted mask and
-        the mask of confirmed detections the gate rejected (to recover from).
+        a random place, so two that agree are rare. Returns the mask of detections
+        accepted as they are and the mask of confirmed ones (for
+        :meth:`_recover_relative`).
         """
         need = np.nonzero(big | ~ok)[0]
         accepted = ok & ~big
@@ -599,27 +619,27 @@ class PoseEKF:
                 diff = o - prev[2]
                 joint = c + prev[3] + _CONFIRM_SLACK**2 * _EYE2
                 if diff @ np.linalg.solve(joint, diff) <= threshold:
-                    if ok[row]:
-                        accepted[row] = True
-                    else:
-                        recover[row] = True
+                    recover[row] = True
                     continue
             self._pending[key] = (call, tick, o, c)
         return accepted, recover
 
-    def _recover_relative(self, ia, ib, z, r, model) -> np.ndarray:
-        """Re-initialize from confirmed detections the gate rejected: the more uncertain
-        robot of each pair moves to where the detection puts it (by the offset ``o`` the
-        two detections agree on) and its position covariance widens by ``o o^T``."""
+    def _recover_relative(self, ia, ib, z, r, model, dims, fusion, passed) -> np.ndarray:
+        """Fuse confirmed detections. The more uncertain robot of each pair first moves to
+        where the detections put it (by the offset ``o`` they agree on), so that the
+        update is linearized near the truth rather than metres away; where the gate had
+        rejected the detection (the robot was locked out) its position covariance also
+        widens by ``o o^T``. Then the detection is fused ungated."""
         offset, _ = self._relative_offsets(ia, ib, z, r, model)
         trace_a = self.cov[ia, 0, 0] + self.cov[ia, 1, 1]
         trace_b = self.cov[ib, 0, 0] + self.cov[ib, 1, 1]
         target_lost = trace_b >= trace_a
         lost = np.where(target_lost, ib, ia)
         self.mean[lost, :2] += np.where(target_lost[:, None], offset, -offset)
-        self.cov[lost, :2, :2] += offset[:, :, None] * offset[:, None, :]
-        self.monitor.recoveries += len(lost)
-        return np.ones(len(ia), dtype=bool)
+        widen = ~passed
+        self.cov[lost[widen], :2, :2] += offset[widen, :, None] * offset[widen, None, :]
+        self.monitor.recoveries += int(np.count_nonzero(widen))
+        return self._joint_update(ia, ib, z, r, model, dims, 1.0, fusion, confirm=False)
 
 
 # Std (m) of how much the offset between a robot's estimate and where a detection puts it
