@@ -17,10 +17,10 @@ with range-bearing instead of a Cartesian relative pose).
   one joint update of both poses and everything correlated with them.
 * Every update passes a chi-square validation gate (``scipy.stats.chi2``);
   the covariance update is the Joseph form followed by symmetrization. A robot
-  whose readings of a landmark fail the gate ``recover_after`` times in a row
-  is taken to be lost, not the landmark wrong: its pose covariance widens in
-  the subspace the reading observes until the reading is an ordinary one, and
-  the reading is fused (:class:`~estimators.ekf.GateMonitor`).
+  whose landmark readings fail the gate ``recover_after`` times in a row is
+  taken to be lost, not the landmarks wrong: its pose covariance is scaled up
+  until the reading is an ordinary one, and the reading is fused
+  (:class:`~estimators.ekf.GateMonitor`).
 
 Independent per-robot EKFs are the same class with ``cooperative=False``:
 robot-to-robot updates are then skipped and the covariance stays block
@@ -35,7 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimators.ekf import Belief, GateMonitor, chi2_threshold, observed_inflation
+from estimators.ekf import Belief, GateMonitor, chi2_threshold
 from estimators.geometry import wrap_angle
 
 __all__ = ["MotionNoise", "OdometryTrack", "TeamEKF"]
@@ -309,8 +309,11 @@ class TeamEKF:
         d2 = float(nu @ s_inv @ nu)
         passed = bool(np.isfinite(d2) and d2 <= self.gate)
         if channel is not None and self.monitor.record_one(channel, who, passed) and not passed:
+            # One landmark's range and bearing leave a direction of the pose unseen: widen
+            # the whole pose (not only the seen part), or the next landmark would be locked
+            # out of a pose fitted to this one.
             a = np.ix_(idx[:3], idx[:3])
-            self.P[a] += observed_inflation(self.P[a][None], h[None, :, :3], np.array([d2 / 2]))[0]
+            self.P[a] *= max(d2 / 2.0, 1.0)
             b = h @ self.P[idx, :]
             s = b[:, idx] @ h.T + r
             det = s[0, 0] * s[1, 1] - s[0, 1] * s[1, 0]
@@ -373,8 +376,7 @@ class TeamEKF:
             self.rejected[i] += 1
             return False
         nu, h_i, _ = res
-        key = ("landmark", float(landmark[0]), float(landmark[1]))  # counted per landmark
-        return self._apply(np.arange(3 * i, 3 * i + 3), h_i, nu, r, i, key)
+        return self._apply(np.arange(3 * i, 3 * i + 3), h_i, nu, r, i, "landmark")
 
     def update_robot(
         self, i: int, j: int, z: np.ndarray, r: np.ndarray, t: float | None = None
