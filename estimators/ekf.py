@@ -106,6 +106,15 @@ class GateMonitor:
         self.counts: dict[Hashable, np.ndarray] = {}
         self.recoveries = 0
 
+    def pending(self, channel: Hashable, any_rejected: bool) -> bool:
+        """Whether :meth:`record` has anything to do for a batch of ``channel``: some
+        reading was rejected, or some robot's count is running (a cheap test for the
+        common all-accepted batch)."""
+        if self.recover_after is None:
+            return False
+        counts = self.counts.get(channel)
+        return any_rejected or (counts is not None and bool(counts.any()))
+
     def record(self, channel: Hashable, idx: np.ndarray, accepted: np.ndarray) -> np.ndarray:
         """Update the counters of robots ``idx`` (distinct) on ``channel``; returns the
         mask of ``idx`` that must recover now."""
@@ -352,7 +361,7 @@ class PoseEKF:
         d2 = np.einsum("ki,kij,kj->k", nu, s_inv, nu)
         ok = self._gate(d2, nu.shape[1], gate_prob)
         n_ok = np.count_nonzero(ok)
-        if channel is not None and self.monitor.recover_after is not None:
+        if channel is not None and self.monitor.pending(channel, n_ok < len(ok)):
             recover = self.monitor.record(channel, idx, ok)
             if n_ok < len(ok) and recover.any():
                 # Locked out: widen the covariance in the subspace the sensor sees until the
