@@ -363,6 +363,7 @@ class PoseEKF:
         n_ok = np.count_nonzero(ok)
         if channel is not None and self.monitor.pending(channel, n_ok < len(ok)):
             recover = self.monitor.record(channel, idx, ok)
+            recover &= np.isfinite(d2)  # (a singular S gives no scale to widen by)
             if n_ok < len(ok) and recover.any():
                 # Locked out: widen the covariance in the subspace the sensor sees until the
                 # reading is an ordinary one (normalized innovation = its dof), then fuse it.
