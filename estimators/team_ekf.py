@@ -20,7 +20,7 @@ with range-bearing instead of a Cartesian relative pose).
   whose landmark readings fail the gate ``recover_after`` times in a row is
   taken to be lost, not the landmarks wrong: its pose covariance is scaled up
   until the reading is an ordinary one, and the reading is fused
-  (:class:`~estimators.ekf.GateMonitor`).
+  (:class:`~estimators.gating.GateMonitor`).
 
 Independent per-robot EKFs are the same class with ``cooperative=False``:
 robot-to-robot updates are then skipped and the covariance stays block
@@ -35,7 +35,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimators.ekf import Belief, GateMonitor, chi2_threshold
+from estimators.ekf import Belief
+from estimators.gating import GateMonitor, chi2_threshold
 from estimators.geometry import wrap_angle
 
 __all__ = ["MotionNoise", "OdometryTrack", "TeamEKF"]
