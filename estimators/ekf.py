@@ -99,7 +99,8 @@ class PoseEKF:
         confirm_distance: a relative detection that would move a robot's position
             estimate by more than this (m) is fused only once a second detection
             of the same pair, at most ``confirm_window`` predictions later (env
-            steps), agrees with it (``None``: no confirmation).
+            steps), agrees with it (one the gate rejects needs ``recover_after``
+            agreeing ones); ``None``: no confirmation.
         confirm_window: see ``confirm_distance``.
     """
 
@@ -135,10 +136,11 @@ class PoseEKF:
             raise ValueError(f"confirm_window must be a positive int, got {confirm_window!r}")
         self.confirm_distance = confirm_distance
         self.confirm_window = int(confirm_window)
-        # (lower, higher robot index) -> (update_relative call number, prediction count,
-        # position offset (2,) of the higher one as seen by the lower one, its covariance
-        # (2, 2)) of the last detection of the pair that waits for a confirming second one.
-        self._pending: dict[tuple[int, int], tuple[int, int, np.ndarray, np.ndarray]] = {}
+        # (lower, higher robot index) -> the pair's track of detections waiting for
+        # confirmation: (update_relative call number, prediction count, position offset of
+        # the higher one as seen by the lower one (+ relative orientation), its covariance,
+        # number of agreeing detections in the track).
+        self._pending: dict[tuple[int, int], tuple] = {}
         self._relative_calls = 0
         self._ticks = 0  # predictions so far: the clock of the confirmation window
 
@@ -473,7 +475,7 @@ class PoseEKF:
                 for (sl, _, _), mv in zip(sides, moves, strict=True)
             ))
             ok, recover = self._confirm(
-                ia, ib, z_full, r_full, model, ok, shift > self.confirm_distance
+                ia, ib, z_full, r_full, model, ok, shift > self.confirm_distance, 2 in dims
             )
         for (sl, rob, _), mv in zip(sides, moves, strict=True):
             take = ok & mv
@@ -511,19 +513,22 @@ class PoseEKF:
         return offset, jac @ r[:, :2, :2] @ jac.mT
 
     def _confirm(
-        self, ia, ib, z, r, model, ok: np.ndarray, big: np.ndarray
+        self, ia, ib, z, r, model, ok: np.ndarray, big: np.ndarray, with_orientation: bool
     ) -> tuple[np.ndarray, np.ndarray]:
         """Track confirmation of relative detections.
 
         A detection that fails the gate, or would move a robot by more than
-        ``confirm_distance``, counts only when the previous pending detection of
-        the same pair (either robot observing), from an earlier call and at most
-        ``confirm_window`` predictions old, puts the target at the same offset
-        from its estimate (chi-square test at the gate probability, with the two
-        offsets' covariances plus
-        :data:`_CONFIRM_SLACK` for the motion in between). A false positive names
-        a random place, so two that agree are rare. Returns the mask of detections
-        accepted as they are and the mask of confirmed ones (for
+        ``confirm_distance``, joins the pair's track (either robot observing):
+        it agrees with the track's last detection, from an earlier call and at
+        most ``confirm_window`` predictions old, when both put the target at the
+        same offset from its estimate and (``with_orientation``) see the same
+        relative orientation (chi-square test at the gate probability, with the
+        two readings' noise plus :data:`_CONFIRM_SLACK` for the motion in
+        between); otherwise it starts a new track. A detection is fused once its
+        track holds 2 agreeing detections, or ``recover_after`` (default 3) when
+        the gate rejected it, as it then overrules the belief. A false positive
+        names a random place, so a track of them is rare. Returns the mask of
+        detections accepted as they are and the mask of confirmed ones (for
         :meth:`_recover_relative`).
         """
         need = np.nonzero(big | ~ok)[0]
@@ -533,21 +538,37 @@ class PoseEKF:
             return accepted, recover
         call, tick = self._relative_calls, self._ticks
         offset, cov = self._relative_offsets(ia[need], ib[need], z[need], r[need], model)
-        threshold = chi2_threshold(self.gate_prob, 2) if self.gate_prob < 1.0 else np.inf
-        for row, o, c in zip(need.tolist(), offset, cov, strict=True):
-            # One track per pair, whoever observes: seen from the target, the offset flips.
+        if with_orientation:
+            vec = np.concatenate([offset, z[need, 2:3]], axis=1)
+            full = np.zeros((len(need), 3, 3))
+            full[:, :2, :2] = cov
+            full[:, 2, 2] = r[need, 2, 2]
+            cov, slack = full, _CONFIRM_SLACK_3
+        else:
+            vec, slack = offset, _CONFIRM_SLACK_2
+        dof = vec.shape[1]
+        threshold = chi2_threshold(self.gate_prob, dof) if self.gate_prob < 1.0 else np.inf
+        lock_out = self.monitor.recover_after or 2
+        for row, v, c in zip(need.tolist(), vec, cov, strict=True):
+            # One track per pair, whoever observes: seen from the target, the offset and
+            # the relative orientation flip.
             a, b = int(ia[row]), int(ib[row])
             key = (a, b) if a < b else (b, a)
             if a > b:
-                o = -o
+                v = -v
+            count = 1
             prev = self._pending.pop(key, None)
-            if prev is not None and prev[0] < call and tick - prev[1] <= self.confirm_window:
-                diff = o - prev[2]
-                joint = c + prev[3] + _CONFIRM_SLACK**2 * _EYE2
-                if diff @ np.linalg.solve(joint, diff) <= threshold:
-                    recover[row] = True
-                    continue
-            self._pending[key] = (call, tick, o, c)
+            if prev is not None and prev[0] < call and tick - prev[1] <= self.confirm_window \
+                    and len(prev[2]) == dof:
+                diff = v - prev[2]
+                if dof == 3:
+                    diff[2] = (diff[2] + np.pi) % (2 * np.pi) - np.pi
+                if diff @ np.linalg.solve(c + prev[3] + slack, diff) <= threshold:
+                    count = prev[4] + 1
+            if count >= (2 if ok[row] else lock_out):
+                recover[row] = True
+            else:
+                self._pending[key] = (call, tick, v, c, count)
         return accepted, recover
 
     def _recover_relative(self, ia, ib, z, r, model, dims, fusion, passed) -> np.ndarray:
@@ -571,8 +592,12 @@ class PoseEKF:
 # Std (m) of how much the offset between a robot's estimate and where a detection puts it
 # may change between two confirming detections (odometry drift over the window).
 _CONFIRM_SLACK = 0.3
-_EYE2 = np.eye(2)
-_EYE2.flags.writeable = False
+# ... and of the relative orientation two detections measure (rad): both robots turn.
+_CONFIRM_SLACK_HEADING = 0.1
+_CONFIRM_SLACK_2 = np.eye(2) * _CONFIRM_SLACK**2
+_CONFIRM_SLACK_3 = np.diag([_CONFIRM_SLACK**2] * 2 + [_CONFIRM_SLACK_HEADING**2])
+for _slack in (_CONFIRM_SLACK_2, _CONFIRM_SLACK_3):
+    _slack.flags.writeable = False
 
 
 def _propagate(

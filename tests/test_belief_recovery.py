@@ -113,15 +113,32 @@ def test_a_false_detection_does_not_move_an_isolated_robot():
     assert np.hypot(*(ekf.mean[1, :2] - truth[1, :2])) < 0.5
 
 
+def test_false_detections_of_both_robots_must_agree_in_relative_orientation_too():
+    """Robot 0 sees robot 1 where it is not, then robot 1 sees robot 0 at the mirrored
+    place (the positions agree) but with the relative orientation of another pose."""
+    truth = np.array([[0.0, 0.0, 0.0], [4.0, 1.0, 0.3]])
+    cov = np.stack([np.diag([0.01, 0.01, 1e-4]), np.diag([100.0, 100.0, 1e-2])])
+    start = np.array([[0.0, 0.0, 0.0], [4.0, 1.0, 0.3]])
+    ekf = PoseEKF(start.copy(), cov)
+    ghost = np.array([[-3.0, 7.0, 0.3]])
+    assert not ekf.update_relative([0], [1], _rbo(truth[:1], ghost), R_DET).any()
+    ekf.predict(np.zeros(2), np.zeros(2), 0.1, 0.0, 0.0)
+    mirrored = _rbo(ghost, truth[:1])
+    mirrored[0, 2] += 0.8  # the orientation the ghost pose would not give
+    assert not ekf.update_relative([1], [0], mirrored, R_DET).any()
+    np.testing.assert_allclose(ekf.mean, start, atol=1e-12)
+
+
 def test_agreeing_detections_recover_a_robot_the_gate_locked_out():
     """Robot 1 believes it is 6 m from where it is, within 0.1 m: every detection fails
-    the gate, but two that agree move it there with a covariance covering the jump."""
+    the gate, but three that agree move it there with a covariance covering the jump."""
     truth = np.array([[0.0, 0.0, 0.0], [4.0, 1.0, 0.3]])
     cov = np.stack([np.diag([0.01, 0.01, 1e-4]), np.diag([0.01, 0.01, 1e-3])])
     ekf = PoseEKF(np.array([[0.0, 0.0, 0.0], [10.0, 1.0, 0.3]]), cov)
     z = _rbo(truth[:1], truth[1:])
-    assert not ekf.update_relative([0], [1], z, R_DET).any()
-    ekf.predict(np.zeros(2), np.zeros(2), 0.1, 0.0, 0.0)
+    for _ in range(2):  # overruling the belief takes three agreeing detections
+        assert not ekf.update_relative([0], [1], z, R_DET).any()
+        ekf.predict(np.zeros(2), np.zeros(2), 0.1, 0.0, 0.0)
     assert ekf.update_relative([0], [1], z, R_DET).all()
     assert np.hypot(*(ekf.mean[1, :2] - truth[1, :2])) < 0.3
     assert _nees(ekf.mean[1], ekf.cov[1], truth[1]) < NEES_BOUND
