@@ -242,7 +242,7 @@ class PoseEKF:
         for d in angle_dims:
             nu[:, d] = wrap_angle(nu[:, d])
         jac, r = np.asarray(jac, dtype=float), np.asarray(r, dtype=float)
-        return self._update(idx, sel, nu, jac, r, gate_prob, channel)
+        return self._update(idx, sel, nu, jac, r, gate_prob, channel, tuple(angle_dims))
 
     def _checked(
         self, idx: np.ndarray, z: np.ndarray
@@ -266,6 +266,7 @@ class PoseEKF:
         r: np.ndarray,
         gate_prob: float | None,
         channel: str | None = None,
+        angles: tuple[int, ...] = (),
     ) -> np.ndarray:
         """:meth:`update` of robots ``idx`` (``sel``: ``idx`` or ``slice(None)`` for all of
         them in order) from innovations ``nu (k, m)``; ``jac`` is ``(k, m, 3)`` or one
@@ -280,7 +281,7 @@ class PoseEKF:
         ok = self._gate(d2, nu.shape[1], gate_prob)
         n_ok = np.count_nonzero(ok)
         if channel is not None and self.monitor.pending(channel, n_ok < len(ok)):
-            recover = self.monitor.record(channel, idx, ok)
+            recover = self.monitor.record(channel, idx, ok, nu, s, angles)
             recover &= np.isfinite(d2)  # (a singular S gives no scale to widen by)
             if n_ok < len(ok) and recover.any():
                 # Locked out: widen the covariance in the subspace the sensor sees until the
@@ -350,7 +351,7 @@ class PoseEKF:
             return np.zeros(0, dtype=bool)
         nu = wrap_angle(z.reshape(-1, 1) - self.mean[sel, 2:3])
         r = np.asarray(var, dtype=float).reshape(-1, 1, 1)
-        return self._update(idx, sel, nu, _H_HEADING, r, gate_prob, "heading")
+        return self._update(idx, sel, nu, _H_HEADING, r, gate_prob, "heading", (0,))
 
     def update_relative(
         self,

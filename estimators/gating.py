@@ -26,12 +26,17 @@ def chi2_threshold(prob: float, dof: int) -> float:
     return _CHI2_CACHE[key]
 
 
+# Probability of the chi-square test that says two rejected readings agree.
+AGREE_PROB = 0.999
+
+
 class GateMonitor:
     """Consecutive gate rejections per robot and sensor channel, and when to recover.
 
     :meth:`record` takes a batch of gate decisions of one channel and returns
     which rejected readings end a run of ``recover_after`` consecutive
-    rejections (counting the current one); those counters restart at zero.
+    rejections (counting the current one) that agree with each other; those
+    counters restart at zero.
     ``recover_after=None`` never recovers. A recovery is counted in
     :attr:`recoveries`.
     """
@@ -45,6 +50,8 @@ class GateMonitor:
         self.n = int(n)
         self.recover_after = recover_after
         self.counts: dict[Hashable, np.ndarray] = {}
+        # Per channel: the last rejected innovation of each robot and its covariance.
+        self._last: dict[Hashable, tuple[np.ndarray, np.ndarray]] = {}
         self.recoveries = 0
 
     def pending(self, channel: Hashable, any_rejected: bool) -> bool:
@@ -56,15 +63,49 @@ class GateMonitor:
         counts = self.counts.get(channel)
         return any_rejected or (counts is not None and bool(counts.any()))
 
-    def record(self, channel: Hashable, idx: np.ndarray, accepted: np.ndarray) -> np.ndarray:
+    def record(
+        self,
+        channel: Hashable,
+        idx: np.ndarray,
+        accepted: np.ndarray,
+        nu: np.ndarray | None = None,
+        s: np.ndarray | None = None,
+        angles: tuple[int, ...] = (),
+    ) -> np.ndarray:
         """Update the counters of robots ``idx`` (distinct) on ``channel``; returns the
-        mask of ``idx`` that must recover now."""
+        mask of ``idx`` that must recover now.
+
+        With the innovations ``nu (k, m)`` and their covariances ``s (k, m, m)``,
+        a rejection extends a run only when its innovation agrees with the run's
+        previous one (chi-square test on the difference, covariance ``S + S_prev``,
+        at :data:`AGREE_PROB`; components ``angles`` wrapped): a filter that has
+        drifted sees the same innovation again and again, while outliers (multipath
+        fixes) scatter, so a run of them does not trigger a recovery.
+        """
         if self.recover_after is None:
             return np.zeros(len(idx), dtype=bool)
         counts = self.counts.get(channel)
         if counts is None:
             counts = self.counts[channel] = np.zeros(self.n, dtype=int)
-        c = np.where(accepted, 0, counts[idx] + 1)
+        prev = counts[idx]
+        c = np.where(accepted, 0, prev + 1)
+        if nu is not None and s is not None:
+            m = nu.shape[1]
+            last = self._last.get(channel)
+            if last is None or last[0].shape[1] != m:
+                last = self._last[channel] = (np.zeros((self.n, m)), np.zeros((self.n, m, m)))
+            rejected = ~np.asarray(accepted, dtype=bool)
+            rows = np.nonzero(rejected & (prev > 0))[0]
+            if len(rows):
+                robots = idx[rows]
+                d = nu[rows] - last[0][robots]
+                for a in angles:
+                    d[:, a] = (d[:, a] + np.pi) % (2 * np.pi) - np.pi
+                joint = s[rows] + last[1][robots]
+                d2 = np.einsum("ki,kij,kj->k", d, np.linalg.pinv(joint), d)
+                c[rows[~(d2 <= chi2_threshold(AGREE_PROB, m))]] = 1  # disagrees: a new run
+            last[0][idx[rejected]] = nu[rejected]
+            last[1][idx[rejected]] = s[rejected]
         recover = c >= self.recover_after
         c[recover] = 0
         counts[idx] = c

@@ -54,6 +54,16 @@ def test_consecutive_dgps_rejections_recover_the_position():
     assert np.hypot(*ekf.mean[0, :2]) < 0.4
 
 
+def test_a_run_of_scattered_outliers_does_not_trigger_a_recovery():
+    """Three multipath fixes in a row, metres apart: they disagree with each other, so the
+    filter keeps its belief (a drifted filter sees the same innovation again and again)."""
+    ekf = PoseEKF(np.zeros((1, 3)), np.diag([0.04, 0.04, 0.01]))
+    for z in ([[-6.5, 5.5]], [[5.3, -9.5]], [[-8.5, 2.3]], [[7.0, 7.0]]):
+        assert not ekf.update_position([0], np.array(z), R_GPS).any()
+    np.testing.assert_array_equal(ekf.mean, np.zeros((1, 3)))
+    assert ekf.monitor.recoveries == 0
+
+
 def test_compass_lockout_recovers_and_can_be_switched_off():
     for recover_after, recovered in ((3, True), (None, False)):
         ekf = PoseEKF(np.array([[0.0, 0.0, 2.0]]), np.diag([0.01, 0.01, 1e-4]),
