@@ -235,8 +235,6 @@ class EKFBackend:
         ekf = self.ekf
         g = self.robots
         odo, dt_sub = _team_odometry(cfg, readings, g, active, self._whole_team)
-        # Encoder noise plus the wheel slip the robot's maker specifies, inflated by
-        # ``ekf_process_noise_scale`` to cover what the model leaves out; (V, w) together.
         pressed = readings.bumper
         if pressed is not None and np.count_nonzero(pressed):
             pressed = pressed if self._whole_team else pressed[g]
@@ -248,6 +246,8 @@ class EKFBackend:
         else:
             hit = None
             self._contact_steps[:] = 0
+        # Encoder noise plus the wheel slip the robot's maker specifies, inflated by
+        # ``ekf_process_noise_scale`` to cover what the model leaves out; (V, w) together.
         var = _odometry_variance(odo, cfg.slip_std, self._encoder_var, cfg.ekf_process_noise_scale)
         ekf._predict_sequence(odo[..., 0], odo[..., 1], dt_sub, var)
         if hit is not None:
