@@ -224,7 +224,7 @@ class CoopLocParallelEnv(ParallelEnv):
             backend.step(readings, self._active)
         self._gather_beliefs()
         self._new_cells = self.mapper.step(readings, self._est_mean, self._est_cov, self._active)
-        self.observations.ingest(readings, self.sensors.range_max)
+        self.observations.ingest(readings, self.sensors.range_max, self._step_count)
         self._last_action = act
         self._step_count += 1
 
