@@ -93,6 +93,8 @@ class TeamMapper:
         self._gps_offset = self.map.datum - float(cfg.gps_base_altitude)
         self.last_new_cells = np.zeros(n, dtype=np.int64)
         self._truly_covered = np.zeros(self._drivable_flat.size, dtype=bool)
+        self._footprint_cells = np.rint(self.map._footprint / cfg.map_resolution).astype(np.intp)
+        self._cover_key = b""
         self.last_covered_cells = np.zeros(n, dtype=np.int64)
 
     @property
@@ -119,30 +121,38 @@ class TeamMapper:
         )
         self.last_new_cells = np.zeros(n, dtype=np.int64)
         self._truly_covered[:] = False
+        self._cover_key = b""
         self.cover(np.asarray(true_poses, dtype=float), self._all)
         self.last_covered_cells = np.zeros(n, dtype=np.int64)
 
     def cover(self, true_poses: np.ndarray, ids: np.ndarray) -> np.ndarray:
         """Mark the drivable cells the footprints of robots ``ids`` cover at their true poses.
 
+        The footprint is the map's, centred on the cell holding the true position.
         Returns the number of cells each robot of the team covered first ``(n,)``;
         a cell two robots reach in the same call counts for the lower index.
         """
         new = np.zeros(self.cfg.n_robots, dtype=np.int64)
         if not ids.size:
             return new
-        fp = self.map._footprint
-        xy = (true_poses[ids, None, :2] + fp).reshape(-1, 2)
-        flat, inside = self.map._flat_index_xy(xy, all_inside=True)
-        owner = np.repeat(ids, fp.shape[0])
-        if inside is not None:
-            flat, owner = flat[inside], owner[inside]
+        cell = np.floor(true_poses[ids, :2] * (1.0 / self.map.resolution)).astype(np.intp)
+        key = cell.tobytes() + ids.tobytes()
+        if key == self._cover_key:  # every robot still in the cell it was in: nothing new
+            return new
+        self._cover_key = key
+        cells = (cell[:, None, :] + self._footprint_cells).reshape(-1, 2)
+        nx, ny = self.map.shape
+        owner = np.repeat(ids, self._footprint_cells.shape[0])
+        ok = (cells[:, 0] >= 0) & (cells[:, 0] < nx) & (cells[:, 1] >= 0) & (cells[:, 1] < ny)
+        flat = cells[:, 0] * ny + cells[:, 1]
+        if np.count_nonzero(ok) < ok.size:
+            flat, owner = flat[ok], owner[ok]
         fresh = self._drivable_flat[flat] & ~self._truly_covered[flat]
         if not np.count_nonzero(fresh):
             return new
         flat, owner = flat[fresh], owner[fresh]
-        cells, first = np.unique(flat, return_index=True)  # owners come in id order
-        self._truly_covered[cells] = True
+        first_cells, first = np.unique(flat, return_index=True)  # owners come in id order
+        self._truly_covered[first_cells] = True
         np.add.at(new, owner[first], 1)
         return new
 
