@@ -12,10 +12,11 @@ alone, and the ablation tables in ``docs/`` show what each addition buys:
 * Madhavan et al. (``dgps_outage``): the laser-based relative measurement is the
   minimum of the observer's laser profile (range and bearing only,
   ``detection_model="scan_min"``).
-* Fox et al. (``symmetric_hallway``, ``hexagon``): their detector (camera visual
-  field plus laser scan minimum, 1 Hz, mean errors 48.3 cm and 2.2 degrees, range
-  and bearing only, no false positives in simulation), a few uniform random
-  particles after every estimation step, no sensor resetting.
+* Fox et al. (``symmetric_hallway``, ``hexagon``): their detector as their
+  simulation runs drew it (from the robots' positions and the map's visibility,
+  1 Hz, the learned mean errors 48.3 cm and 2.2 degrees, range and bearing only,
+  no false positives), a few uniform random particles after every estimation
+  step, no sensor resetting.
 
 :func:`with_profile` merges a profile's overrides under the user's (``extras``
 dicts are merged key by key, the user's winning).
@@ -46,7 +47,10 @@ _HOWARD_DISPERSAL = {
 }
 _FOX = {
     "detector_rate": 1.0,  # images analysed at 1 Hz
-    "detector_fov_deg": 60.0,  # the camera's visual field (the scan gives range and angle)
+    # The simulation runs drew detections "by using the positions of the robots and
+    # visibility constraints extracted from the map": line of sight, no field of view
+    # (the paper gives none for its camera; with an assumed 60 degrees see docs/fox.md).
+    "detector_fov_deg": 360.0,
     "detection_range_std": 0.483 * MEAN_TO_STD,  # mean distance error 48.3 cm
     "detection_bearing_std": math.radians(2.2) * MEAN_TO_STD,  # mean angle error 2.2 deg
     "detection_orientation": False,  # polar coordinates only

@@ -18,9 +18,10 @@ alone as "localized" when it merely passes near the centre, where its
 symmetric copies are close together (see ``run_hexagon_experiment``).
 
 ``--profile paper`` runs the paper's method alone (:mod:`coop_loc_env.profiles`):
-its detector (camera visual field, 1 Hz, mean errors 48.3 cm and 2.2 degrees,
-range and bearing only, no false positives), a few uniform random particles
-after every estimation step, no sensor resetting. The JSON records the profile.
+its detector as its simulation drew it (line of sight, 1 Hz, mean errors 48.3 cm
+and 2.2 degrees, range and bearing only, no false positives), a few uniform
+random particles after every estimation step, no sensor resetting. The JSON
+records the profile.
 
 Examples::
 
@@ -82,9 +83,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="where to save the error-vs-time plots ('' to skip)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--profile", choices=PROFILES, default="default",
-                   help="'paper': the paper's detector (visual field, 1 Hz, its error figures, "
-                        "range and bearing only, no false positives), uniform random particles "
-                        "after every step, no sensor resetting")
+                   help="'paper': the paper's simulated detector (line of sight, 1 Hz, its "
+                        "error figures, range and bearing only, no false positives), uniform "
+                        "random particles after every step, no sensor resetting")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="config override of the scenarios, repeatable (e.g. n_particles=1000)")
     args = p.parse_args(argv)

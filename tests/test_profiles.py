@@ -38,7 +38,7 @@ def test_fox_paper_profile():
     assert cfg.detection_range_std * math.sqrt(2 / math.pi) == pytest.approx(0.483)
     assert math.degrees(cfg.detection_bearing_std) * math.sqrt(2 / math.pi) == pytest.approx(2.2)
     assert cfg.detector_rate == 1.0 and cfg.false_positive_prob == 0.0
-    assert not cfg.detection_orientation and cfg.detector_fov_deg < 360
+    assert not cfg.detection_orientation
     ex = cfg.extras
     assert ex["mcl_detection_reset"] == 0.0 and ex["mcl_random_every_step"]
     assert ex["mcl_resolution"] == 0.5  # the user's extras win
