@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import coop_loc_env
-from coop_loc_env.world import MAX_PHYSICS_STEPS
+from coop_loc_env.world import MAX_PHYSICS_STEPS, MAX_TRAVEL_PER_RADIUS
 
 FORWARD = np.array([1.0, 0.0], np.float32)
 
@@ -28,10 +28,11 @@ def test_fast_robot_stays_inside_the_world_boundary():
 
 
 @pytest.mark.parametrize(("scenario", "speed"), [("symmetric_hallway", 5.0), ("dispersal", 8.0),
-                                                 ("circuit", 20.0)])
+                                                 ("circuit", 16.0)])
 def test_fast_teams_stay_out_of_walls_and_obstacles(scenario, speed):
     env = coop_loc_env.parallel_env(scenario, max_speed=speed, max_cycles=10**6,
-                                    tip_over_terminates=False)
+                                    tip_over_terminates=False,
+                                    team=(coop_loc_env.RobotSpec(estimator="ekf"),))
     env.reset(seed=1)
     rng = np.random.default_rng(1)
     w, h = env.config.world_size
@@ -48,8 +49,9 @@ def test_default_speeds_use_one_physics_step_per_substep():
 
 
 def test_speed_the_physics_cannot_hold_is_refused_with_the_limit():
-    # circuit: 0.25 m robots, 0.1 s substeps: half a radius per physics step, 16 steps.
-    limit = MAX_PHYSICS_STEPS * 0.5 * 0.25 / 0.1
+    # circuit: 0.25 m robots, 0.1 s substeps: 0.4 radius per physics step, 16 steps.
+    limit = MAX_PHYSICS_STEPS * MAX_TRAVEL_PER_RADIUS * 0.25 / 0.1
+    assert limit == pytest.approx(16.0)
     assert coop_loc_env.parallel_env("circuit", max_speed=limit).world.physics_steps == 16
     with pytest.raises(ValueError, match=rf"max_speed <= {limit:g} m/s"):
         coop_loc_env.parallel_env("circuit", max_speed=limit * 1.01)
