@@ -232,8 +232,17 @@ class ScenarioConfig:
             max_turn_rate=spec.max_turn_rate or self.max_turn_rate,
         )
 
+    @property
+    def estimators(self) -> tuple[str, ...]:
+        """The estimator each robot runs (``RobotSpec.estimator``, else :attr:`estimator`)."""
+        return tuple(self.robot_spec(i).estimator for i in range(self.n_robots))
+
     def replace(self, **overrides: Any) -> ScenarioConfig:
-        """A validated copy with ``overrides``; unknown keys raise ``ValueError``."""
+        """A validated copy with ``overrides``; unknown keys raise ``ValueError``.
+
+        ``estimator=`` sets every robot's estimator: it clears the per-robot
+        ``RobotSpec.estimator`` of the team unless ``team=`` is given too.
+        """
         known = {f.name for f in dataclasses.fields(self)}
         for key in overrides:
             if key not in known:
@@ -244,6 +253,13 @@ class ScenarioConfig:
         for key in ("team", "obstacles", "world_size", "start_region", "start_poses"):
             if key in overrides and isinstance(overrides[key], list):
                 overrides[key] = tuple(overrides[key])
+        if "estimator" in overrides and "team" not in overrides:
+            # An explicit estimator= overrides the per-robot estimators of this config's team
+            # (a team passed alongside it keeps its own: estimator= is then their default).
+            overrides["team"] = tuple(
+                dataclasses.replace(s, estimator=None) if isinstance(s, RobotSpec) else s
+                for s in self.team
+            )
         cfg = dataclasses.replace(self, **overrides)
         cfg.validate()
         return cfg
