@@ -64,6 +64,7 @@ from estimators.detection_transfer import (
     sample_detected_poses,
 )
 from estimators.geometry import wrap_angle
+from estimators.mcl_batch import belief_summaries, compose_odometry_batch, update_beam_batch
 from estimators.occupancy import OccupancyGrid
 from estimators.particle_filter import (
     MCLConfig,
@@ -78,7 +79,7 @@ __all__ = ["MCLBackend", "beam_angles", "known_map", "map_resolution"]
 HIST_CELLS = 5
 HIST_CELL = 1.0  # m, edge of one egocentric histogram cell
 HEADING_BINS = 8
-RANGE_LOOKUP_BINS = 180
+RANGE_LOOKUP_BINS = 256
 LOCKOUT_DISTANCE = 2.5  # m (Fox et al.)
 RESET_STD = 1.0  # m: confident observers (position std below) seed uncertain targets (above)
 GLOBAL_INIT_FACTOR = 4  # global localization starts with this many times n_particles
@@ -284,6 +285,7 @@ class MCLBackend:
         self.transfers_applied = np.zeros(len(self.robots), dtype=int)
         self._t = 0
         self._conflicts: dict[int, list] = {}
+        self._summary: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     # ------------------------------------------------------------------ reset
     def _sensor(self, i: int) -> str:
@@ -316,11 +318,13 @@ class MCLBackend:
         self.transfers_applied[:] = 0
         self._t = 0
         self._conflicts = {}
+        self._summary = None
         # build the shared range tables now, not inside the first step
-        if self._sonar.any():
-            self._grids["sonar"].range_table(cfg.sonar_max_range, RANGE_LOOKUP_BINS)
-        if self._laser_beam and not self._sonar.all():
-            self._grids["laser"].range_table(cfg.laser_max_range, RANGE_LOOKUP_BINS)
+        for i in range(k):
+            if self._sonar[i]:
+                self.filters[i].beam_tables(cfg.sonar_max_range, self._cone)
+            elif self._laser_beam:
+                self.filters[i].beam_tables(cfg.laser_max_range)
 
     # ------------------------------------------------------------------ step
     def step(self, readings: Readings, active: np.ndarray) -> dict[str, int]:
@@ -329,9 +333,9 @@ class MCLBackend:
         dt_sub = cfg.dt / cfg.odometry_substeps
         stats = {"range_updates": 0, "detections_applied": 0, "detections_ignored": 0}
         self._t += 1
-        for i, g in enumerate(self.robots):
-            if not active[g]:
-                continue
+        self._summary = None
+        live = [i for i, g in enumerate(self.robots) if active[g]]
+        for i in live:
             pf = self.filters[i]
             # Resample only when the weights degenerate (not on every step, as
             # ParticleFilter.resample_if_needed does while injection is on): every
@@ -339,11 +343,15 @@ class MCLBackend:
             # Random particles are injected at these resamplings.
             if pf.ess < pf.config.resample_ess_fraction * pf.n_particles:
                 pf.resample()
-            odo = readings.odometry[:, g]
-            pf.predict_odometry_sequence(odo[:, 0], odo[:, 1], dt_sub)
-            if self._has_range[i] and readings.range_mask[g]:
-                self._range_update(i, readings.ranges[g])
-                stats["range_updates"] += 1
+        if live:
+            odo = readings.odometry[:, self.robots[live]]  # (substeps, robots, 2)
+            deltas = compose_odometry_batch(odo[..., 0].T, odo[..., 1].T, dt_sub)
+            for i, delta in zip(live, deltas, strict=True):
+                self.filters[i].predict_delta(delta)
+        stats["range_updates"] = self._range_updates(live, readings)
+        for i in live:
+            g = self.robots[i]
+            pf = self.filters[i]
             if self._has_gps[i] and readings.gps_mask[g]:
                 d = pf.particles[:, :2] - readings.gps_xy[g]
                 var = float(readings.gps_var[g])
@@ -360,11 +368,12 @@ class MCLBackend:
                 ia, ib = self._local[a], self._local[b]
                 if not (active[a] and active[b]):
                     continue
-                rec = detection_from_measurement(a, b, det.z[k], det.cov[k])
                 observer, target = self.filters[ia], self.filters[ib]
-                if self.reset_fraction > 0 and not self.transfer.lockout.is_locked(
-                    a, b, observer.odometer
-                ):
+                if self.transfer.lockout.is_locked(a, b, observer.odometer):
+                    stats["detections_ignored"] += 1  # what transfer.apply would answer
+                    continue
+                rec = detection_from_measurement(a, b, det.z[k], det.cov[k])
+                if self.reset_fraction > 0:
                     self._detection_reset(ib, rec, observer, target)
                 res = self.transfer.apply(rec, observer, target, self.rng)
                 if res.applied:
@@ -450,37 +459,61 @@ class MCLBackend:
             self._conflicts[ib] = []
         return confirmed
 
-    def _range_update(self, i: int, row: np.ndarray) -> None:
+    def _range_updates(self, live: list[int], readings: Readings) -> int:
+        """Weight the live robots' particles by their range scans; returns how many scans.
+
+        Robots sharing a beam model (sonars; lasers with ``mcl_laser_model="beam"``)
+        are updated together (:func:`estimators.mcl_batch.update_beam_batch`); the
+        likelihood-field laser robot by robot.
+        """
         cfg = self.cfg
-        t = self._sensor(i)
-        angles = self._angles[t]
-        ranges = row[: len(angles)]
-        ok = np.isfinite(ranges)
-        if not ok.any():
-            return
-        pf = self.filters[i]
-        if t == "sonar":
-            pf.update_beam(ranges[ok], angles[ok], cfg.sonar_max_range, self._cone)
-        elif self._laser_beam:
-            pf.update_beam(ranges[ok], angles[ok], cfg.laser_max_range)
-        else:
-            pf.update_likelihood_field(ranges[ok], angles[ok], cfg.laser_max_range)
+        groups: dict[str, list[int]] = {}
+        scans = 0
+        for i in live:
+            g = self.robots[i]
+            if not (self._has_range[i] and readings.range_mask[g]):
+                continue
+            scans += 1
+            t = self._sensor(i)
+            if np.isfinite(readings.ranges[g][: len(self._angles[t])]).any():
+                groups.setdefault(t, []).append(i)  # a scan without a reading carries nothing
+        for t, members in groups.items():
+            angles = self._angles[t]
+            rows = readings.ranges[self.robots[members], : len(angles)]
+            filters = [self.filters[i] for i in members]
+            if t == "sonar":
+                update_beam_batch(filters, rows, angles, cfg.sonar_max_range, self._cone)
+            elif self._laser_beam:
+                update_beam_batch(filters, rows, angles, cfg.laser_max_range)
+            else:
+                for pf, row in zip(filters, rows, strict=True):
+                    ok = np.isfinite(row)
+                    pf.update_likelihood_field(row[ok], angles[ok], cfg.laser_max_range)
+        return scans
 
     # ------------------------------------------------------------------ outputs
+    def _summaries(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Means, covariances and features of all filters, computed together once per step."""
+        if self._summary is None:
+            if self.filters:
+                self._summary = belief_summaries(self.filters, HIST_CELLS, HIST_CELL,
+                                                 HEADING_BINS)
+            else:
+                self._summary = (np.zeros((0, 3)), np.zeros((0, 3, 3)),
+                                 np.zeros((0, self.feature_size), dtype=np.float32))
+        return self._summary
+
     def mean(self) -> np.ndarray:
         """Weighted mean poses ``(k, 3)`` (circular mean heading)."""
-        return np.array([pf.mean_pose() for pf in self.filters]).reshape(-1, 3)
+        return self._summaries()[0].copy()
 
     def cov(self) -> np.ndarray:
         """Weighted covariances ``(k, 3, 3)`` (heading deviations wrapped about the mean)."""
-        return np.array([pf.belief().cov for pf in self.filters]).reshape(-1, 3, 3)
+        return self._summaries()[1].copy()
 
     def features(self) -> np.ndarray:
         """Belief embeddings ``(k, 48)`` (layout: :attr:`feature_names`)."""
-        return np.array(
-            [pf.belief_features(HIST_CELLS, HIST_CELL, HEADING_BINS) for pf in self.filters],
-            dtype=float,
-        ).reshape(-1, self.feature_size)
+        return self._summaries()[2].astype(float)
 
     def extra_info(self, true_poses: np.ndarray) -> dict[int, dict]:
         """``particle_spread`` (weighted mean particle distance from the truth, m),

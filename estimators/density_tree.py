@@ -97,58 +97,75 @@ class DensityTree:
 
     def _build(self, x: np.ndarray, w: np.ndarray, scale: np.ndarray, leaf_size: int,
                max_depth: int) -> None:
-        lows: list[np.ndarray] = []
-        highs: list[np.ndarray] = []
-        split_dim: list[int] = []
-        split_val: list[float] = []
-        left: list[int] = []
-        right: list[int] = []
-        mass: list[float] = []
-        depth_max = 0
+        """Grow the tree level by level: every node of a level is split in one vectorized pass.
 
-        def new_node(lo: np.ndarray, hi: np.ndarray, idx: np.ndarray) -> int:
-            lows.append(lo)
-            highs.append(hi)
-            split_dim.append(-1)
-            split_val.append(0.0)
-            left.append(-1)
-            right.append(-1)
-            mass.append(float(w[idx].sum()))
-            return len(lows) - 1
-
-        root = new_node(self.low, self.high, np.arange(x.shape[0]))
-        stack = [(root, np.arange(x.shape[0]), 0)]
-        while stack:
-            node, idx, depth = stack.pop()
-            depth_max = max(depth_max, depth)
-            if idx.size <= leaf_size or depth >= max_depth:
-                continue
-            lo, hi = lows[node], highs[node]
-            k = int(np.argmax((hi - lo) * scale))
-            mid = 0.5 * (lo[k] + hi[k])
-            go_left = x[idx, k] < mid
-            hi_l = hi.copy()
-            hi_l[k] = mid
-            lo_r = lo.copy()
-            lo_r[k] = mid
-            il, ir = idx[go_left], idx[~go_left]
-            n_l = new_node(lo, hi_l, il)
-            n_r = new_node(lo_r, hi, ir)
-            split_dim[node], split_val[node] = k, mid
-            left[node], right[node] = n_l, n_r
-            stack.append((n_l, il, depth + 1))
-            stack.append((n_r, ir, depth + 1))
-        self._lo = np.array(lows)
-        self._hi = np.array(highs)
-        self._split_dim = np.array(split_dim, dtype=np.intp)
-        self._split_val = np.array(split_val)
-        self._left = np.array(left, dtype=np.intp)
-        self._right = np.array(right, dtype=np.intp)
-        self._mass = np.array(mass)
+        Nodes are numbered breadth first; a node's children are consecutive.
+        """
+        m, d = x.shape
+        lows, highs, masses = [self.low[None, :]], [self.high[None, :]], [np.array([w.sum()])]
+        dims: list[np.ndarray] = []
+        vals: list[np.ndarray] = []
+        lefts: list[np.ndarray] = []
+        lo, hi = lows[0], highs[0]
+        counts = np.array([m])
+        node_of = np.zeros(m, dtype=np.intp)  # each sample's node within the level (-1: leaf)
+        first = 0  # global id of the level's first node
+        depth = 0
+        while True:
+            split = counts > leaf_size if depth < max_depth else np.zeros(counts.size, bool)
+            n_split = int(split.sum())
+            n_nodes = counts.size
+            dim = np.full(n_nodes, -1, dtype=np.intp)
+            val = np.zeros(n_nodes)
+            left = np.full(n_nodes, -1, dtype=np.intp)
+            if n_split == 0:
+                dims.append(dim)
+                vals.append(val)
+                lefts.append(left)
+                break
+            rows = np.flatnonzero(split)
+            k = np.argmax((hi[rows] - lo[rows]) * scale, axis=1)
+            mid = 0.5 * (lo[rows, k] + hi[rows, k])
+            dim[rows], val[rows] = k, mid
+            nxt = first + n_nodes  # global id of the next level's first node
+            left[rows] = nxt + 2 * np.arange(n_split)
+            dims.append(dim)
+            vals.append(val)
+            lefts.append(left)
+            # children boxes: left keeps [lo, mid), right [mid, hi) along k
+            rank = np.full(n_nodes, -1, dtype=np.intp)
+            rank[rows] = np.arange(n_split)
+            lo_c = np.repeat(lo[rows], 2, axis=0)
+            hi_c = np.repeat(hi[rows], 2, axis=0)
+            idx = np.arange(n_split)
+            hi_c[2 * idx, k] = mid
+            lo_c[2 * idx + 1, k] = mid
+            # move the samples of split nodes to their children
+            live = node_of >= 0
+            live[live] = split[node_of[live]]
+            node_of[~live] = -1
+            pts = np.flatnonzero(live)
+            r = rank[node_of[pts]]
+            right = x[pts, k[r]] >= mid[r]
+            node_of[pts] = 2 * r + right
+            counts = np.bincount(node_of[pts], minlength=2 * n_split)
+            lows.append(lo_c)
+            highs.append(hi_c)
+            masses.append(np.bincount(node_of[pts], weights=w[pts], minlength=2 * n_split))
+            lo, hi = lo_c, hi_c
+            first = nxt
+            depth += 1
+        self._lo = np.concatenate(lows)
+        self._hi = np.concatenate(highs)
+        self._split_dim = np.concatenate(dims)
+        self._split_val = np.concatenate(vals)
+        self._left = np.concatenate(lefts)
+        self._right = np.where(self._left >= 0, self._left + 1, -1)
+        self._mass = np.concatenate(masses)
         volume = np.prod(self._hi - self._lo, axis=1)
         self._is_leaf = self._left < 0
         self._density = np.where(self._is_leaf, self._mass / volume, 0.0)
-        self.depth = depth_max
+        self.depth = depth
 
     @property
     def n_leaves(self) -> int:

@@ -32,8 +32,9 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
-from scipy.special import ndtr, ndtri
+from scipy.special import ndtri
 
+from estimators.beam_table import BeamLUT, RangeTable, beam_lut, beam_probability, range_table
 from estimators.geometry import wrap_angle
 from estimators.occupancy import OccupancyGrid
 
@@ -121,9 +122,12 @@ class MCLConfig:
     point mass at max range, ``beam_z_rand`` uniform. A beam with a cone
     (``cone_half_width`` > 0) expects the nearest of ``beam_rays_per_cone``
     rays spread over the cone. ``beam_lookup_bins`` > 0 replaces ray casting
-    by lookups in :meth:`OccupancyGrid.range_table` (that many angle bins,
-    position quantized to the cell centre): built once per map and shared,
-    then an update costs a gather instead of a ray cast per particle.
+    by lookups in a :class:`~estimators.beam_table.RangeTable` (that many
+    heading bins; ranges from the cell centre corrected to first order for
+    the particle's exact position and heading) and the model's terms by a
+    :class:`~estimators.beam_table.BeamLUT` over ranges quantized to
+    ``max_range / 511``: both built once per map and shared, then an update
+    costs two gathers per particle and beam instead of a ray cast.
 
     ``likelihood_exponent`` multiplies every scan log-likelihood (< 1 tempers
     the overconfidence of treating beams as independent). Particles whose
@@ -398,6 +402,7 @@ class ParticleFilter:
         self.w_fast = 0.0
         self._unwrapped_steps = 0
         self._lf_cache: dict[float, _LFField] = {}
+        self._beam_tabs: dict[tuple[float, float], tuple[RangeTable, BeamLUT]] = {}
         self._mats: dict[bytes, tuple] = {}  # reusable beam matrices by beam angles
         self._lfb: dict[tuple[int, int], tuple] = {}  # likelihood-field work arrays
         self._angles_ok = b""  # bytes of the last beam angles found finite
@@ -418,7 +423,7 @@ class ParticleFilter:
         # The work arrays are views into each other; pickling or deep-copying them
         # would break them apart, so they are rebuilt instead.
         state = self.__dict__.copy()
-        state.update(_lfb={}, _mats={}, _mb=())
+        state.update(_lfb={}, _mats={}, _mb=(), _beam_tabs={})
         return state
 
     # ---------------------------------------------------------------- state
@@ -837,25 +842,41 @@ class ParticleFilter:
         angles = np.asarray(angles, dtype=float).ravel()
         if not np.isfinite(cone_half_width) or cone_half_width < 0:
             raise ValueError(f"cone_half_width must be finite and >= 0, got {cone_half_width}")
+        if self.config.beam_lookup_bins:
+            table = self.beam_tables(max_range, cone_half_width)[0]
+            st = self._state
+            return table.expected(st[0], st[1], st[2], angles).astype(float)
         k = self.config.beam_rays_per_cone if cone_half_width > 0 else 1
         offsets = np.linspace(-cone_half_width, cone_half_width, k) if k > 1 else np.zeros(1)
         st = self._world()
         world = st[2][:, None, None] + angles[None, :, None] + offsets[None, None, :]
-        bins = self.config.beam_lookup_bins
-        if bins:
-            table = self.grid.range_table(max_range, bins)
-            ny, nx = self.grid.shape
-            cells = self.grid.world_to_cell(st[:2].T)
-            inside = (cells[:, 0] >= 0) & (cells[:, 0] < nx) & (cells[:, 1] >= 0) & (
-                cells[:, 1] < ny)
-            flat = np.where(inside, cells[:, 1] * nx + cells[:, 0], 0)
-            k = np.floor((world + np.pi) * (bins / (2.0 * np.pi))).astype(np.intp) % bins
-            rays = table[flat[:, None, None], k] * (max_range / 65535.0)
-            rays[~inside] = 0.0  # outside the map: treated like the inside of a wall
-        else:
-            origins = st[:2].T[:, None, None, :]
-            rays = self.grid.cast_rays(origins, world, max_range)
+        rays = self.grid.cast_rays(st[:2].T[:, None, None, :], world, max_range)
         return rays.min(axis=2)
+
+    def beam_tables(self, max_range: float, cone_half_width: float = 0.0
+                    ) -> tuple[RangeTable, BeamLUT]:
+        """The shared range table and beam-likelihood table of this map and model.
+
+        Built on first use and cached per map (see :mod:`estimators.beam_table`).
+        """
+        key = (float(max_range), float(cone_half_width))
+        tables = self._beam_tabs.get(key)
+        if tables is None:
+            cfg = self.config
+            table = range_table(self.grid, max_range, cfg.beam_lookup_bins or 256,
+                                cone_half_width, cfg.beam_rays_per_cone)
+            lut = beam_lut(max_range, cfg.beam_sigma, cfg.beam_z_hit, cfg.beam_z_short,
+                           cfg.beam_z_max, cfg.beam_z_rand, cfg.beam_lambda_short,
+                           cfg.likelihood_exponent)
+            tables = self._beam_tabs[key] = (table, lut)
+        return tables
+
+    def apply_beam_loglik(self, loglik: np.ndarray, free: np.ndarray, n_beams: int) -> float:
+        """Apply tempered scan log-likelihoods ``(N,)`` of ``n_beams`` beams from the tables,
+        with the occupied-position penalty where ``free`` is False; returns the log evidence."""
+        penalty = np.where(free, 0.0, self.config.occupied_loglik)
+        penalty += loglik
+        return self._apply_loglik(penalty, n_beams * self.config.likelihood_exponent)
 
     def update_beam(
         self,
@@ -875,25 +896,18 @@ class ParticleFilter:
         cfg = self.config
         if ranges.size == 0:
             return self._apply_loglik(self._position_penalty(), 0)
+        if cfg.beam_lookup_bins:
+            if not np.isfinite(cone_half_width) or cone_half_width < 0:
+                raise ValueError(f"cone_half_width must be finite and >= 0, "
+                                 f"got {cone_half_width}")
+            table, lut = self.beam_tables(max_range, cone_half_width)
+            st = self._state
+            loglik = lut.loglik(table.expected(st[0], st[1], st[2], angles), lut.rows(ranges))
+            return self.apply_beam_loglik(loglik, table.free(st[0], st[1]), ranges.size)
         zexp = self.expected_ranges(angles, max_range, cone_half_width)
         z = np.minimum(ranges, max_range)[None, :]
-        is_max = z >= max_range
-        sig = cfg.beam_sigma
-        norm = ndtr((max_range - zexp) / sig) - ndtr(-zexp / sig)
-        p_hit = np.exp(-0.5 * ((z - zexp) / sig) ** 2 - _LOG_SQRT_2PI) / (
-            sig * np.maximum(norm, 1e-12)
-        )
-        lam = cfg.beam_lambda_short
-        with np.errstate(divide="ignore", invalid="ignore"):
-            short_norm = 1.0 - np.exp(-lam * zexp)
-            p_short = np.where(
-                (z <= zexp) & (short_norm > 0), lam * np.exp(-lam * z) / short_norm, 0.0
-            )
-        p = np.where(
-            is_max,
-            cfg.beam_z_max + cfg.beam_z_rand / max_range,
-            cfg.beam_z_hit * p_hit + cfg.beam_z_short * p_short + cfg.beam_z_rand / max_range,
-        )
+        p = beam_probability(z, zexp, max_range, cfg.beam_sigma, cfg.beam_z_hit, cfg.beam_z_short,
+                             cfg.beam_z_max, cfg.beam_z_rand, cfg.beam_lambda_short)
         loglik = cfg.likelihood_exponent * np.log(p).sum(axis=1) + self._position_penalty()
         return self._apply_loglik(loglik, ranges.size * cfg.likelihood_exponent)
 
