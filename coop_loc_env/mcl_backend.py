@@ -63,8 +63,12 @@ from estimators.detection_transfer import (
     detection_from_measurement,
     sample_detected_poses,
 )
-from estimators.geometry import wrap_angle
-from estimators.mcl_batch import belief_summaries, compose_odometry_batch, update_beam_batch
+from estimators.mcl_batch import (
+    belief_summaries,
+    compose_odometry_batch,
+    particle_spreads,
+    update_beam_batch,
+)
 from estimators.occupancy import OccupancyGrid
 from estimators.particle_filter import (
     MCLConfig,
@@ -352,13 +356,12 @@ class MCLBackend:
         for i in live:
             g = self.robots[i]
             pf = self.filters[i]
-            if self._has_gps[i] and readings.gps_mask[g]:
-                d = pf.particles[:, :2] - readings.gps_xy[g]
-                var = float(readings.gps_var[g])
-                pf.apply_weight_factors(np.exp(-0.5 * np.einsum("nd,nd->n", d, d) / var) + 1e-12)
-            if self._has_compass[i] and readings.compass_mask[g]:
-                e = wrap_angle(pf.particles[:, 2] - readings.compass[g])
-                pf.apply_weight_factors(np.exp(-0.5 * (e / cfg.compass_std) ** 2) + 1e-12)
+            gps = self._has_gps[i] and readings.gps_mask[g]
+            compass = self._has_compass[i] and readings.compass_mask[g]
+            if gps or compass:
+                pf.update_fix(readings.gps_xy[g] if gps else None,
+                              float(readings.gps_var[g]) if gps else 1.0,
+                              float(readings.compass[g]) if compass else None, cfg.compass_std)
         det = readings.detections
         if cfg.cooperative_updates and len(det):
             for k in range(len(det)):
@@ -518,9 +521,10 @@ class MCLBackend:
     def extra_info(self, true_poses: np.ndarray) -> dict[int, dict]:
         """``particle_spread`` (weighted mean particle distance from the truth, m),
         ``n_particles`` and ``detections_used`` (belief transfers received) per robot."""
+        spread = particle_spreads(self.filters, np.asarray(true_poses)[self.robots, :2])
         return {
             int(g): {
-                "particle_spread": self.filters[i].particle_spread(true_poses[g]),
+                "particle_spread": float(spread[i]),
                 "n_particles": int(self.filters[i].n_particles),
                 "detections_used": int(self.transfers_applied[i]),
             }

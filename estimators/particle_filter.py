@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import lru_cache
 from typing import NamedTuple
 
 import numpy as np
@@ -292,6 +293,21 @@ def kld_sample_bound(k: np.ndarray, epsilon: float, delta: float) -> np.ndarray:
     n = km1 / (2.0 * epsilon) * (1.0 - a + np.sqrt(a) * z) ** 3
     return np.where(k <= 1, 1.0, np.ceil(n))
 
+
+@lru_cache(maxsize=32)
+def _kld_need(epsilon: float, delta: float, n_min: int, n_max: int) -> np.ndarray:
+    """``max(kld_sample_bound(k), n_min)`` for ``k = 0 .. n_max`` (read-only, cached)."""
+    need = np.maximum(kld_sample_bound(np.arange(n_max + 1), epsilon, delta), n_min)
+    need.flags.writeable = False
+    return need
+
+
+def _first_occurrences(key: np.ndarray) -> np.ndarray:
+    """Boolean mask of the entries of ``key`` seen for the first time."""
+    _, first = np.unique(key, return_index=True)
+    is_new = np.zeros(key.size, dtype=bool)
+    is_new[first] = True
+    return is_new
 
 def compose_odometry(v: np.ndarray, w: np.ndarray, dt: float) -> np.ndarray:
     """Relative motion ``(dx, dy, dheading)`` of a sequence of unicycle odometry readings.
@@ -991,6 +1007,60 @@ class ParticleFilter:
         if total > 0 and np.isfinite(total):
             self._weights = w / total
 
+    def update_fix(
+        self,
+        xy: np.ndarray | None = None,
+        xy_var: float = 1.0,
+        heading: float | None = None,
+        heading_std: float = 1.0,
+    ) -> None:
+        """Weight by a position fix and/or a heading fix (Gaussian likelihoods).
+
+        A position ``xy`` with isotropic variance ``xy_var`` (m^2) multiplies each
+        weight by ``exp(-|p - xy|^2 / (2 xy_var)) + 1e-12``; a heading (rad) with
+        standard deviation ``heading_std`` by ``exp(-e^2 / (2 heading_std^2)) + 1e-12``
+        with ``e`` the wrapped difference (the floors keep a wrong fix from zeroing
+        every weight). Computed in float32 on the internal state.
+        """
+        st = self._state
+        factor = None
+        if xy is not None:
+            t = np.asarray(xy, dtype=float)
+            if t.shape != (2,) or not np.all(np.isfinite(t)):
+                raise ValueError(f"xy must be 2 finite numbers, got {xy}")
+            if not (math.isfinite(xy_var) and xy_var > 0):
+                raise ValueError(f"xy_var must be finite and > 0, got {xy_var}")
+            t = t - self._org[:2, 0]
+            dx = st[0] - np.float32(t[0])
+            dy = st[1] - np.float32(t[1])
+            dx *= dx
+            dy *= dy
+            dx += dy
+            dx *= np.float32(-0.5 / xy_var)
+            factor = np.exp(dx)
+            factor += np.float32(1e-12)
+        if heading is not None:
+            if not math.isfinite(heading):
+                raise ValueError(f"heading must be finite, got {heading}")
+            if not (math.isfinite(heading_std) and heading_std > 0):
+                raise ValueError(f"heading_std must be finite and > 0, got {heading_std}")
+            e = st[2] - np.float32(heading)
+            turns = np.rint(e * np.float32(0.5 / np.pi))
+            turns *= np.float32(2.0 * np.pi)
+            e -= turns
+            e *= e
+            e *= np.float32(-0.5 / heading_std**2)
+            g = np.exp(e)
+            g += np.float32(1e-12)
+            factor = g if factor is None else factor * g
+        if factor is None:
+            return
+        w = self._weights * factor
+        total = w.sum()
+        if total > 0 and np.isfinite(total):
+            w *= 1.0 / total
+            self._weights = w
+
     # ----------------------------------------------------------- resampling
     def resample(self) -> None:
         """Low-variance resampling with augmented-MCL injection and optional KLD sampling.
@@ -1059,20 +1129,19 @@ class ParticleFilter:
         if self._unwrapped_steps:
             self._wrap_headings()
         st = np.take(self._state, idx, axis=1)
-        world = st + self._org
-        world[2] = wrap_angle(world[2])
         bx, by, bt = cfg.kld_bin
-        kx = np.floor(world[0] / bx).astype(np.int64)
-        ky = np.floor(world[1] / by).astype(np.int64)
-        kt = np.floor((world[2] + np.pi) / bt).astype(np.int64)
+        kx = np.floor((st[0] + self._org[0, 0]) * (1.0 / bx)).astype(np.intp)
+        ky = np.floor((st[1] + self._org[1, 0]) * (1.0 / by)).astype(np.intp)
+        n_t = math.ceil(2.0 * math.pi / bt)
+        kt = np.floor((st[2] + np.float32(np.pi)) * np.float32(1.0 / bt)).astype(np.intp)
+        np.clip(kt, 0, n_t - 1, out=kt)  # float32 headings may reach pi itself
         kx -= kx.min()
         ky -= ky.min()
-        key = (kx * (ky.max() + 1) + ky) * (kt.max() + 1) + kt
-        _, first = np.unique(key, return_index=True)
-        is_new = np.zeros(n_max, dtype=bool)
-        is_new[first] = True
+        ny_b = int(ky.max()) + 1
+        key = (kx * ny_b + ky) * n_t + kt
+        is_new = _first_occurrences(key)
         k = np.cumsum(is_new)  # bins occupied by the first i + 1 particles
-        need = np.maximum(kld_sample_bound(k, cfg.kld_epsilon, cfg.kld_delta), cfg.n_min)
+        need = _kld_need(cfg.kld_epsilon, cfg.kld_delta, cfg.n_min, n_max)[k]
         enough = np.flatnonzero(np.arange(1, n_max + 1) >= need)
         n = int(enough[0]) + 1 if enough.size else n_max
         n = int(np.clip(n, cfg.n_min, n_max))
