@@ -160,29 +160,6 @@ def test_rasterized_shapes_match_their_geometry():
     assert np.all(ends[:, 1] - ends[:, 0] < 0.2)  # stopped at (or just past) the diagonal
 
 
-def test_range_table_holds_ray_cast_ranges_from_cell_centres():
-    g = room(0.2)
-    table = g.range_table(MAX_RANGE, n_bins=36)
-    assert table.shape == (g.shape[0] * g.shape[1], 36) and table.dtype == np.uint16
-    assert g.range_table(MAX_RANGE, n_bins=36) is table  # cached on the grid
-    rng = np.random.default_rng(3)
-    cells = np.column_stack([rng.integers(0, g.shape[1], 50), rng.integers(0, g.shape[0], 50)])
-    k = rng.integers(0, 36, 50)
-    angles = -np.pi + (k + 0.5) * 2 * np.pi / 36
-    expected = g.cast_rays(g.cell_to_world(cells), angles, MAX_RANGE)
-    expected[g.occupied[cells[:, 1], cells[:, 0]]] = 0.0
-    got = table[cells[:, 1] * g.shape[1] + cells[:, 0], k] * (MAX_RANGE / 65535)
-    np.testing.assert_allclose(got, expected, atol=MAX_RANGE / 65535)
-    # lookups agree with exact ray casting for most particles (quantization aside)
-    exact = ParticleFilter(g, np.random.default_rng(0), MCLConfig(n_particles=400))
-    fast = ParticleFilter(g, np.random.default_rng(0), MCLConfig(n_particles=400,
-                                                                  beam_lookup_bins=360))
-    ang = np.linspace(-np.pi, np.pi, 8, endpoint=False)
-    d = np.abs(exact.expected_ranges(ang, MAX_RANGE, 0.2) - fast.expected_ranges(ang, MAX_RANGE,
-                                                                                  0.2))
-    assert np.median(d) < 0.2 and np.mean(d < 0.5) > 0.9
-
-
 def test_grid_rejects_bad_input():
     with pytest.raises(ValueError, match="resolution"):
         OccupancyGrid(np.zeros((3, 3), bool), 0.0)
