@@ -31,9 +31,13 @@ from typing import NamedTuple
 import numpy as np
 from scipy.special import ndtr
 
+from estimators._kernels import beam_loglik
 from estimators.occupancy import OccupancyGrid
 
-__all__ = ["BeamLUT", "RangeTable", "beam_lut", "cached_tables", "range_table", "table_error"]
+__all__ = [
+    "BeamLUT", "RangeTable", "beam_lut", "cached_tables", "range_table", "scan_loglik",
+    "table_error",
+]
 
 _LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
 _MAX_SLOPE = 4.0  # |d range / d position| kept below this (incidence under ~76 degrees)
@@ -276,6 +280,27 @@ class BeamLUT(NamedTuple):
         idx = q.astype(np.intp)
         idx += row_offsets
         return self.table.take(idx).sum(axis=1, dtype=np.float64)
+
+
+def scan_loglik(table: RangeTable, lut: BeamLUT, state: np.ndarray, angles: np.ndarray,
+                row_offsets: np.ndarray, ends: np.ndarray, occupied_loglik: float) -> np.ndarray:
+    """Beam-model scan log-likelihoods ``(N,)`` of particle sets stored back to back.
+
+    ``state`` ``(3, N)`` float32 (``x, y`` in m from the centre of cell ``(0, 0)``,
+    heading), robot ``r``'s particles ending (exclusive) at ``ends[r]`` and its
+    readings selecting the likelihood rows ``row_offsets[r]`` (:meth:`BeamLUT.rows`)
+    for the beams at robot-frame ``angles``. Equals
+    ``lut.loglik(table.expected(...), rows)`` plus ``occupied_loglik`` where
+    :meth:`RangeTable.free` is False, in one compiled pass.
+    """
+    if table.max_range != lut.max_range:
+        raise ValueError(f"range table and likelihood table disagree on max_range: "
+                         f"{table.max_range} vs {lut.max_range}")
+    return beam_loglik(table.rows, table.free_cells, table.nx, table.ny, table.resolution,
+                       table.n_bins, table.max_range, np.ascontiguousarray(state, np.float32),
+                       np.ascontiguousarray(angles, np.float64), lut.table,
+                       1.0 / lut.step, np.ascontiguousarray(row_offsets, np.intp),
+                       np.ascontiguousarray(ends, np.intp), float(occupied_loglik))
 
 
 def beam_lut(max_range: float, sigma: float, z_hit: float, z_short: float, z_max: float,

@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from estimators._kernels import tree_density
+
 __all__ = ["DensityTree"]
 
 
@@ -194,17 +196,7 @@ class DensityTree:
             raise ValueError(f"points must have a trailing axis of {self.dim}, got {p.shape}")
         if not np.all(np.isfinite(p)):
             raise ValueError("points must be finite")
-        flat = p.reshape(-1, self.dim)
-        node = np.zeros(flat.shape[0], dtype=np.intp)
-        rows = np.arange(flat.shape[0])
-        for _ in range(self.depth):
-            dim = self._split_dim[node]
-            internal = dim >= 0
-            if not internal.any():
-                break
-            val = flat[rows, np.maximum(dim, 0)]
-            nxt = np.where(val < self._split_val[node], self._left[node], self._right[node])
-            node = np.where(internal, nxt, node)
-        inside = np.all((flat >= self.low) & (flat < self.high), axis=1)
-        out = np.where(inside, self._density[node], 0.0)
+        flat = np.ascontiguousarray(p.reshape(-1, self.dim))
+        out = tree_density(flat, self.low, self.high, self._split_dim, self._split_val,
+                           self._left, self._density)
         return out.reshape(p.shape[:-1])

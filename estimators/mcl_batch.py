@@ -23,6 +23,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from estimators._kernels import summary_sums
+from estimators.beam_table import scan_loglik
 from estimators.particle_filter import ParticleFilter
 
 __all__ = [
@@ -95,19 +97,13 @@ def update_beam_batch(
     counts = [pf.n_particles for pf in filters]
     st = np.concatenate([pf._state for pf in filters], axis=1)
     rows = lut.rows(np.where(ok, ranges, np.nan))
-    loglik = lut.loglik(table.expected(st[0], st[1], st[2], angles),
-                        np.repeat(rows, counts, axis=0))
-    free = table.free(st[0], st[1])
+    loglik = scan_loglik(table, lut, st, angles, rows, np.cumsum(counts), cfg.occupied_loglik)
+    n_beams = ok.sum(axis=1) * cfg.likelihood_exponent
     out = np.zeros(len(filters))
     start = 0
     for r, (pf, n) in enumerate(zip(filters, counts, strict=True)):
-        seg = slice(start, start + n)
+        out[r] = pf._apply_loglik(loglik[start:start + n], n_beams[r])
         start += n
-        nb = int(ok[r].sum())
-        if nb == 0:
-            out[r] = pf._apply_loglik(np.where(free[seg], 0.0, cfg.occupied_loglik), 0)
-        else:
-            out[r] = pf.apply_beam_loglik(loglik[seg], free[seg], nb)
     return out
 
 
@@ -131,77 +127,27 @@ def belief_summaries(
     nr = len(filters)
     counts = np.fromiter((pf.n_particles for pf in filters), np.intp, nr)
     ends = np.cumsum(counts)
-    segs = [slice(e - n, e) for n, e in zip(counts.tolist(), ends.tolist(), strict=True)]
-    robot = np.repeat(np.arange(nr), counts)
     w = np.concatenate([pf._weights for pf in filters])
-    # positions relative to each filter's cell (0, 0) centre (small numbers), float64
-    st32 = np.concatenate([pf._state for pf in filters], axis=1)
-    st = st32.astype(np.float64)
+    # positions relative to each filter's cell (0, 0) centre (small numbers)
+    st = np.concatenate([pf._state for pf in filters], axis=1)
     org = np.array([[pf._org[0, 0], pf._org[1, 0]] for pf in filters])
-    a = np.empty((4, st.shape[1]))
-    a[:2] = st[:2]
-    a[2] = np.cos(st32[2])  # float32 trigonometry: several times faster, ~1e-7
-    a[3] = np.sin(st32[2])
-    sums = np.empty((nr, 4))
-    w2 = np.empty(nr)
-    for r, seg in enumerate(segs):
-        ws = w[seg]
-        sums[r] = a[:, seg] @ ws
-        w2[r] = ws @ ws
-    mc, ms = sums[:, 2], sums[:, 3]
+    sums, cov, hist, hhist = summary_sums(st, w, ends, hist_cells, 1.0 / cell_size,
+                                          heading_bins)
+    mc, ms, w2 = sums[:, 2], sums[:, 3], sums[:, 4]
     mh = np.arctan2(ms, mc)
     mean = np.column_stack([sums[:, :2] + org, mh])
     resultant = np.hypot(mc, ms)
-    d = st  # deviations from the mean, in place
-    d[0] -= np.repeat(sums[:, 0], counts)
-    d[1] -= np.repeat(sums[:, 1], counts)
-    d[2] -= np.repeat(mh, counts)
-    turns = np.rint(d[2] * (0.5 / np.pi))
-    turns *= 2.0 * np.pi
-    d[2] -= turns  # wrapped to [-pi, pi]
-    dw = d * w
-    cov = np.empty((nr, 3, 3))
-    for r, seg in enumerate(segs):
-        cov[r] = dw[:, seg] @ d[:, seg].T
-    cov += np.swapaxes(cov, 1, 2)
-    cov *= 0.5
     std = np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2), 0.0))
     denom = std[:, :, None] * std[:, None, :]
     with np.errstate(divide="ignore", invalid="ignore"):
         corr = np.where(denom > 0, cov / np.where(denom > 0, denom, 1.0), 0.0)
     circ_std = np.sqrt(-2.0 * np.log(np.clip(resultant, 1e-300, 1.0)))
     cm, sm = np.cos(mh), np.sin(mh)
-    # egocentric histogram: forward and left cell indices (the last key collects the rest)
-    inv = 1.0 / cell_size
-    cmr = np.repeat(cm * inv, counts)
-    smr = np.repeat(sm * inv, counts)
-    half = hist_cells / 2.0
-    fwd = cmr * d[0]
-    fwd += smr * d[1]
-    fwd += half
-    left = cmr * d[1]
-    left -= smr * d[0]
-    np.subtract(half, left, out=left)
-    np.floor(fwd, out=fwd)
-    np.floor(left, out=left)
-    inside = (fwd >= 0) & (fwd < hist_cells) & (left >= 0) & (left < hist_cells)
-    k2 = hist_cells * hist_cells
-    key = robot * k2
-    key += (fwd * hist_cells + left).astype(np.intp)
-    key[~inside] = nr * k2
-    hist = np.bincount(key, weights=w, minlength=nr * k2 + 1)[: nr * k2].reshape(nr, k2)
     outside = np.maximum(0.0, 1.0 - hist.sum(axis=1))
     mass = np.concatenate([hist, outside[:, None]], axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
         plogp = np.where(mass > 0, mass * np.log(np.where(mass > 0, mass, 1.0)), 0.0)
     entropy = -plogp.sum(axis=1) / np.log(mass.shape[1]) if mass.shape[1] > 1 else np.zeros(nr)
-    hb = d[2]
-    hb *= heading_bins / (2 * np.pi)
-    hb += heading_bins / 2
-    hbi = hb.astype(np.intp)  # >= 0: truncation is floor
-    np.minimum(hbi, heading_bins - 1, out=hbi)
-    hbi += robot * heading_bins
-    hhist = np.bincount(hbi, weights=w, minlength=nr * heading_bins).reshape(nr, heading_bins)
     count_frac = np.array([min(pf.n_particles / pf.config.n_max, 1.0) if pf.config.adaptive
                            else 1.0 for pf in filters])
     bounds = np.array([pf.grid.bounds for pf in filters])

@@ -35,7 +35,14 @@ from typing import NamedTuple
 import numpy as np
 from scipy.special import ndtri
 
-from estimators.beam_table import BeamLUT, RangeTable, beam_lut, beam_probability, range_table
+from estimators.beam_table import (
+    BeamLUT,
+    RangeTable,
+    beam_lut,
+    beam_probability,
+    range_table,
+    scan_loglik,
+)
 from estimators.geometry import wrap_angle
 from estimators.occupancy import OccupancyGrid
 
@@ -887,13 +894,6 @@ class ParticleFilter:
             tables = self._beam_tabs[key] = (table, lut)
         return tables
 
-    def apply_beam_loglik(self, loglik: np.ndarray, free: np.ndarray, n_beams: int) -> float:
-        """Apply tempered scan log-likelihoods ``(N,)`` of ``n_beams`` beams from the tables,
-        with the occupied-position penalty where ``free`` is False; returns the log evidence."""
-        penalty = np.where(free, 0.0, self.config.occupied_loglik)
-        penalty += loglik
-        return self._apply_loglik(penalty, n_beams * self.config.likelihood_exponent)
-
     def update_beam(
         self,
         ranges: np.ndarray,
@@ -917,9 +917,9 @@ class ParticleFilter:
                 raise ValueError(f"cone_half_width must be finite and >= 0, "
                                  f"got {cone_half_width}")
             table, lut = self.beam_tables(max_range, cone_half_width)
-            st = self._state
-            loglik = lut.loglik(table.expected(st[0], st[1], st[2], angles), lut.rows(ranges))
-            return self.apply_beam_loglik(loglik, table.free(st[0], st[1]), ranges.size)
+            loglik = scan_loglik(table, lut, self._state, angles, lut.rows(ranges)[None, :],
+                                 np.array([self.n_particles]), cfg.occupied_loglik)
+            return self._apply_loglik(loglik, ranges.size * cfg.likelihood_exponent)
         zexp = self.expected_ranges(angles, max_range, cone_half_width)
         z = np.minimum(ranges, max_range)[None, :]
         p = beam_probability(z, zexp, max_range, cfg.beam_sigma, cfg.beam_z_hit, cfg.beam_z_short,

@@ -9,7 +9,13 @@ import pytest
 
 import coop_loc_env
 from coop_loc_env.mcl_backend import known_map, map_resolution
-from estimators.beam_table import beam_lut, beam_probability, range_table, table_error
+from estimators.beam_table import (
+    beam_lut,
+    beam_probability,
+    range_table,
+    scan_loglik,
+    table_error,
+)
 from estimators.mcl_batch import (
     belief_summaries,
     compose_odometry_batch,
@@ -173,3 +179,24 @@ def test_position_and_heading_fix_matches_the_gaussian_factors():
     np.testing.assert_allclose(pf.weights, ref.weights, rtol=1e-4, atol=1e-12)
     with pytest.raises(ValueError, match="xy_var"):
         pf.update_fix(np.zeros(2), 0.0)
+
+
+def test_compiled_scan_likelihood_repeats_the_table_lookups():
+    grid = small_map()
+    table = range_table(grid, 4.0, 60, 0.15, 3)  # not a power of two: modulo path
+    lut = beam_lut(4.0, 0.3, 0.7, 0.1, 0.1, 0.1, 0.5, 0.2)
+    rng = np.random.default_rng(4)
+    n = 3000
+    # inside, near and outside the map; headings far from [-pi, pi) as well
+    st = np.stack([rng.uniform(-1.0, 9.0, n), rng.uniform(-1.0, 7.0, n),
+                   rng.uniform(-9.0, 9.0, n)]).astype(np.float32)
+    angles = np.linspace(-np.pi, np.pi, 9, endpoint=False)
+    z = rng.uniform(0, 4.5, (2, 9))
+    z[1, 2] = np.nan
+    rows = lut.rows(z)
+    ends = np.array([1000, n])
+    got = scan_loglik(table, lut, st, angles, rows, ends, -10.0)
+    per_particle_rows = np.repeat(rows, [1000, n - 1000], axis=0)
+    ref = lut.loglik(table.expected(st[0], st[1], st[2], angles), per_particle_rows)
+    ref += np.where(table.free(st[0], st[1]), 0.0, -10.0)
+    np.testing.assert_array_equal(got, ref)

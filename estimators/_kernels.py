@@ -1,0 +1,197 @@
+"""Compiled loops (numba, cached on disk) for the team particle-filter summaries.
+
+Each kernel fuses what numpy would do in several passes with temporaries into
+one or two passes over the particles. They are private helpers of
+:mod:`estimators.mcl_batch`; inputs are checked there.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+__all__ = ["summary_sums"]
+
+
+@njit(cache=True)
+def summary_sums(
+    st: np.ndarray, w: np.ndarray, ends: np.ndarray, hist_cells: int, inv_cell: float,
+    heading_bins: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover (compiled)
+    """Per-segment weighted sums of particle sets stored back to back.
+
+    ``st`` ``(3, N)`` holds ``x, y, heading``, ``w`` ``(N,)`` the weights (each
+    segment's summing to 1), segment ``r`` ending (exclusive) at ``ends[r]``.
+    Returns ``sums (R, 5)`` (weighted sums of ``x, y, cos, sin`` and of ``w**2``),
+    ``cov (R, 3, 3)`` (about the weighted mean, the heading wrapped about the
+    circular mean), ``hist (R, hist_cells**2)`` (weight in the egocentric grid
+    of cells ``1 / inv_cell`` m, rows forward, columns from the right) and
+    ``hhist (R, heading_bins)`` (weight per bin of heading minus the mean).
+    """
+    nr = ends.size
+    sums = np.zeros((nr, 5))
+    cov = np.zeros((nr, 3, 3))
+    hist = np.zeros((nr, hist_cells * hist_cells))
+    hhist = np.zeros((nr, heading_bins))
+    half = hist_cells / 2.0
+    two_pi = 2.0 * math.pi
+    hscale = heading_bins / two_pi
+    start = 0
+    for r in range(nr):
+        end = ends[r]
+        sx = 0.0
+        sy = 0.0
+        sc = 0.0
+        ss = 0.0
+        s2 = 0.0
+        for i in range(start, end):
+            wi = w[i]
+            h = np.float64(st[2, i])
+            sx += wi * st[0, i]
+            sy += wi * st[1, i]
+            sc += wi * math.cos(h)
+            ss += wi * math.sin(h)
+            s2 += wi * wi
+        sums[r, 0] = sx
+        sums[r, 1] = sy
+        sums[r, 2] = sc
+        sums[r, 3] = ss
+        sums[r, 4] = s2
+        mh = math.atan2(ss, sc)
+        cm = math.cos(mh) * inv_cell
+        sm = math.sin(mh) * inv_cell
+        c00 = 0.0
+        c01 = 0.0
+        c02 = 0.0
+        c11 = 0.0
+        c12 = 0.0
+        c22 = 0.0
+        for i in range(start, end):
+            wi = w[i]
+            dx = st[0, i] - sx
+            dy = st[1, i] - sy
+            dh = st[2, i] - mh
+            dh -= two_pi * math.floor(dh / two_pi + 0.5)
+            c00 += wi * dx * dx
+            c01 += wi * dx * dy
+            c02 += wi * dx * dh
+            c11 += wi * dy * dy
+            c12 += wi * dy * dh
+            c22 += wi * dh * dh
+            fwd = math.floor(cm * dx + sm * dy + half)
+            col = math.floor(half - (cm * dy - sm * dx))
+            if 0.0 <= fwd < hist_cells and 0.0 <= col < hist_cells:
+                hist[r, int(fwd) * hist_cells + int(col)] += wi
+            b = int((dh + math.pi) * hscale)
+            hhist[r, min(max(b, 0), heading_bins - 1)] += wi
+        cov[r, 0, 0] = c00
+        cov[r, 0, 1] = c01
+        cov[r, 1, 0] = c01
+        cov[r, 0, 2] = c02
+        cov[r, 2, 0] = c02
+        cov[r, 1, 1] = c11
+        cov[r, 1, 2] = c12
+        cov[r, 2, 1] = c12
+        cov[r, 2, 2] = c22
+        start = end
+    return sums, cov, hist, hhist
+
+
+@njit(cache=True)
+def beam_loglik(
+    rows: np.ndarray, free_cells: np.ndarray, nx: int, ny: int, res: float, n_bins: int,
+    max_range: float, st: np.ndarray, angles: np.ndarray, lut: np.ndarray, inv_step: float,
+    row_offsets: np.ndarray, ends: np.ndarray, occupied_loglik: float,
+) -> np.ndarray:  # pragma: no cover (compiled)
+    """Scan log-likelihoods ``(N,)`` of particle sets stored back to back (see
+    :meth:`RangeTable.expected` and :meth:`BeamLUT.loglik`, whose float32 steps
+    this repeats in the same order), plus ``occupied_loglik`` for particles
+    outside the map's free cells.
+
+    ``row_offsets (R, B)``: the likelihood-table row of robot ``r``'s reading of
+    beam ``b``; segment ``r`` of the particles ends (exclusive) at ``ends[r]``.
+    """
+    n = st.shape[1]
+    nb = angles.size
+    out = np.empty(n)
+    inv = np.float32(1.0 / res)
+    res32 = np.float32(res)
+    scale = np.float32(n_bins / (2.0 * math.pi))
+    inv_scale = np.float32(1.0) / scale
+    half_bins = np.float32(n_bins / 2)
+    half = np.float32(0.5)
+    rmax = np.float32(max_range)
+    zero = np.float32(0.0)
+    istep = np.float32(inv_step)
+    a_bins = np.empty(nb, dtype=np.float32)
+    for b in range(nb):
+        a_bins[b] = np.float32(angles[b]) * scale
+    pow2 = (n_bins & (n_bins - 1)) == 0
+    r_i = 0
+    for i in range(n):
+        while i >= ends[r_i]:
+            r_i += 1
+        x = st[0, i]
+        y = st[1, i]
+        ux = np.float32(np.rint(x * inv))
+        uy = np.float32(np.rint(y * inv))
+        ix = int(ux)
+        iy = int(uy)
+        dx = x - ux * res32
+        dy = y - uy * res32
+        inside = 0 <= ix < nx and 0 <= iy < ny
+        cell = iy * nx + ix if inside else 0
+        hb = st[2, i] * scale + half_bins
+        total = 0.0
+        for b in range(nb):
+            kf = hb + a_bins[b]
+            k = np.float32(math.floor(kf))
+            dphi = ((kf - k) - half) * inv_scale
+            ki = int(k)
+            ki = ki & (n_bins - 1) if pow2 else ki % n_bins
+            j = cell * n_bins + ki
+            if inside:
+                r = rows[j, 0]
+                r += rows[j, 1] * dx
+                r += rows[j, 2] * dy
+                r += rows[j, 3] * dphi
+                r = min(max(r, zero), rmax)
+            else:
+                r = zero
+            q = r * istep
+            q += half
+            total += lut[int(q) + row_offsets[r_i, b]]
+        if not (inside and free_cells[cell]):
+            total += occupied_loglik
+        out[i] = total
+    return out
+
+
+@njit(cache=True)
+def tree_density(
+    points: np.ndarray, low: np.ndarray, high: np.ndarray, split_dim: np.ndarray,
+    split_val: np.ndarray, left: np.ndarray, density: np.ndarray,
+) -> np.ndarray:  # pragma: no cover (compiled)
+    """Density of a :class:`~estimators.density_tree.DensityTree` at ``points (M, d)``:
+    descend from the root (node 0; a node's right child is ``left + 1``) to the leaf;
+    0 outside ``[low, high)``."""
+    m, d = points.shape
+    out = np.zeros(m)
+    for i in range(m):
+        inside = True
+        for j in range(d):
+            if not (low[j] <= points[i, j] < high[j]):
+                inside = False
+                break
+        if not inside:
+            continue
+        node = 0
+        while split_dim[node] >= 0:
+            if points[i, split_dim[node]] < split_val[node]:
+                node = left[node]
+            else:
+                node = left[node] + 1
+        out[i] = density[node]
+    return out
