@@ -159,16 +159,24 @@ def _build(grid: OccupancyGrid, max_range: float, n_bins: int, cone: float, rays
     phi = -math.pi + (np.arange(n_bins) + 0.5) * bw
     offsets = np.linspace(-cone, cone, rays) if rays > 1 and cone > 0 else np.zeros(1)
     rows = np.zeros((ny * nx, n_bins, 4), dtype=np.float32)
-    per = max(1, 400_000 // (n_bins * offsets.size))
+    shifts = offsets / bw
+    on_bins = bool(np.all(np.abs(shifts - np.rint(shifts)) < 1e-9))
+    # Cone rays that fall on other bins' centres reuse those bins' rays (one cast per bin)
+    cast_offsets = np.zeros(1) if on_bins else offsets
+    per = max(1, 400_000 // (n_bins * cast_offsets.size))
     ox, oy = ox0, oy0
     for start in range(0, free.size, per):
         c = centres[start:start + per]
-        ang = phi[None, :, None] + offsets[None, None, :]
+        ang = np.broadcast_to(phi[None, :, None] + cast_offsets[None, None, :],
+                              (c.shape[0], n_bins, cast_offsets.size))
         r = grid.cast_rays(c[:, None, None, :], ang, max_range)  # (C, bins, rays)
+        if on_bins:  # ray k + s of the single-ray table is the cone's ray at offset s
+            idx = (np.arange(n_bins)[:, None] + np.rint(shifts).astype(np.intp)) % n_bins
+            r = r[:, idx, 0]
+            ang = np.broadcast_to(phi[idx], r.shape)
         j = r.argmin(axis=2)
         r = np.take_along_axis(r, j[..., None], axis=2)[..., 0]
-        a = np.take_along_axis(np.broadcast_to(ang, (c.shape[0], n_bins, offsets.size)),
-                               j[..., None], axis=2)[..., 0]
+        a = np.take_along_axis(ang, j[..., None], axis=2)[..., 0]
         cos, sin = np.cos(a), np.sin(a)
         # hit point in cell units: a ray stops just past the face it reaches
         hx = (c[:, 0, None] + r * cos - ox) / grid.resolution
