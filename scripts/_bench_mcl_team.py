@@ -25,6 +25,7 @@ Run ``python scripts/_bench_mcl_team.py --help`` for the options.
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 
 import numpy as np
@@ -131,8 +132,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--timesteps", type=int, default=4096, help="timed PPO agent steps")
     args = parser.parse_args(argv)
     if args.steps < 1 or args.timesteps < 1:
-        parser.error(f"--steps and --timesteps must be >= 1, got {args.steps}, "
-                     f"{args.timesteps}")
+        print(f"error: --steps and --timesteps must be >= 1, got {args.steps}, "
+              f"{args.timesteps}", file=sys.stderr)
+        sys.exit(2)
     for key, value in bench_mcl_team(args.steps, not args.no_training, args.timesteps).items():
         print(f"{key:<35} {value:12.2f}")
 
