@@ -35,6 +35,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.special import ndtri
 
+from estimators._kernels import first_occurrences, kld_bins
 from estimators.beam_table import (
     BeamLUT,
     RangeTable,
@@ -307,14 +308,6 @@ def _kld_need(epsilon: float, delta: float, n_min: int, n_max: int) -> np.ndarra
     need = np.maximum(kld_sample_bound(np.arange(n_max + 1), epsilon, delta), n_min)
     need.flags.writeable = False
     return need
-
-
-def _first_occurrences(key: np.ndarray) -> np.ndarray:
-    """Boolean mask of the entries of ``key`` seen for the first time."""
-    _, first = np.unique(key, return_index=True)
-    is_new = np.zeros(key.size, dtype=bool)
-    is_new[first] = True
-    return is_new
 
 def compose_odometry(v: np.ndarray, w: np.ndarray, dt: float) -> np.ndarray:
     """Relative motion ``(dx, dy, dheading)`` of a sequence of unicycle odometry readings.
@@ -1130,16 +1123,15 @@ class ParticleFilter:
             self._wrap_headings()
         st = np.take(self._state, idx, axis=1)
         bx, by, bt = cfg.kld_bin
-        kx = np.floor((st[0] + self._org[0, 0]) * (1.0 / bx)).astype(np.intp)
-        ky = np.floor((st[1] + self._org[1, 0]) * (1.0 / by)).astype(np.intp)
         n_t = math.ceil(2.0 * math.pi / bt)
-        kt = np.floor((st[2] + np.float32(np.pi)) * np.float32(1.0 / bt)).astype(np.intp)
-        np.clip(kt, 0, n_t - 1, out=kt)  # float32 headings may reach pi itself
-        kx -= kx.min()
-        ky -= ky.min()
-        ny_b = int(ky.max()) + 1
-        key = (kx * ny_b + ky) * n_t + kt
-        is_new = _first_occurrences(key)
+        key, size = kld_bins(st, self._org[0, 0], self._org[1, 0], 1.0 / bx, 1.0 / by,
+                             1.0 / bt, n_t)
+        if size <= 16 * n_max + 2**20:  # a marker array of this size is cheap
+            is_new = first_occurrences(key, size)
+        else:
+            _, first = np.unique(key, return_index=True)
+            is_new = np.zeros(n_max, dtype=bool)
+            is_new[first] = True
         k = np.cumsum(is_new)  # bins occupied by the first i + 1 particles
         need = _kld_need(cfg.kld_epsilon, cfg.kld_delta, cfg.n_min, n_max)[k]
         enough = np.flatnonzero(np.arange(1, n_max + 1) >= need)

@@ -9,15 +9,17 @@ count):
   after a warm-up that builds the tables and lets KLD-sampling settle);
 * ``hallway_gather_us``: ``numpy.take`` of robots x particles x beams
   (8 x 2000 x 16 = 256,000) float64 values at random indices of a
-  2**20-entry table (8 MiB, the size class of a map's lookup table), and
-  ``hallway_ratio``, the step over the gather;
+  2**20-entry table (8 MiB, the size class of a map's lookup table), timed
+  after every step (median), and ``hallway_ratio``, the step over the gather;
 * ``outdoor_mcl_extra_us_per_robot``: in ``outdoor_terrain`` with 4 robots,
   1000 particles and 30 laser beams, the CPU time per robot and step that
   ``estimator="mcl"`` adds over ``estimator="ekf"`` (fixed particle count), and
   ``outdoor_ratio``, that over a 30,000-value gather of the same kind;
 * with ``training=True``, ``ppo_hallway_agent_steps_per_s``: PPO agent steps
   per wall-clock second on ``symmetric_hallway`` with 4 robots and 1000
-  particles (:func:`scripts._bench_training`'s settings otherwise).
+  particles (:func:`scripts._bench_training`'s settings otherwise);
+* with ``memory=True``, ``tables_mb_*``: the lookup tables each shipped
+  scenario builds (:func:`table_memory_mb`).
 
 Run ``python scripts/_bench_mcl_team.py --help`` for the options.
 """
@@ -32,30 +34,22 @@ import numpy as np
 
 import coop_loc_env
 
-__all__ = ["bench_mcl_team", "gather_us", "step_ms"]
+__all__ = ["bench_mcl_team", "step_ms", "table_memory_mb"]
 
 TABLE_ENTRIES = 2**20
 
 
-def gather_us(n: int, repeat: int = 50, seed: int = 0) -> float:
-    """CPU microseconds of ``numpy.take`` of ``n`` random float64 values of a 2**20-entry table
-    (best of ``repeat``)."""
-    rng = np.random.default_rng(seed)
-    table = rng.random(TABLE_ENTRIES)
-    idx = rng.integers(0, TABLE_ENTRIES, n)
-    best = np.inf
-    for _ in range(repeat):
-        t = time.process_time()
-        table.take(idx)
-        best = min(best, time.process_time() - t)
-    return best * 1e6
-
-
-def step_ms(scenario: str, steps: int, warmup: int = 10, **overrides) -> float:
-    """Mean CPU milliseconds per env step with random actions (after ``warmup`` steps)."""
+def step_ms(scenario: str, steps: int, warmup: int = 10, gather_n: int = 0,
+            **overrides) -> tuple[float, float]:
+    """Mean CPU milliseconds per env step with random actions (after ``warmup`` steps), and
+    the median CPU microseconds of ``numpy.take`` of ``gather_n`` float64 values at random
+    indices of a ``TABLE_ENTRIES`` table, timed right after each step (0 when ``gather_n``
+    is 0): interleaved, the two see the same machine load and cache pressure."""
     env = coop_loc_env.parallel_env(scenario, max_cycles=10**9, **overrides)
     env.reset(seed=0)
     rng = np.random.default_rng(0)
+    table = rng.random(TABLE_ENTRIES)
+    idx = rng.integers(0, TABLE_ENTRIES, max(gather_n, 1))
 
     def one() -> None:
         if not env.agents:
@@ -64,30 +58,35 @@ def step_ms(scenario: str, steps: int, warmup: int = 10, **overrides) -> float:
 
     for _ in range(warmup):
         one()
-    start = time.process_time()
+    total = 0.0
+    gathers = []
     for _ in range(steps):
+        t = time.process_time()
         one()
-    return (time.process_time() - start) / steps * 1e3
+        total += time.process_time() - t
+        if gather_n:
+            t = time.process_time()
+            table.take(idx)
+            gathers.append(time.process_time() - t)
+    return total / steps * 1e3, float(np.median(gathers)) * 1e6 if gathers else 0.0
 
 
-def bench_mcl_team(steps: int = 60, training: bool = True, timesteps: int = 4096
-                   ) -> dict[str, float]:
+def bench_mcl_team(steps: int = 60, training: bool = True, timesteps: int = 4096,
+                   memory: bool = True) -> dict[str, float]:
     """The figures listed in the module docstring."""
     out: dict[str, float] = {}
     cfg = coop_loc_env.make_config("symmetric_hallway")
     n_values = cfg.n_robots * cfg.n_particles * cfg.sonar_beams
-    g0 = gather_us(n_values)
-    hall = step_ms("symmetric_hallway", steps)
-    g1 = gather_us(n_values)
+    hall, gather = step_ms("symmetric_hallway", steps, gather_n=n_values)
     out["hallway_step_ms"] = hall
-    out["hallway_gather_us"] = min(g0, g1)
-    out["hallway_ratio"] = hall * 1e3 / out["hallway_gather_us"]
+    out["hallway_gather_us"] = gather
+    out["hallway_ratio"] = hall * 1e3 / gather
     outdoor = {"n_robots": 4, "n_particles": 1000, "laser_beams": 30, "start_region": None,
                "extras": {**coop_loc_env.make_config("outdoor_terrain").extras,
                           "mcl": {"adaptive": False}}}
-    ekf = step_ms("outdoor_terrain", steps, estimator="ekf", **outdoor)
-    mcl = step_ms("outdoor_terrain", steps, estimator="mcl", **outdoor)
-    g30 = gather_us(30_000)
+    ekf, g_ekf = step_ms("outdoor_terrain", steps, gather_n=30_000, estimator="ekf", **outdoor)
+    mcl, g_mcl = step_ms("outdoor_terrain", steps, gather_n=30_000, estimator="mcl", **outdoor)
+    g30 = min(g_ekf, g_mcl)
     extra = (mcl - ekf) * 1e3 / 4
     out["outdoor_ekf_step_ms"] = ekf
     out["outdoor_mcl_step_ms"] = mcl
@@ -96,6 +95,43 @@ def bench_mcl_team(steps: int = 60, training: bool = True, timesteps: int = 4096
     out["outdoor_ratio"] = extra / g30
     if training:
         out["ppo_hallway_agent_steps_per_s"] = ppo_hallway_steps_per_second(timesteps)
+    if memory:
+        out.update(table_memory_mb())
+    return out
+
+
+def table_memory_mb() -> dict[str, float]:
+    """MB of the MCL lookup tables (range tables, beam-likelihood tables and likelihood
+    fields) each shipped scenario builds, with ``estimator="mcl"`` for every scenario
+    (the shipped MCL scenarios as they are), after a few steps; then their total."""
+    from coop_loc_env.mcl_backend import MCLBackend
+    from coop_loc_env.scenarios import list_scenarios
+
+    out: dict[str, float] = {}
+    seen: dict[int, int] = {}
+    for name in list_scenarios():
+        cfg = coop_loc_env.make_config(name)
+        mcl = cfg.estimator == "mcl" or any(cfg.robot_spec(i).estimator == "mcl"
+                                            for i in range(cfg.n_robots))
+        env = coop_loc_env.parallel_env(name, **({} if mcl else {"estimator": "mcl"}))
+        env.reset(seed=0)
+        for _ in range(3):
+            if env.agents:
+                env.step({a: np.zeros(2, dtype=np.float32) for a in env.agents})
+        arrays: dict[int, int] = {}
+        for backend in env.unwrapped.backends:
+            if not isinstance(backend, MCLBackend):
+                continue
+            for pf in backend.filters:
+                for table, lut in pf._beam_tabs.values():
+                    for arr in (table.rows, table.free_cells, lut.table):
+                        arrays[id(arr)] = arr.nbytes
+                for lf in pf._lf_cache.values():
+                    arrays[id(lf.table)] = lf.table.nbytes
+        label = name if mcl else f"{name} (estimator=mcl)"
+        out[f"tables_mb_{label}"] = sum(arrays.values()) / 2**20
+        seen.update(arrays)
+    out["tables_mb_total_distinct"] = sum(seen.values()) / 2**20
     return out
 
 
@@ -130,13 +166,16 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--steps", type=int, default=60, help="timed env steps per case")
     parser.add_argument("--no-training", action="store_true", help="skip the PPO figure")
     parser.add_argument("--timesteps", type=int, default=4096, help="timed PPO agent steps")
+    parser.add_argument("--no-memory", action="store_true", help="skip the table sizes")
     args = parser.parse_args(argv)
     if args.steps < 1 or args.timesteps < 1:
         print(f"error: --steps and --timesteps must be >= 1, got {args.steps}, "
               f"{args.timesteps}", file=sys.stderr)
         sys.exit(2)
-    for key, value in bench_mcl_team(args.steps, not args.no_training, args.timesteps).items():
-        print(f"{key:<35} {value:12.2f}")
+    figures = bench_mcl_team(args.steps, not args.no_training, args.timesteps,
+                             not args.no_memory)
+    for key, value in figures.items():
+        print(f"{key:<50} {value:12.2f}")
 
 
 if __name__ == "__main__":
