@@ -238,3 +238,22 @@ def first_occurrences(key: np.ndarray, size: int) -> np.ndarray:  # pragma: no c
         out[i] = not seen[k]
         seen[k] = True
     return out
+
+
+@njit(cache=True)
+def weighted_distances(
+    st: np.ndarray, w: np.ndarray, ends: np.ndarray, targets: np.ndarray,
+) -> np.ndarray:  # pragma: no cover (compiled)
+    """Per segment ``r``: the weighted mean distance of the particles' positions
+    ``st[:2]`` from ``targets[r]`` (same coordinates)."""
+    out = np.zeros(ends.size)
+    start = 0
+    for r in range(ends.size):
+        tx = targets[r, 0]
+        ty = targets[r, 1]
+        acc = 0.0
+        for i in range(start, ends[r]):
+            acc += w[i] * math.hypot(st[0, i] - tx, st[1, i] - ty)
+        out[r] = acc
+        start = ends[r]
+    return out

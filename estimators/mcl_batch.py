@@ -23,7 +23,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from estimators._kernels import summary_sums
+from estimators._kernels import summary_sums, weighted_distances
 from estimators.beam_table import scan_loglik
 from estimators.particle_filter import ParticleFilter
 
@@ -169,10 +169,10 @@ def particle_spreads(filters: Sequence[ParticleFilter], true_xy: np.ndarray) -> 
     true_xy = np.asarray(true_xy, dtype=float)
     if true_xy.shape != (len(filters), 2) or not np.all(np.isfinite(true_xy)):
         raise ValueError(f"true_xy must be ({len(filters)}, 2) finite, got {true_xy.shape}")
-    out = np.empty(len(filters))
-    for r, pf in enumerate(filters):
-        st = pf._state
-        t = true_xy[r] - pf._org[:2, 0]
-        dist = np.hypot(st[0] - np.float32(t[0]), st[1] - np.float32(t[1]))
-        out[r] = float(pf._weights @ dist)
-    return out
+    if not filters:
+        return np.zeros(0)
+    st = np.concatenate([pf._state for pf in filters], axis=1)
+    w = np.concatenate([pf._weights for pf in filters])
+    ends = np.cumsum([pf.n_particles for pf in filters])
+    org = np.array([pf._org[:2, 0] for pf in filters])
+    return weighted_distances(st, w, ends, true_xy - org)
