@@ -10,7 +10,9 @@ in a known map built from the scenario's layout. Per env step and robot:
 3. weight by the range scan: the likelihood-field model for a laser (or the
    beam model without cones, ``extras["mcl_laser_model"] = "beam"``), the beam
    model with wide cones for a sonar (``cone_half_width = 0.5 * sonar_fov / sonar_beams``);
-   beam models look expected ranges up in a precomputed range table;
+   beam models look expected ranges and likelihoods up in tables built once per
+   map (:mod:`estimators.beam_table`), all robots of a sensor type in one call
+   (:func:`estimators.mcl_batch.update_beam_batch`);
 4. weight by DGPS fixes and compass readings when the robot has them
    (Gaussian likelihoods with the variances the receivers report);
 5. detections between two MCL robots (``cooperative_updates``): the observed
@@ -37,6 +39,10 @@ around the true start (``init_pos_std``, ``init_heading_std``), as the EKF.
 Not handled: detections between an MCL robot and a robot running another
 estimator (EKF/MLE) are ignored by this backend (and by the EKF's); the
 relative measurement would need a Gaussian <-> particle conversion.
+
+Odometry is composed for the whole team at once, and the means, covariances,
+features and particle spreads of all filters are computed together once per
+step (:mod:`estimators.mcl_batch`).
 
 Observation features: :meth:`ParticleFilter.belief_features` (48 values, layout
 in :func:`estimators.particle_filter.belief_feature_names`): weighted mean and

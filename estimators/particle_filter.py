@@ -20,7 +20,13 @@ weighted particle set and offers
   (:meth:`ParticleFilter.belief_features`, layout in
   :func:`belief_feature_names`).
 
-Only numpy/scipy are used. All randomness comes from the
+One file on purpose: every method works on the same private state layout
+(float32 poses relative to the centre of map cell (0, 0), lazily wrapped
+headings, reused work buffers), which splitting would expose. Per-map tables
+live in :mod:`estimators.beam_table`, team-level batching in
+:mod:`estimators.mcl_batch`, compiled loops in :mod:`estimators._kernels`.
+
+Numerics use numpy/scipy, plus the few numba loops there. All randomness comes from the
 ``numpy.random.Generator`` given to the constructor, so two filters built with
 equal seeds and fed equal data produce identical particles.
 """
