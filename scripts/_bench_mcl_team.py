@@ -20,7 +20,8 @@ count):
   per wall-clock second on ``symmetric_hallway`` with 4 robots and 1000
   particles (:func:`scripts._bench_training`'s settings otherwise);
 * with ``memory=True``, ``tables_mb_*``: the lookup tables each shipped
-  scenario builds (:func:`table_memory_mb`).
+  scenario builds (:func:`table_memory_mb`), and ``table_err_*``: the range
+  tables' error against exact ray casts (:func:`table_accuracy`).
 
 Run ``python scripts/_bench_mcl_team.py --help`` for the options.
 """
@@ -35,7 +36,7 @@ import numpy as np
 
 import coop_loc_env
 
-__all__ = ["bench_mcl_team", "step_ms", "table_memory_mb"]
+__all__ = ["bench_mcl_team", "step_ms", "table_accuracy", "table_memory_mb"]
 
 TABLE_ENTRIES = 2**20
 
@@ -98,6 +99,7 @@ def bench_mcl_team(steps: int = 60, training: bool = True, timesteps: int = 4096
         out["ppo_hallway_agent_steps_per_s"] = ppo_hallway_steps_per_second(timesteps)
     if memory:
         out.update(table_memory_mb())
+        out.update(table_accuracy())
     return out
 
 
@@ -136,6 +138,33 @@ def table_memory_mb() -> dict[str, float]:
     return out
 
 
+def table_accuracy(n: int = 20000) -> dict[str, float]:
+    """Percentiles (m) of the range-table error against exact ray casts
+    (:func:`estimators.beam_table.table_error`, ``n`` random free poses) for the beam-model
+    maps of the shipped MCL scenarios."""
+    from coop_loc_env.mcl_backend import MCLBackend
+    from estimators.beam_table import table_error
+
+    out: dict[str, float] = {}
+    for name in ("symmetric_hallway", "hexagon"):
+        env = coop_loc_env.parallel_env(name)
+        env.reset(seed=0)
+        for backend in env.unwrapped.backends:
+            if not isinstance(backend, MCLBackend):
+                continue
+            done = set()
+            for pf in backend.filters:
+                for table, _ in pf._beam_tabs.values():
+                    sensor = "sonar" if table.rays_per_cone > 1 else "laser"
+                    if sensor in done:
+                        continue
+                    done.add(sensor)
+                    err = table_error(pf.grid, table, n)
+                    for q in (50, 90, 99):
+                        out[f"table_err_p{q}_m_{name}_{sensor}"] = float(np.percentile(err, q))
+    return out
+
+
 def ppo_hallway_steps_per_second(timesteps: int = 4096, seed: int = 0) -> float:
     """PPO agent steps per wall-clock second on ``symmetric_hallway`` (4 robots x 1000
     particles, 4 env copies in this process, :mod:`scripts._bench_training`'s settings)."""
@@ -167,7 +196,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--steps", type=int, default=60, help="timed env steps per case")
     parser.add_argument("--no-training", action="store_true", help="skip the PPO figure")
     parser.add_argument("--timesteps", type=int, default=4096, help="timed PPO agent steps")
-    parser.add_argument("--no-memory", action="store_true", help="skip the table sizes")
+    parser.add_argument("--no-memory", action="store_true",
+                        help="skip the tables' sizes and accuracy")
     args = parser.parse_args(argv)
     if args.steps < 1 or args.timesteps < 1:
         print(f"error: --steps and --timesteps must be >= 1, got {args.steps}, "
