@@ -257,3 +257,80 @@ def weighted_distances(
         out[r] = acc
         start = ends[r]
     return out
+
+
+@njit(cache=True)
+def grow_tree(
+    x: np.ndarray, w: np.ndarray, low: np.ndarray, high: np.ndarray, scale: np.ndarray,
+    leaf_size: int, max_depth: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+    # pragma: no cover (compiled)
+    """Grow a :class:`~estimators.density_tree.DensityTree` breadth first.
+
+    Nodes are processed in creation order (level by level); a node holding
+    more than ``leaf_size`` samples above ``max_depth`` is halved along its
+    longest scaled side, its children numbered consecutively. Each node's
+    samples stay contiguous in a permutation (partitioned in place). Returns
+    ``(lo, hi, split_dim, split_val, left, mass, depth)`` trimmed to the nodes.
+    """
+    m, d = x.shape
+    cap = 1 + 2 * max_depth * (m // (leaf_size + 1) + 1)
+    lo = np.empty((cap, d))
+    hi = np.empty((cap, d))
+    split_dim = np.full(cap, -1, dtype=np.intp)
+    split_val = np.zeros(cap)
+    left = np.full(cap, -1, dtype=np.intp)
+    mass = np.zeros(cap)
+    depth = np.zeros(cap, dtype=np.intp)
+    first = np.zeros(cap, dtype=np.intp)
+    last = np.zeros(cap, dtype=np.intp)
+    order = np.arange(m)
+    lo[0] = low
+    hi[0] = high
+    mass[0] = w.sum()
+    last[0] = m
+    n_nodes = 1
+    node = 0
+    deepest = 0
+    while node < n_nodes:
+        s, e = first[node], last[node]
+        deepest = max(deepest, depth[node])
+        if e - s > leaf_size and depth[node] < max_depth:
+            k = 0
+            best = (hi[node, 0] - lo[node, 0]) * scale[0]
+            for j in range(1, d):
+                ext = (hi[node, j] - lo[node, j]) * scale[j]
+                if ext > best:
+                    best = ext
+                    k = j
+            mid = 0.5 * (lo[node, k] + hi[node, k])
+            # partition order[s:e]: samples below mid first
+            i, j = s, e - 1
+            while i <= j:
+                if x[order[i], k] < mid:
+                    i += 1
+                else:
+                    tmp = order[i]
+                    order[i] = order[j]
+                    order[j] = tmp
+                    j -= 1
+            c = n_nodes
+            n_nodes += 2
+            split_dim[node] = k
+            split_val[node] = mid
+            left[node] = c
+            for child, cs, ce in ((c, s, i), (c + 1, i, e)):
+                lo[child] = lo[node]
+                hi[child] = hi[node]
+                first[child] = cs
+                last[child] = ce
+                depth[child] = depth[node] + 1
+                acc = 0.0
+                for t in range(cs, ce):
+                    acc += w[order[t]]
+                mass[child] = acc
+            hi[c, k] = mid
+            lo[c + 1, k] = mid
+        node += 1
+    return (lo[:n_nodes].copy(), hi[:n_nodes].copy(), split_dim[:n_nodes].copy(),
+            split_val[:n_nodes].copy(), left[:n_nodes].copy(), mass[:n_nodes].copy(), deepest)

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from estimators._kernels import tree_density
+from estimators._kernels import grow_tree, tree_density
 
 __all__ = ["DensityTree"]
 
@@ -99,75 +99,21 @@ class DensityTree:
 
     def _build(self, x: np.ndarray, w: np.ndarray, scale: np.ndarray, leaf_size: int,
                max_depth: int) -> None:
-        """Grow the tree level by level: every node of a level is split in one vectorized pass.
-
-        Nodes are numbered breadth first; a node's children are consecutive.
-        """
-        m, d = x.shape
-        lows, highs, masses = [self.low[None, :]], [self.high[None, :]], [np.array([w.sum()])]
-        dims: list[np.ndarray] = []
-        vals: list[np.ndarray] = []
-        lefts: list[np.ndarray] = []
-        lo, hi = lows[0], highs[0]
-        counts = np.array([m])
-        node_of = np.zeros(m, dtype=np.intp)  # each sample's node within the level (-1: leaf)
-        first = 0  # global id of the level's first node
-        depth = 0
-        while True:
-            split = counts > leaf_size if depth < max_depth else np.zeros(counts.size, bool)
-            n_split = int(split.sum())
-            n_nodes = counts.size
-            dim = np.full(n_nodes, -1, dtype=np.intp)
-            val = np.zeros(n_nodes)
-            left = np.full(n_nodes, -1, dtype=np.intp)
-            if n_split == 0:
-                dims.append(dim)
-                vals.append(val)
-                lefts.append(left)
-                break
-            rows = np.flatnonzero(split)
-            k = np.argmax((hi[rows] - lo[rows]) * scale, axis=1)
-            mid = 0.5 * (lo[rows, k] + hi[rows, k])
-            dim[rows], val[rows] = k, mid
-            nxt = first + n_nodes  # global id of the next level's first node
-            left[rows] = nxt + 2 * np.arange(n_split)
-            dims.append(dim)
-            vals.append(val)
-            lefts.append(left)
-            # children boxes: left keeps [lo, mid), right [mid, hi) along k
-            rank = np.full(n_nodes, -1, dtype=np.intp)
-            rank[rows] = np.arange(n_split)
-            lo_c = np.repeat(lo[rows], 2, axis=0)
-            hi_c = np.repeat(hi[rows], 2, axis=0)
-            idx = np.arange(n_split)
-            hi_c[2 * idx, k] = mid
-            lo_c[2 * idx + 1, k] = mid
-            # move the samples of split nodes to their children
-            live = node_of >= 0
-            live[live] = split[node_of[live]]
-            node_of[~live] = -1
-            pts = np.flatnonzero(live)
-            r = rank[node_of[pts]]
-            right = x[pts, k[r]] >= mid[r]
-            node_of[pts] = 2 * r + right
-            counts = np.bincount(node_of[pts], minlength=2 * n_split)
-            lows.append(lo_c)
-            highs.append(hi_c)
-            masses.append(np.bincount(node_of[pts], weights=w[pts], minlength=2 * n_split))
-            lo, hi = lo_c, hi_c
-            first = nxt
-            depth += 1
-        self._lo = np.concatenate(lows)
-        self._hi = np.concatenate(highs)
-        self._split_dim = np.concatenate(dims)
-        self._split_val = np.concatenate(vals)
-        self._left = np.concatenate(lefts)
-        self._right = np.where(self._left >= 0, self._left + 1, -1)
-        self._mass = np.concatenate(masses)
-        volume = np.prod(self._hi - self._lo, axis=1)
-        self._is_leaf = self._left < 0
-        self._density = np.where(self._is_leaf, self._mass / volume, 0.0)
-        self.depth = depth
+        """Grow the tree breadth first, level by level, in one compiled pass
+        (:func:`estimators._kernels.grow_tree`); a node's children are consecutive."""
+        lo, hi, dim, val, left, mass, depth = grow_tree(
+            np.ascontiguousarray(x), w, self.low, self.high, scale, leaf_size, max_depth)
+        self._lo = lo
+        self._hi = hi
+        self._split_dim = dim
+        self._split_val = val
+        self._left = left
+        self._right = np.where(left >= 0, left + 1, -1)
+        self._mass = mass
+        volume = np.prod(hi - lo, axis=1)
+        self._is_leaf = left < 0
+        self._density = np.where(self._is_leaf, mass / volume, 0.0)
+        self.depth = int(depth)
 
     @property
     def n_leaves(self) -> int:
