@@ -17,13 +17,14 @@ __all__ = ["summary_sums"]
 
 @njit(cache=True)
 def summary_sums(
-    st: np.ndarray, w: np.ndarray, ends: np.ndarray, hist_cells: int, inv_cell: float,
-    heading_bins: int,
+    st: np.ndarray, cos_h: np.ndarray, sin_h: np.ndarray, w: np.ndarray, ends: np.ndarray,
+    hist_cells: int, inv_cell: float, heading_bins: int,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover (compiled)
     """Per-segment weighted sums of particle sets stored back to back.
 
-    ``st`` ``(3, N)`` holds ``x, y, heading``, ``w`` ``(N,)`` the weights (each
-    segment's summing to 1), segment ``r`` ending (exclusive) at ``ends[r]``.
+    ``st`` ``(3, N)`` holds ``x, y, heading`` (``cos_h``, ``sin_h``: the headings'
+    cosines and sines), ``w`` ``(N,)`` the weights (each segment's summing to 1),
+    segment ``r`` ending (exclusive) at ``ends[r]``.
     Returns ``sums (R, 5)`` (weighted sums of ``x, y, cos, sin`` and of ``w**2``),
     ``cov (R, 3, 3)`` (about the weighted mean, the heading wrapped about the
     circular mean), ``hist (R, hist_cells**2)`` (weight in the egocentric grid
@@ -48,11 +49,10 @@ def summary_sums(
         s2 = 0.0
         for i in range(start, end):
             wi = w[i]
-            h = np.float64(st[2, i])
             sx += wi * st[0, i]
             sy += wi * st[1, i]
-            sc += wi * math.cos(h)
-            ss += wi * math.sin(h)
+            sc += wi * cos_h[i]
+            ss += wi * sin_h[i]
             s2 += wi * wi
         sums[r, 0] = sx
         sums[r, 1] = sy

@@ -131,8 +131,9 @@ def belief_summaries(
     # positions relative to each filter's cell (0, 0) centre (small numbers)
     st = np.concatenate([pf._state for pf in filters], axis=1)
     org = np.array([[pf._org[0, 0], pf._org[1, 0]] for pf in filters])
-    sums, cov, hist, hhist = summary_sums(st, w, ends, hist_cells, 1.0 / cell_size,
-                                          heading_bins)
+    # float32 trigonometry in numpy (vectorized): several times faster, ~1e-7
+    sums, cov, hist, hhist = summary_sums(st, np.cos(st[2]), np.sin(st[2]), w, ends,
+                                          hist_cells, 1.0 / cell_size, heading_bins)
     mc, ms, w2 = sums[:, 2], sums[:, 3], sums[:, 4]
     mh = np.arctan2(ms, mc)
     mean = np.column_stack([sums[:, :2] + org, mh])
