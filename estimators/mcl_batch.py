@@ -77,7 +77,7 @@ def update_beam_batch(
     if not cfg.beam_lookup_bins:
         raise ValueError("update_beam_batch needs MCLConfig.beam_lookup_bins > 0")
     for pf in filters[1:]:
-        if pf.grid is not pf0.grid or pf.config != cfg:
+        if pf.grid is not pf0.grid or (pf.config is not cfg and pf.config != cfg):
             raise ValueError("update_beam_batch needs filters sharing one map and one config")
     ranges = np.asarray(ranges, dtype=float)
     angles = np.asarray(angles, dtype=float).ravel()
