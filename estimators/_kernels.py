@@ -101,9 +101,10 @@ def summary_sums(
 
 @njit(cache=True)
 def beam_loglik(
-    rows: np.ndarray, free_cells: np.ndarray, nx: int, ny: int, res: float, n_bins: int,
-    max_range: float, st: np.ndarray, angles: np.ndarray, lut: np.ndarray, inv_step: float,
-    row_offsets: np.ndarray, ends: np.ndarray, occupied_loglik: float,
+    rows: np.ndarray, scales: np.ndarray, free_cells: np.ndarray, nx: int, ny: int,
+    res: float, n_bins: int, max_range: float, st: np.ndarray, angles: np.ndarray,
+    lut: np.ndarray, inv_step: float, row_offsets: np.ndarray, ends: np.ndarray,
+    occupied_loglik: float,
 ) -> np.ndarray:  # pragma: no cover (compiled)
     """Scan log-likelihoods ``(N,)`` of particle sets stored back to back (see
     :meth:`RangeTable.expected` and :meth:`BeamLUT.loglik`, whose float32 steps
@@ -125,6 +126,7 @@ def beam_loglik(
     rmax = np.float32(max_range)
     zero = np.float32(0.0)
     istep = np.float32(inv_step)
+    s0, s1, s2, s3 = scales[0], scales[1], scales[2], scales[3]
     a_bins = np.empty(nb, dtype=np.float32)
     for b in range(nb):
         a_bins[b] = np.float32(angles[b]) * scale
@@ -153,10 +155,10 @@ def beam_loglik(
             ki = ki & (n_bins - 1) if pow2 else ki % n_bins
             j = cell * n_bins + ki
             if inside:
-                r = rows[j, 0]
-                r += rows[j, 1] * dx
-                r += rows[j, 2] * dy
-                r += rows[j, 3] * dphi
+                r = np.float32(rows[j, 0]) * s0
+                r += (np.float32(rows[j, 1]) * s1) * dx
+                r += (np.float32(rows[j, 2]) * s2) * dy
+                r += (np.float32(rows[j, 3]) * s3) * dphi
                 r = min(max(r, zero), rmax)
             else:
                 r = zero

@@ -50,7 +50,7 @@ def test_table_matches_exact_ray_casts_within_the_beam_noise():
     assert np.percentile(err, 90) < 0.05
     assert np.percentile(err, 99) < 0.5  # the hallway's beam model std (beam_sigma)
     # the first-order corrections are what make it so: cell-centre ranges alone are worse
-    plain = table._replace(rows=table.rows * np.array([1, 0, 0, 0], dtype=np.float32))
+    plain = table._replace(scales=table.scales * np.array([1, 0, 0, 0], dtype=np.float32))
     err_plain = table_error(grid, plain, n=4000, seed=1)
     assert np.percentile(err_plain, 90) > 3 * np.percentile(err, 90)
     assert np.percentile(err_plain, 99) > 1.5 * np.percentile(err, 99)
