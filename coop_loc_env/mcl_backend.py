@@ -223,14 +223,6 @@ def known_map(world: World, sensor: str, resolution: float) -> OccupancyGrid:
     return grid
 
 
-def _position_std(pf: ParticleFilter) -> float:
-    """RMS per-axis position standard deviation (m) of a particle belief."""
-    w = pf.weights
-    xy = pf.particles[:, :2]
-    mean = w @ xy
-    return float(np.sqrt(0.5 * (w @ ((xy - mean) ** 2)).sum()))
-
-
 class MCLBackend:
     """Per-robot particle filters with detection-based belief transfer for ``robots``.
 
@@ -412,9 +404,9 @@ class MCLBackend:
         has, and a target whose set collapsed onto a wrong mode of a symmetric
         map has none near the truth (sensor resetting, Lenser and Veloso 2000).
         """
-        if _position_std(observer) > RESET_STD:
+        if observer.position_std() > RESET_STD:
             return
-        if _position_std(target) <= RESET_STD and not self._confirmed_conflict(
+        if target.position_std() <= RESET_STD and not self._confirmed_conflict(
             ib, rec, observer, target
         ):
             return

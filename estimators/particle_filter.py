@@ -1166,6 +1166,19 @@ class ParticleFilter:
         cov = 0.5 * (cov + cov.T)
         return ParticleBelief(mean=mean, cov=cov, particles=particles, weights=w.copy())
 
+    def position_std(self) -> float:
+        """RMS per-axis weighted standard deviation (m) of the particles' positions."""
+        w = self._weights
+        st = self._state
+        total = 0.0
+        for row in (st[0], st[1]):
+            x = row.astype(np.float64)
+            mean = float(w @ x)
+            x -= mean
+            x *= x
+            total += float(w @ x)
+        return math.sqrt(0.5 * max(total, 0.0))
+
     def particle_spread(self, true_pose: np.ndarray) -> float:
         """Weighted mean distance (m) of the particles from the true position (Fox et al.)."""
         p = np.asarray(true_pose, dtype=float)

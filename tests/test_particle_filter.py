@@ -633,3 +633,13 @@ def test_kld_bins_and_first_occurrences_match_numpy():
     expected = np.zeros(key.size, dtype=bool)
     expected[first] = True
     np.testing.assert_array_equal(first_occurrences(key, size), expected)
+
+
+def test_position_std_is_the_rms_weighted_axis_std():
+    pf = ParticleFilter(room(), np.random.default_rng(3), MCLConfig(n_particles=500))
+    pf.set_particles(pf.particles, np.random.default_rng(4).random(500))
+    w, xy = pf.weights, pf.particles[:, :2]
+    var = w @ (xy - w @ xy) ** 2
+    assert pf.position_std() == pytest.approx(np.sqrt(var.mean()), rel=1e-9)
+    pf.init_gaussian(np.array([5.0, 3.0, 0.0]), np.diag([0.0, 0.0, 0.1]))
+    assert pf.position_std() < 1e-5  # float32 state rounding only
