@@ -456,7 +456,12 @@ class ParticleFilter:
         A read-only snapshot of the filter's state.
         """
         world = self._world()
-        world[2] = wrap_angle(world[2])  # exactly: float32 pi lies just beyond float64 pi
+        h = world[2]
+        # float32 pi lies just beyond float64 pi: wrap what falls outside (a floating
+        # modulo of every heading costs more than the rest of this copy)
+        out = (h < -np.pi) | (h >= np.pi)
+        if out.any():
+            h[out] = wrap_angle(h[out])
         view = world.T
         view.flags.writeable = False
         return view
