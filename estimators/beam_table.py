@@ -35,7 +35,7 @@ from estimators._kernels import beam_loglik
 from estimators.occupancy import OccupancyGrid
 
 __all__ = [
-    "BeamLUT", "RangeTable", "beam_lut", "cached_tables", "range_table", "scan_loglik",
+    "BeamLUT", "RangeTable", "beam_lut", "beam_probability", "range_table", "scan_loglik",
     "table_error",
 ]
 
@@ -56,18 +56,6 @@ def _remember(cache: OrderedDict, key: tuple, value: object) -> None:
     cache[key] = value
     while len(cache) > _CACHE_SIZE:
         cache.popitem(last=False)
-
-
-def cached_tables() -> list[tuple[str, int]]:
-    """``(description, bytes)`` of every range table and likelihood table held in the caches."""
-    out = []
-    for key, t in _TABLES.items():
-        shape = key[0]
-        out.append((f"range table {shape[1]}x{shape[0]} cells, {t.n_bins} bins, "
-                    f"max range {t.max_range:g} m", t.rows.nbytes))
-    for key, lut in _LUTS.items():
-        out.append((f"beam likelihood table, max range {key[0]:g} m", lut.table.nbytes))
-    return out
 
 
 class RangeTable(NamedTuple):
