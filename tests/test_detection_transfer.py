@@ -268,19 +268,11 @@ def test_detection_records_validate_their_numbers():
 
 
 def test_target_samples_with_heading_pi_are_accepted():
-    # wrap_angle can return +pi itself (for angles a hair below -pi); such a detected
-    # heading must land in the transfer's density tree, not raise.
+    # Headings of +pi (from another wrap convention, or a user's particle set) must land
+    # in the transfer's density tree, not raise.
     grid = room()
-    observer = localized(grid, POSE_M, 1)
     target = lost(grid, 2)
-    parts = observer.particles.copy()
-    parts[:, 2] = -1.0
-    observer.set_particles(parts)
-    h = float(observer.particles[0, 2])
-    o = float(np.nextafter(-np.pi, -np.inf)) - h
-    assert wrap_angle(h + o) == np.pi  # the detected heading is +pi
-    det = RobotDetection(observer=0, target=1, range=2.0, bearing=0.3, range_std=0.3,
-                         bearing_std=0.04, orientation=o, orientation_std=1e-300)
-    res = DetectionTransfer(TransferConfig()).apply(det, observer, target,
-                                                    np.random.default_rng(0))
-    assert res.applied
+    samples = np.array([[4.0, 3.0, np.pi], [4.1, 3.1, -np.pi], [3.9, 2.9, 0.5]] * 20)
+    tree = DetectionTransfer(TransferConfig())._tree(samples, target, use_heading=True)
+    assert tree is not None and tree.integral() > 0
+    assert np.all(tree.pdf(samples) >= 0)
