@@ -29,17 +29,26 @@ from policies.fsm import FSMPolicy
 from policies.learned import SB3Policy, detect_sb3_algo  # noqa: F401 (re-exported)
 
 FIGURES = ("localization_error_m", "coverage", "map_rmse_m", "collisions", "tip_overs")
-POLICY_NAMES = ("fsm", "random", "seek")
+POLICY_NAMES = ("fsm", "random", "seek", "gather", "infogain")
 
 
 def make_policy(spec: str) -> Policy:
-    """A policy from a name (``fsm``, ``random``, ``seek``) or a saved SB3 ``.zip`` path."""
+    """A policy from a name (``fsm``, ``random``, ``seek``, ``gather``, ``infogain``) or a
+    saved SB3 ``.zip`` path."""
     if spec == "fsm":
         return FSMPolicy()
     if spec == "random":
         return RandomPolicy()
     if spec == "seek":
         return SeekTeammatePolicy()
+    if spec == "gather":
+        from policies.scripted import GatherPolicy
+
+        return GatherPolicy()
+    if spec == "infogain":
+        from policies.scripted import InfoGainPolicy
+
+        return InfoGainPolicy()
     if str(spec).endswith(".zip") or Path(spec).is_file():
         return SB3Policy(spec)
     raise ValueError(
