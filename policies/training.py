@@ -19,8 +19,9 @@ loads), and runs PPO (default) or SAC with:
   for ``timesteps`` more steps, its step counter continuing;
 * an optional wall-clock limit ``max_wall_s`` (training stops there, the
   model is saved as usual);
-* the final model at ``DIR/final_model.zip`` and the run's settings at
-  ``DIR/train_config.json``;
+* the final model at ``DIR/final_model.zip``, the policy with the lowest
+  evaluated error so far at ``DIR/best_model.zip`` (when evaluating), and the
+  run's settings at ``DIR/train_config.json``;
 * ``reward_mode="localize"``: the env's rewards replaced by minus the time to
   localize (:class:`policies.vec_env.TimeToLocalizeReward`, weights
   ``localize_step_reward``, ``localize_team_weight``, ``localize_collision_weight``);
@@ -227,6 +228,7 @@ def _callbacks(cfg: TrainConfig, out: Path, deadline: float | None = None):
             self.next_eval = 0
             self.baseline: dict[str, float] | None = None
             self.history: list[dict[str, float]] = []
+            self.best = float("inf")
 
         def _on_training_start(self) -> None:
             self.next_eval = self.num_timesteps + cfg.eval_freq
@@ -255,6 +257,9 @@ def _callbacks(cfg: TrainConfig, out: Path, deadline: float | None = None):
                 self.logger.record("eval/error_ratio_vs_baseline", ratio)
             self.logger.dump(self.num_timesteps)
             self.history.append({"timesteps": float(self.num_timesteps), **figs})
+            if figs["localization_error_m"] < self.best:  # keep the best evaluated policy
+                self.best = figs["localization_error_m"]
+                self.model.save(str(out / "best_model.zip"))
             return figs
 
     callbacks = []
@@ -421,6 +426,8 @@ def train(cfg: TrainConfig) -> dict[str, Any]:
         "bc": bc,
         "steps_per_s": done / wall if wall > 0 else float("nan"),
         "evals": evaluator.history if evaluator is not None else [],
+        "best_model": str(out / "best_model.zip") if evaluator is not None and evaluator.history
+        else None,
         "baseline": evaluator.baseline if evaluator is not None else None,
     }
     (out / "train_summary.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")

@@ -8,6 +8,10 @@ Examples::
     python scripts/train.py --out runs/ppo_outdoor --resume runs/ppo_outdoor --timesteps 100000
     python scripts/evaluate.py --policy runs/ppo_outdoor/final_model.zip --episodes 20
 
+A scenario may carry its own training defaults (``rendezvous`` does: its
+reward, observation and PPO settings, see ``coop_loc_env/scenarios/rendezvous.py``);
+options given on the command line override them.
+
 Writes ``DIR/final_model.zip`` (loadable by ``scripts/evaluate.py --policy``),
 ``DIR/checkpoints/``, TensorBoard logs in ``DIR/tb`` (``tensorboard --logdir DIR/tb``;
 periodic evaluation against the FSM baseline under ``eval/`` and ``baseline/``),
@@ -116,9 +120,22 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
     )
 
 
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    """Parse ``argv``; options left unset take the scenario's training defaults, if it has
+    any (:func:`coop_loc_env.scenarios.training_defaults`), then the built-in ones."""
+    from coop_loc_env.scenarios import training_defaults
+
+    parser = build_parser()
+    first, _ = parser.parse_known_args(argv)
+    defaults = training_defaults(first.scenario)
+    if defaults:
+        parser.set_defaults(**defaults)
+    return parser.parse_args(argv)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Train; returns the exit status (2 on bad input)."""
-    args = build_parser().parse_args(argv)
+    args = parse_args(argv)
     try:
         cfg = config_from_args(args)
         cfg.validate()

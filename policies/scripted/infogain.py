@@ -13,9 +13,11 @@ each candidate motion would bring:
   satellites (the sensor's satellite model at its mean counts), with the
   sensor's variance;
 * two robots within the detector range exchange relative updates at the
-  detector rate (times the detection probability), each informing the other
-  with covariance ``P_j + R(range)``, discounted by ``ci_weight`` for the
-  conservative (covariance-intersection) fusion.
+  detector rate (times the detection probability); as with the conservative
+  (covariance-intersection) fusion, a teammate ``j`` can bring robot ``i`` no
+  lower than ``P_j + R(range)``: each detection closes the fraction
+  ``fusion_rate`` of the gap between ``P_i`` and the best such bound below it
+  (two equally lost robots teach each other nothing).
 
 Ties -- no candidate brings any information within the horizon, as when every
 teammate is far away -- are broken by a small cost on the distance from the
@@ -56,14 +58,15 @@ def _logdet2(m: np.ndarray) -> np.ndarray:
 class TeamInfoModel:
     """The planner's model of how the team's position covariances evolve (see module doc)."""
 
-    def __init__(self, env, dt: float, q_per_m: float, ci_weight: float) -> None:
+    def __init__(self, env, dt: float, q_per_m: float, fusion_rate: float) -> None:
         cfg = env.config
         self.dt = dt
         self.q_per_m = q_per_m
         self.under_canopy = env.world.layout.under_canopy
         self.gps = gps_flags(env)
         self.det_range = cfg.detector_range
-        self.det_per_step = cfg.detector_rate * dt * cfg.detection_prob * 2.0 * ci_weight
+        per_step = cfg.detector_rate * dt * cfg.detection_prob * 2.0  # both robots detect
+        self.rel_gain = 1.0 - (1.0 - fusion_rate) ** per_step
         self.range_var = cfg.detection_range_std**2
         self.bearing_var = cfg.detection_bearing_std**2
         self.gps_per_step = cfg.gps_rate * dt
@@ -90,6 +93,17 @@ class TeamInfoModel:
         for t in range(1, t1):
             pos = paths[:, :, t]
             cov = cov + (self.q_per_m * step[:, :, t - 1])[..., None, None] * eye
+            rel = pos[:, :, None] - pos[:, None]
+            dist = np.hypot(rel[..., 0], rel[..., 1])  # (C, n, n)
+            near = (dist < self.det_range) & pair
+            if near.any():  # move P_i toward the best P_j + R that is below it
+                r = self.range_var + self.bearing_var * dist**2
+                target = cov[:, None, :, :, :] + r[..., None, None] * eye  # [c, i, j]
+                ld = np.where(near, _logdet2(target), np.inf)
+                j = np.argmin(ld, axis=2)
+                best = np.take_along_axis(target, j[..., None, None, None], axis=2)[:, :, 0]
+                better = np.take_along_axis(ld, j[..., None], axis=2)[..., 0] < _logdet2(cov)
+                cov = np.where(better[..., None, None], cov + self.rel_gain * (best - cov), cov)
             info = _inv2(cov)
             if gps.any():
                 depth = self.under_canopy(pos.reshape(-1, 2)).reshape(c, n)
@@ -98,14 +112,6 @@ class TeamInfoModel:
                 fix = gps & (sats >= 4)
                 w = np.where(fix, self.gps_per_step * sats / self.gps_var_num, 0.0)
                 info = info + w[..., None, None] * eye
-            rel = pos[:, :, None] - pos[:, None]
-            dist = np.hypot(rel[..., 0], rel[..., 1])  # (C, n, n)
-            near = (dist < self.det_range) & pair
-            if near.any():
-                r = self.range_var + self.bearing_var * dist**2
-                s = cov[:, None, :, :, :] + r[..., None, None] * eye  # S[c, i, j] = P_j + R
-                gain = _inv2(s) * (near * self.det_per_step)[..., None, None]
-                info = info + gain.sum(axis=2)
             cov = _inv2(info)
             total += _logdet2(cov)[:, live].sum(axis=1)
         return total / (t1 - 1)
@@ -121,7 +127,7 @@ class InfoGainPolicy:
         replan_every: env steps between replans.
         passes: coordinate-descent sweeps over the robots per replan.
         q_per_m: position variance (m^2) dead reckoning adds per metre driven.
-        ci_weight: discount of a relative update's information (conservative fusion).
+        fusion_rate: fraction of the gap to ``P_j + R`` one relative update closes.
         tie_cost: cost per metre from a candidate's end to the nearest informative teammate.
     """
 
@@ -135,11 +141,11 @@ class InfoGainPolicy:
         replan_every: int = 10,
         passes: int = 2,
         q_per_m: float = 0.003,
-        ci_weight: float = 0.5,
+        fusion_rate: float = 0.5,
         tie_cost: float = 1e-3,
     ) -> None:
         for key, value in (("horizon", horizon), ("plan_dt", plan_dt), ("q_per_m", q_per_m),
-                           ("ci_weight", ci_weight)):
+                           ("fusion_rate", fusion_rate)):
             if not value > 0:
                 raise ValueError(f"{key} must be > 0, got {value!r}")
         for key, value in (("n_headings", n_headings), ("replan_every", replan_every),
@@ -150,7 +156,9 @@ class InfoGainPolicy:
             raise ValueError(f"tie_cost must be >= 0, got {tie_cost!r}")
         self.horizon, self.plan_dt = float(horizon), float(plan_dt)
         self.n_headings, self.replan_every, self.passes = n_headings, replan_every, passes
-        self.q_per_m, self.ci_weight, self.tie_cost = q_per_m, ci_weight, tie_cost
+        if not fusion_rate < 1:
+            raise ValueError(f"fusion_rate must be < 1, got {fusion_rate!r}")
+        self.q_per_m, self.fusion_rate, self.tie_cost = q_per_m, fusion_rate, tie_cost
         self.headings = 2 * np.pi * np.arange(n_headings) / n_headings
         self.env = None
 
@@ -158,7 +166,7 @@ class InfoGainPolicy:
         """Bind to ``env`` for a new episode."""
         self.env = env
         self._views = ViewBuilder(env)
-        self._model = TeamInfoModel(env, self.plan_dt, self.q_per_m, self.ci_weight)
+        self._model = TeamInfoModel(env, self.plan_dt, self.q_per_m, self.fusion_rate)
         self._gps = self._model.gps
         self._steps = int(round(self.horizon / self.plan_dt))
         self.choice = np.full(env.config.n_robots, STOP)
