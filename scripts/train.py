@@ -88,6 +88,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--bc-epochs", type=int, default=d.bc_epochs)
     p.add_argument("--bc-log-std", type=float, default=d.bc_log_std,
                    help="log standard deviation of the actions after cloning")
+    p.add_argument("--dagger-rounds", type=int, default=d.dagger_rounds,
+                   help="DAgger rounds after cloning: the clone drives, the teacher labels")
+    p.add_argument("--dagger-epochs", type=int, default=d.dagger_epochs,
+                   help="epochs of each DAgger refit (on all labels so far)")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     return p
 
@@ -117,6 +121,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         localize_team_weight=args.localize_team_weight,
         localize_collision_weight=args.localize_collision_weight, bc_from=args.bc_from,
         bc_episodes=args.bc_episodes, bc_epochs=args.bc_epochs, bc_log_std=args.bc_log_std,
+        dagger_rounds=args.dagger_rounds, dagger_epochs=args.dagger_epochs,
     )
 
 

@@ -124,3 +124,31 @@ def test_scenario_training_defaults_reach_train_cli():
     assert plain.learning_rate == train_cli.build_parser().get_default("learning_rate")
     given = train_cli.parse_args(["--scenario", "rendezvous", "--out", "x", "--gamma", "0.9"])
     assert given.gamma == 0.9
+
+
+def test_dagger_collection_labels_the_actor_states():
+    """With an actor, the actor drives and the teacher only labels."""
+    from functools import partial
+
+    from policies.imitation import collect_demonstrations
+    from policies.scripted import GatherPolicy
+
+    env_fn = partial(coop_loc_env.parallel_env, "rendezvous", max_cycles=30,
+                     false_positive_prob=0.0, start_poses=((5, 5, 0), (35, 35, 0),
+                                                           (5, 35, 0), (35, 5, 0)))
+    still = collect_demonstrations(env_fn, GatherPolicy(), 1, seed=0,
+                                   actor=lambda batch: np.zeros((len(batch), 2)))
+    driven = collect_demonstrations(env_fn, GatherPolicy(), 1, seed=0)
+    assert np.abs(still["actions"][:, 0]).max() > 0.5  # the teacher wants to drive ...
+    col = env_fn().observations.names.index("last_v")
+    assert np.all(still["obs"][:, col] == 0.0)  # ... but the actor stood still
+    assert driven["obs"][:, col].max() > 0.5
+
+
+def test_dagger_rounds_need_a_teacher():
+    from policies.training import TrainConfig
+
+    with pytest.raises(ValueError, match="dagger_rounds"):
+        TrainConfig(out="x", dagger_rounds=2).validate()
+    with pytest.raises(ValueError, match="dagger_rounds"):
+        TrainConfig(out="x", dagger_rounds=-1, bc_from="gather").validate()
