@@ -245,6 +245,8 @@ def _callbacks(cfg: TrainConfig, out: Path, deadline: float | None = None):
                     cfg.scenario, make_policy(cfg.eval_baseline), cfg.eval_episodes,
                     cfg.env_overrides(),
                 )
+            if cfg.bc_from is not None:  # the clone itself is the first candidate
+                self.evaluate()
 
         def _on_step(self) -> bool:
             if self.num_timesteps >= self.next_eval:
