@@ -82,7 +82,8 @@ def build_parser() -> argparse.ArgumentParser:
                    default=d.localize_collision_weight,
                    help="--reward localize: penalty per new contact")
     p.add_argument("--bc-from", default=None, metavar="TEACHER",
-                   help="behaviour-clone this teacher before PPO: wander, wander:SPEED, fsm, ...")
+                   help="behaviour-clone this teacher before PPO: wander, wander:SPEED, fsm, "
+                        "gather, ... ('none': no cloning, e.g. over a scenario's default)")
     p.add_argument("--bc-episodes", type=int, default=d.bc_episodes,
                    help="teacher episodes to clone (seeds from policies.training.BC_SEED)")
     p.add_argument("--bc-epochs", type=int, default=d.bc_epochs)
@@ -99,6 +100,7 @@ def build_parser() -> argparse.ArgumentParser:
 def config_from_args(args: argparse.Namespace) -> TrainConfig:
     """The :class:`TrainConfig` of parsed arguments."""
     overrides = parse_overrides(args.overrides)
+    no_bc = str(args.bc_from).lower() == "none"  # no cloning (nor DAgger) at all
     if args.max_cycles is not None:
         overrides["max_cycles"] = args.max_cycles
     for key in ("reward_localization_weight", "reward_heading_weight", "reward_coverage_weight",
@@ -119,9 +121,10 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         normalize_reward=not args.no_reward_norm, clip_range=args.clip_range,
         reward_mode=args.reward_mode, localize_step_reward=args.localize_step_reward,
         localize_team_weight=args.localize_team_weight,
-        localize_collision_weight=args.localize_collision_weight, bc_from=args.bc_from,
+        localize_collision_weight=args.localize_collision_weight,
+        bc_from=None if no_bc else args.bc_from,
         bc_episodes=args.bc_episodes, bc_epochs=args.bc_epochs, bc_log_std=args.bc_log_std,
-        dagger_rounds=args.dagger_rounds, dagger_epochs=args.dagger_epochs,
+        dagger_rounds=0 if no_bc else args.dagger_rounds, dagger_epochs=args.dagger_epochs,
     )
 
 

@@ -152,3 +152,20 @@ def test_dagger_rounds_need_a_teacher():
         TrainConfig(out="x", dagger_rounds=2).validate()
     with pytest.raises(ValueError, match="dagger_rounds"):
         TrainConfig(out="x", dagger_rounds=-1, bc_from="gather").validate()
+
+
+def test_bc_from_none_turns_cloning_off():
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "scripts" / "train.py"
+    spec = importlib.util.spec_from_file_location("train_cli", path)
+    train_cli = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(train_cli)
+    args = train_cli.parse_args(["--scenario", "rendezvous", "--out", "x", "--bc-from", "none"])
+    cfg = train_cli.config_from_args(args)
+    assert cfg.bc_from is None and cfg.dagger_rounds == 0
+    cfg.validate()
+    cfg = train_cli.config_from_args(train_cli.parse_args(["--scenario", "rendezvous",
+                                                           "--out", "x"]))
+    assert cfg.bc_from == "gather" and cfg.dagger_rounds > 0
