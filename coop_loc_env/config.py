@@ -210,6 +210,7 @@ class ScenarioConfig:
     laser_obs_bins: int = 16
     max_detections_obs: int = 3
     map_patch_obs: int = 0  # egocentric terrain-map patch edge in cells (0 = off)
+    teammate_obs: bool = False  # nearest GPS / no-GPS teammates' shared estimates in the obs
     # --- team terrain map (coop_loc_env.mapping)
     map_resolution: float = 0.5
     map_footprint_radius: float = 0.5
@@ -218,6 +219,8 @@ class ScenarioConfig:
     reward_localization_weight: float = 1.0
     reward_heading_weight: float = 0.0
     reward_coverage_weight: float = 0.0
+    reward_team_weight: float = 0.0  # times minus the team's mean position error
+    reward_uncertainty_weight: float = 0.0  # times minus the change of own 0.5 log det P_xy
     collision_penalty: float = 0.1
     tip_over_penalty: float = 10.0
     # --- free-form extras for scenario-specific modules
@@ -277,6 +280,8 @@ class ScenarioConfig:
         _int_at_least(self, "max_detections_obs", 0)
         _int_at_least(self, "map_patch_obs", 0)
         _int_at_least(self, "n_particles", 10)
+        if not isinstance(self.teammate_obs, bool):
+            raise ValueError(f"teammate_obs must be True or False, got {self.teammate_obs!r}")
         if not isinstance(self.global_localization, bool):
             raise ValueError(
                 f"global_localization must be True or False, got {self.global_localization!r}"
@@ -311,6 +316,7 @@ class ScenarioConfig:
             "detection_bearing_std", "detection_orientation_std", "detection_range_fraction",
             "init_pos_std", "init_heading_std", "terrain_amplitude", "canopy_radius",
             "reward_localization_weight", "reward_heading_weight", "reward_coverage_weight",
+            "reward_team_weight", "reward_uncertainty_weight",
             "collision_penalty", "tip_over_penalty", "camera_flow_std_px", "camera_looming_gain",
             "map_footprint_radius",
         )

@@ -15,7 +15,7 @@ from coop_loc_env.config import ScenarioConfig
 from coop_loc_env.depth_from_motion import CameraRecord, DepthFromMotion
 from coop_loc_env.estimation import GAUSSIAN_FEATURE_NAMES, make_backends
 from coop_loc_env.mapping import TeamMapper
-from coop_loc_env.observations import ObservationBuilder
+from coop_loc_env.observations import ObservationBuilder, teammate_features
 from coop_loc_env.scenarios import make_config
 from coop_loc_env.sensors import Readings, SensorSuite
 from coop_loc_env.world import World
@@ -185,6 +185,7 @@ class CoopLocParallelEnv(ParallelEnv):
         self._camera_filled = False
         self._new_cells = np.zeros(n, dtype=np.int64)
         self._covered_cells = np.zeros(n, dtype=np.int64)
+        self._half_logdet = np.zeros(n)  # 0.5 log det of each position covariance
 
     def reset(
         self, seed: int | None = None, options: dict | None = None
@@ -200,6 +201,7 @@ class CoopLocParallelEnv(ParallelEnv):
         self.camera.reset(self.world.poses, rng)
         self.observations.reset()
         self._gather_beliefs()
+        self._half_logdet = _half_logdet_xy(self._est_cov)
         self.mapper.reset(self.world.poses, self._est_mean, self._est_cov)
         self.agents = list(self.possible_agents)
         zeros = np.zeros(self.config.n_robots)
@@ -378,7 +380,12 @@ class CoopLocParallelEnv(ParallelEnv):
         patch = None
         if self.config.map_patch_obs:
             patch = self.mapper.patches(self._est_mean, self.config.map_patch_obs)
-        obs = self.observations.build_all(belief, self._last_action, self.world.poses, patch)
+        team = None
+        if self.config.teammate_obs:
+            team = teammate_features(self._est_mean, self._est_cov, self.sensors.has_gps,
+                                     self._active, self.config.detector_range)
+        obs = self.observations.build_all(belief, self._last_action, self.world.poses, patch,
+                                          team)
         if len(agents) == len(obs):  # every agent (a live list keeps their order): row views
             return dict(zip(agents, obs, strict=True))
         return {a: obs[self.agent_name_mapping[a]] for a in agents}
@@ -409,6 +416,12 @@ class CoopLocParallelEnv(ParallelEnv):
         # Reward terms in Python floats (the same IEEE arithmetic as numpy, per robot).
         w_loc, w_head = cfg.reward_localization_weight, cfg.reward_heading_weight
         w_cov = cfg.reward_coverage_weight
+        # Shaping on belief uncertainty: minus the change of 0.5 log det P_xy since last step.
+        half_logdet = _half_logdet_xy(cov)
+        shaping = (-cfg.reward_uncertainty_weight * (half_logdet - self._half_logdet)).tolist()
+        self._half_logdet = half_logdet
+        team_term = -cfg.reward_team_weight * float(err_xy[self._active].mean()) if (
+            self._active.any()) else 0.0
         pen_hit, pen_tip = -cfg.collision_penalty, -cfg.tip_over_penalty
         n = cfg.n_robots
         if readings is not None:
@@ -419,7 +432,7 @@ class CoopLocParallelEnv(ParallelEnv):
         columns = zip(
             self.possible_agents, err_xy.tolist(), err_th.tolist(), fix, sats,
             new_contacts.tolist(), touching, tipped.tolist(), self._tipped.tolist(),
-            self._new_cells.tolist(), self._covered_cells.tolist(), strict=True,
+            self._new_cells.tolist(), self._covered_cells.tolist(), shaping, strict=True,
         )
         if agents is not None and len(agents) < n:  # only the live agents' entries
             every = list(columns)
@@ -428,10 +441,11 @@ class CoopLocParallelEnv(ParallelEnv):
             columns = enumerate(columns)
         infos, rewards = {}, {}
         for i, (agent, exy, eth, gps, nsat, hits, touch, tip, tipped_over, cells,
-                covered) in columns:
+                covered, unc) in columns:
             loc, cover = -w_loc * exy - w_head * eth, w_cov * float(covered)
             hit, tip_term = pen_hit * float(touch), pen_tip * tip
-            rewards[agent] = 0.0 + loc + cover + hit + tip_term  # what sum() of the terms gives
+            # what sum() of the terms gives
+            rewards[agent] = 0.0 + loc + cover + hit + tip_term + team_term + unc
             infos[agent] = {
                 "true_pose": poses[i],
                 "est_pose": est[i],
@@ -439,7 +453,8 @@ class CoopLocParallelEnv(ParallelEnv):
                 "position_error": exy,
                 "heading_error": eth,
                 "reward_terms": {"localization": loc, "coverage": cover, "collision": hit,
-                                 "tip_over": tip_term},
+                                 "tip_over": tip_term, "team_localization": team_term,
+                                 "uncertainty": unc},
                 "gps_fix": bool(gps),
                 "satellites": int(nsat),
                 "collisions": int(hits),
@@ -480,3 +495,9 @@ class CoopLocParallelEnv(ParallelEnv):
         state = self.__dict__.copy()
         state["_renderer"] = None
         return state
+
+
+def _half_logdet_xy(cov: np.ndarray) -> np.ndarray:
+    """``0.5 log det`` of each ``(3, 3)`` covariance's position block, ``(n,)``."""
+    det = cov[:, 0, 0] * cov[:, 1, 1] - cov[:, 0, 1] * cov[:, 1, 0]
+    return 0.5 * np.log(np.maximum(det, 1e-300))

@@ -21,6 +21,12 @@ detections             ``6 * max_detections_obs``  per slot, nearest first: pres
                                                    detector range, cos/sin bearing, cos/sin
                                                    orientation
 last action            2                           the normalized action applied last step
+teammates (optional)   11                          ``teammate_obs``: own GPS receiver (0/1);
+                                                   then for the nearest teammate with GPS and
+                                                   the nearest one without (by the estimates
+                                                   the team shares): present, cos/sin bearing
+                                                   in the robot's estimated frame, distance /
+                                                   detector range, log10 position std
 map patch (optional)   ``3 * map_patch_obs**2``    egocentric team-map patch (``map_patch_obs``
                                                    cells a side, ``map_resolution`` m apart,
                                                    axis 0 forward, axis 1 left, row-major),
@@ -97,6 +103,11 @@ class ObservationBuilder:
             fields = ("present", "range", "cos_bearing", "sin_bearing", "cos_orient", "sin_orient")
             names += [f"det{k}_{f}" for f in fields]
         names += ["last_v", "last_w"]
+        if cfg.teammate_obs:
+            names += ["team_own_gps"] + [
+                f"team_{kind}_{f}" for kind in ("gps", "nogps")
+                for f in ("present", "cos_bearing", "sin_bearing", "range", "log10_std")
+            ]
         size = cfg.map_patch_obs
         for channel in ("elev", "mapped", "object"):
             names += [f"map_{channel}_{u}_{v}" for u in range(size) for v in range(size)]
@@ -169,14 +180,20 @@ class ObservationBuilder:
         last_action: np.ndarray,
         true_poses: np.ndarray,
         map_patch: np.ndarray | None = None,
+        teammates: np.ndarray | None = None,
     ) -> np.ndarray:
         """Observation matrix of all robots ``(n, size)`` from belief features ``(n, b)``.
 
-        ``map_patch`` ``(n, 3, S, S)`` is required when ``map_patch_obs = S > 0``.
+        ``map_patch`` ``(n, 3, S, S)`` is required when ``map_patch_obs = S > 0``,
+        ``teammates`` (:func:`teammate_features`) when ``teammate_obs`` is on.
         """
         cfg = self.cfg
         n = len(belief)
         parts = [belief, self._latched, last_action]  # _latched: gps, incl, range, det
+        if cfg.teammate_obs:
+            if teammates is None:
+                raise ValueError("teammates is required when teammate_obs is on, got None")
+            parts.append(teammates)
         if cfg.map_patch_obs:
             if map_patch is None:
                 raise ValueError("map_patch is required when map_patch_obs > 0, got None")
@@ -196,6 +213,36 @@ class ObservationBuilder:
             start += width + (self.belief_size - width if part is belief else 0)
         np.maximum(obs, -OBS_LIMIT, out=obs)
         return np.minimum(obs, OBS_LIMIT, out=obs)
+
+
+def teammate_features(
+    mean: np.ndarray, cov: np.ndarray, has_gps: np.ndarray, live: np.ndarray, scale: float
+) -> np.ndarray:
+    """``(n, 11)`` per robot: own GPS flag, then for the nearest live teammate with GPS and
+    the nearest without: present, cos/sin bearing in the robot's estimated frame, distance
+    / ``scale``, log10 RMS position std (the layout of the observation's teammates block).
+
+    Computed from the estimates the team shares (``mean (n, 3)``, ``cov (n, 3, 3)``),
+    never the true poses.
+    """
+    n = len(mean)
+    out = np.zeros((n, 11))
+    out[:, 0] = has_gps
+    rel = mean[None, :, :2] - mean[:, None, :2]  # rel[i, j]: from i to j
+    dist = np.hypot(rel[..., 0], rel[..., 1])
+    bearing = np.arctan2(rel[..., 1], rel[..., 0]) - mean[:, 2:3]
+    log_std = np.log10(np.sqrt(np.maximum(0.5 * (cov[:, 0, 0] + cov[:, 1, 1]), 1e-12)))
+    mate = live[None, :] & ~np.eye(n, dtype=bool)
+    for col, kind in ((1, has_gps), (6, ~has_gps)):
+        d = np.where(mate & kind[None, :], dist, np.inf)
+        j = np.argmin(d, axis=1)
+        rows = np.arange(n)
+        present = np.isfinite(d[rows, j])
+        b = bearing[rows, j]
+        block = np.stack([np.ones(n), np.cos(b), np.sin(b), dist[rows, j] / scale,
+                          log_std[j]], axis=1)
+        out[:, col : col + 5] = np.where(present[:, None], block, 0.0)
+    return out
 
 
 @functools.lru_cache(maxsize=64)

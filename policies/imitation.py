@@ -16,7 +16,11 @@ when ``reward_mode="localize"``). :func:`behaviour_clone` then fits an SB3
   fine-tuning starts with a value function that already knows the task
   rather than one that drags the cloned actor off while it learns;
 * the Gaussian's ``log_std`` set to ``log_std`` (exploration noise of the
-  fine-tuning).
+  fine-tuning);
+* optionally DAgger rounds (Ross, Gordon & Bagnell 2011): the clone drives,
+  the teacher labels the states the clone visits, and the clone is refitted on
+  all the labels so far, which corrects the drift of a clone off the
+  teacher's states.
 
 The teacher is stochastic (the wander policy adds turning noise); the clone
 learns its mean action.
@@ -74,13 +78,16 @@ def collect_demonstrations(
     n_episodes: int,
     seed: int,
     gamma: float = 0.99,
+    actor=None,
 ) -> dict[str, Any]:
     """Run ``teacher`` for ``n_episodes`` episodes (seeds ``seed + k``) of ``env_fn()``.
 
     ``env_fn`` builds the training env (possibly reward-wrapped; see
-    :func:`policies.vec_env.make_env_fn`). Returns ``obs (N, d)``, ``actions
-    (N, 2)`` (clipped to ``[-1, 1]``), ``returns (N,)`` (discounted, per robot),
-    ``episodes``, ``steps`` (team steps) and ``wall_s``.
+    :func:`policies.vec_env.make_env_fn`). With ``actor`` (a function of the
+    stacked observations of the live agents returning their actions) the
+    actor drives and the teacher only labels the states it visits (DAgger).
+    Returns ``obs (N, d)``, ``actions (N, 2)`` (clipped to ``[-1, 1]``),
+    ``returns (N,)`` (discounted, per robot), ``episodes``, ``steps`` (team steps) and ``wall_s``.
     """
     if isinstance(n_episodes, bool) or not isinstance(n_episodes, int) or n_episodes < 1:
         raise ValueError(f"n_episodes must be a positive integer, got {n_episodes!r}")
@@ -104,6 +111,11 @@ def collect_demonstrations(
                 for a in env.agents:
                     per_agent[a]["obs"].append(np.asarray(obs[a], dtype=np.float32))
                     per_agent[a]["act"].append(np.clip(np.asarray(actions[a], float), -1, 1))
+                if actor is not None:
+                    live = list(env.agents)
+                    driven = np.clip(np.asarray(actor(np.stack([obs[a] for a in live])),
+                                                dtype=np.float32).reshape(len(live), -1), -1, 1)
+                    actions = dict(zip(live, driven, strict=True))
                 obs, rewards, terms, truncs, _ = env.step(actions)
                 steps += 1
                 for a, r in rewards.items():

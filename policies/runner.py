@@ -97,6 +97,24 @@ register_policy("seek", _no_argument(SeekTeammatePolicy, "seek"),
                 "drive toward a teammate when uncertain")
 register_policy("still", _no_argument(StandStillPolicy, "still"), "every robot stands still")
 register_policy("wander", _wander, "Fox et al.'s wander behaviour; wander:SPEED sets the speed")
+
+
+def _gather(arg: str) -> Policy:
+    from policies.scripted import GatherPolicy
+
+    return _no_argument(GatherPolicy, "gather")(arg)
+
+
+def _infogain(arg: str) -> Policy:
+    from policies.scripted import InfoGainPolicy
+
+    return _no_argument(InfoGainPolicy, "infogain")(arg)
+
+
+register_policy("gather", _gather,
+                "drive toward the teammates that can inform you (by the shared estimates)")
+register_policy("infogain", _infogain,
+                "greedy team information seeking over motion primitives (EKF beliefs)")
 POLICY_NAMES = tuple(_POLICIES)  # the built-in names
 
 

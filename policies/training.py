@@ -19,8 +19,9 @@ loads), and runs PPO (default) or SAC with:
   for ``timesteps`` more steps, its step counter continuing;
 * an optional wall-clock limit ``max_wall_s`` (training stops there, the
   model is saved as usual);
-* the final model at ``DIR/final_model.zip`` and the run's settings at
-  ``DIR/train_config.json``;
+* the final model at ``DIR/final_model.zip``, the policy with the lowest
+  evaluated error so far at ``DIR/best_model.zip`` (when evaluating), and the
+  run's settings at ``DIR/train_config.json``;
 * ``reward_mode="localize"``: the env's rewards replaced by minus the time to
   localize (:class:`policies.vec_env.TimeToLocalizeReward`, weights
   ``localize_step_reward``, ``localize_team_weight``, ``localize_collision_weight``);
@@ -28,7 +29,8 @@ loads), and runs PPO (default) or SAC with:
   (:mod:`policies.imitation`; ``bc_episodes`` seeded episodes from
   ``BC_SEED``, ``bc_epochs``, exploration ``bc_log_std``); the critic is fitted
   to the teacher's returns too when rewards are not normalized. The clone is
-  saved as ``DIR/bc_model.zip``; the wall-clock limit counts the cloning.
+  saved as ``DIR/bc_model.zip``; the wall-clock limit counts the cloning;
+  ``dagger_rounds`` DAgger rounds refine the clone (``dagger_epochs`` each).
 
 "env steps" here are SB3 timesteps: one per agent slot per step, so one
 parallel-env step of a 3-robot team counts 3.
@@ -108,6 +110,8 @@ class TrainConfig:
     bc_episodes: int = 10
     bc_epochs: int = 30
     bc_log_std: float = -1.0
+    dagger_rounds: int = 0
+    dagger_epochs: int = 15
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming a bad field."""
@@ -138,13 +142,18 @@ class TrainConfig:
             raise ValueError(f"reward_mode must be one of {REWARD_MODES}, "
                              f"got {self.reward_mode!r}")
         TimeToLocalizeReward.check_kwargs(**self.reward_kwargs())
+        if isinstance(self.dagger_rounds, bool) or not isinstance(self.dagger_rounds, int) or (
+                self.dagger_rounds < 0):
+            raise ValueError(f"dagger_rounds must be an integer >= 0, got {self.dagger_rounds!r}")
+        if self.dagger_rounds and self.bc_from is None:
+            raise ValueError("dagger_rounds needs bc_from (the teacher that labels the states)")
         if self.bc_from is not None:
             if self.algo.upper() != "PPO":
                 raise ValueError(f"bc_from needs algo PPO, got {self.algo!r}")
             if self.resume:
                 raise ValueError("bc_from and resume exclude each other")
             make_teacher(self.bc_from)  # fail early on a bad spec
-            for key in ("bc_episodes", "bc_epochs"):
+            for key in ("bc_episodes", "bc_epochs", "dagger_epochs"):
                 value = getattr(self, key)
                 if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                     raise ValueError(f"{key} must be a positive integer, got {value!r}")
@@ -238,6 +247,7 @@ def _callbacks(cfg: TrainConfig, out: Path, deadline: float | None = None):
             self.next_eval = 0
             self.baseline: dict[str, float] | None = None
             self.history: list[dict[str, float]] = []
+            self.best = float("inf")
 
         def _on_training_start(self) -> None:
             self.next_eval = self.num_timesteps + cfg.eval_freq
@@ -246,6 +256,8 @@ def _callbacks(cfg: TrainConfig, out: Path, deadline: float | None = None):
                     cfg.scenario, make_policy(cfg.eval_baseline), cfg.eval_episodes,
                     cfg.env_overrides(),
                 )
+            if cfg.bc_from is not None:  # the clone itself is the first candidate
+                self.evaluate()
 
         def _on_step(self) -> bool:
             if self.num_timesteps >= self.next_eval:
@@ -266,6 +278,9 @@ def _callbacks(cfg: TrainConfig, out: Path, deadline: float | None = None):
                 self.logger.record("eval/error_ratio_vs_baseline", ratio)
             self.logger.dump(self.num_timesteps)
             self.history.append({"timesteps": float(self.num_timesteps), **figs})
+            if figs["localization_error_m"] < self.best:  # keep the best evaluated policy
+                self.best = figs["localization_error_m"]
+                self.model.save(str(out / "best_model.zip"))
             return figs
 
     callbacks = []
@@ -361,9 +376,27 @@ def warm_start(cfg: TrainConfig, model) -> dict[str, Any]:
                                    BC_SEED, gamma=cfg.gamma)
     fit = behaviour_clone(model, demos, epochs=cfg.bc_epochs, log_std=cfg.bc_log_std,
                           value=not cfg.normalize_reward, seed=cfg.seed)
-    return {"teacher": cfg.bc_from, "episodes": demos["episodes"],
-            "team_steps": demos["steps"], "collect_wall_s": demos["wall_s"],
-            "mean_return": float(demos["returns"].mean()), **fit}
+    collect_s, team_steps = demos["wall_s"], demos["steps"]
+    rounds = []
+    for r in range(1, cfg.dagger_rounds + 1):  # the clone drives, the teacher labels
+
+        def actor(batch):
+            return model.predict(batch, deterministic=True)[0]
+
+        more = collect_demonstrations(cfg.env_fn(), make_teacher(cfg.bc_from), cfg.bc_episodes,
+                                      BC_SEED + r * cfg.bc_episodes, gamma=cfg.gamma,
+                                      actor=actor)
+        collect_s += more["wall_s"]
+        team_steps += more["steps"]
+        for key in ("obs", "actions", "returns"):
+            demos[key] = np.concatenate([demos[key], more[key]])
+        fit = behaviour_clone(model, demos, epochs=cfg.dagger_epochs, log_std=cfg.bc_log_std,
+                              value=not cfg.normalize_reward, seed=cfg.seed + r)
+        rounds.append({"round": r, "samples": len(demos["obs"]),
+                       "action_mse": fit["action_mse"]})
+    return {"teacher": cfg.bc_from, "episodes": demos["episodes"], "team_steps": team_steps,
+            "collect_wall_s": collect_s, "mean_return": float(demos["returns"].mean()),
+            "dagger": rounds, **fit}
 
 
 def train(cfg: TrainConfig) -> dict[str, Any]:
@@ -432,6 +465,8 @@ def train(cfg: TrainConfig) -> dict[str, Any]:
         "bc": bc,
         "steps_per_s": done / wall if wall > 0 else float("nan"),
         "evals": evaluator.history if evaluator is not None else [],
+        "best_model": str(out / "best_model.zip") if evaluator is not None and evaluator.history
+        else None,
         "baseline": evaluator.baseline if evaluator is not None else None,
     }
     (out / "train_summary.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")

@@ -8,6 +8,10 @@ Examples::
     python scripts/train.py --out runs/ppo_outdoor --resume runs/ppo_outdoor --timesteps 100000
     python scripts/evaluate.py --policy runs/ppo_outdoor/final_model.zip --episodes 20
 
+A scenario may carry its own training defaults (``rendezvous`` does: its
+reward, observation and PPO settings, see ``coop_loc_env/scenarios/rendezvous.py``);
+options given on the command line override them.
+
 Writes ``DIR/final_model.zip`` (loadable by ``scripts/evaluate.py --policy``),
 ``DIR/checkpoints/``, TensorBoard logs in ``DIR/tb`` (``tensorboard --logdir DIR/tb``;
 periodic evaluation against the FSM baseline under ``eval/`` and ``baseline/``),
@@ -78,12 +82,17 @@ def build_parser() -> argparse.ArgumentParser:
                    default=d.localize_collision_weight,
                    help="--reward localize: penalty per new contact")
     p.add_argument("--bc-from", default=None, metavar="TEACHER",
-                   help="behaviour-clone this teacher before PPO: wander, wander:SPEED, fsm, ...")
+                   help="behaviour-clone this teacher before PPO: wander, wander:SPEED, fsm, "
+                        "gather, ... ('none': no cloning, e.g. over a scenario's default)")
     p.add_argument("--bc-episodes", type=int, default=d.bc_episodes,
                    help="teacher episodes to clone (seeds from policies.training.BC_SEED)")
     p.add_argument("--bc-epochs", type=int, default=d.bc_epochs)
     p.add_argument("--bc-log-std", type=float, default=d.bc_log_std,
                    help="log standard deviation of the actions after cloning")
+    p.add_argument("--dagger-rounds", type=int, default=d.dagger_rounds,
+                   help="DAgger rounds after cloning: the clone drives, the teacher labels")
+    p.add_argument("--dagger-epochs", type=int, default=d.dagger_epochs,
+                   help="epochs of each DAgger refit (on all labels so far)")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     return p
 
@@ -91,6 +100,7 @@ def build_parser() -> argparse.ArgumentParser:
 def config_from_args(args: argparse.Namespace) -> TrainConfig:
     """The :class:`TrainConfig` of parsed arguments."""
     overrides = parse_overrides(args.overrides)
+    no_bc = str(args.bc_from).lower() == "none"  # no cloning (nor DAgger) at all
     if args.max_cycles is not None:
         overrides["max_cycles"] = args.max_cycles
     for key in ("reward_localization_weight", "reward_heading_weight", "reward_coverage_weight",
@@ -111,14 +121,29 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         normalize_reward=not args.no_reward_norm, clip_range=args.clip_range,
         reward_mode=args.reward_mode, localize_step_reward=args.localize_step_reward,
         localize_team_weight=args.localize_team_weight,
-        localize_collision_weight=args.localize_collision_weight, bc_from=args.bc_from,
+        localize_collision_weight=args.localize_collision_weight,
+        bc_from=None if no_bc else args.bc_from,
         bc_episodes=args.bc_episodes, bc_epochs=args.bc_epochs, bc_log_std=args.bc_log_std,
+        dagger_rounds=0 if no_bc else args.dagger_rounds, dagger_epochs=args.dagger_epochs,
     )
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    """Parse ``argv``; options left unset take the scenario's training defaults, if it has
+    any (:func:`coop_loc_env.scenarios.training_defaults`), then the built-in ones."""
+    from coop_loc_env.scenarios import training_defaults
+
+    parser = build_parser()
+    first, _ = parser.parse_known_args(argv)
+    defaults = training_defaults(first.scenario)
+    if defaults:
+        parser.set_defaults(**defaults)
+    return parser.parse_args(argv)
 
 
 def main(argv: list[str] | None = None) -> int:
     """Train; returns the exit status (2 on bad input)."""
-    args = build_parser().parse_args(argv)
+    args = parse_args(argv)
     try:
         cfg = config_from_args(args)
         cfg.validate()

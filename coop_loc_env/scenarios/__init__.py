@@ -15,6 +15,7 @@ from coop_loc_env.config import ScenarioConfig
 
 ScenarioFactory = Callable[[dict[str, Any]], ScenarioConfig]
 _REGISTRY: dict[str, ScenarioFactory] = {}
+_TRAINING_DEFAULTS: dict[str, dict[str, Any]] = {}
 
 
 def register_scenario(name: str, factory: ScenarioFactory) -> None:
@@ -32,6 +33,16 @@ def scenario_from_base(base: Callable[[], ScenarioConfig]) -> ScenarioFactory:
 
     factory.__doc__ = base.__doc__
     return factory
+
+
+def register_training_defaults(name: str, defaults: dict[str, Any]) -> None:
+    """Record ``scripts/train.py`` option defaults (option dest -> value) for scenario ``name``."""
+    _TRAINING_DEFAULTS[name] = dict(defaults)
+
+
+def training_defaults(name: str) -> dict[str, Any]:
+    """The training option defaults a scenario carries (``{}`` when it carries none)."""
+    return dict(_TRAINING_DEFAULTS.get(name, {}))
 
 
 def list_scenarios() -> list[str]:
@@ -59,6 +70,6 @@ def make_config(scenario: str, **overrides: Any) -> ScenarioConfig:
 
 
 # Import the scenario modules so they register themselves (add new modules here).
-SCENARIO_MODULES = ("outdoor", "madhavan", "fox", "howard")
+SCENARIO_MODULES = ("outdoor", "madhavan", "fox", "howard", "rendezvous")
 for _module in SCENARIO_MODULES:
     importlib.import_module(f"coop_loc_env.scenarios.{_module}")

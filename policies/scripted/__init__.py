@@ -1,0 +1,18 @@
+"""Scripted active-localization baselines: drive where the team's beliefs say information is.
+
+* :class:`~policies.scripted.gather.GatherPolicy` (``gather``): drive toward the
+  communicated estimates of the teammates that can inform you (GPS-equipped
+  ones for a robot without GPS, and the other way round).
+* :class:`~policies.scripted.infogain.InfoGainPolicy` (``infogain``): greedy
+  information seeking over a few motion primitives, minimizing the team's
+  expected posterior log det covariance over a short horizon.
+
+Both read only beliefs (means and covariances the team shares), the robot's
+own laser bins, the static map (obstacles, tree canopies) and the robots'
+hardware (which ones carry GPS); never the true poses.
+"""
+
+from policies.scripted.gather import GatherPolicy
+from policies.scripted.infogain import InfoGainPolicy
+
+__all__ = ["GatherPolicy", "InfoGainPolicy"]

@@ -1,0 +1,86 @@
+"""Plot the true paths of a team under several policies on one seeded episode, side by side.
+
+Example::
+
+    python scripts/plot_trajectories.py --scenario rendezvous --policies gather,infogain \\
+        --seed 1000 --set layout_seed=11 --out docs/figures/rendezvous_trajectories.png
+
+Each panel shows the tree canopies (where DGPS fails), the robots' true paths
+(robots with GPS in blue, without in orange; a circle marks the start, a cross
+the end) and the episode's team localization error in its title.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+import coop_loc_env
+from policies.compare import parse_policy_list, resolve_policy
+from policies.runner import parse_overrides, run_episode
+
+
+def record_paths(scenario: str, spec: str, seed: int, overrides: dict) -> tuple[np.ndarray, dict]:
+    """``(steps + 1, n, 3)`` true poses of one episode of policy ``spec``, and its record."""
+    env = coop_loc_env.parallel_env(scenario, **overrides)
+    poses: list[np.ndarray] = []
+    try:
+        ep = run_episode(env, resolve_policy(spec), seed,
+                         on_step=lambda e, _i: poses.append(e.world.poses.copy()),
+                         on_reset=lambda e: poses.append(e.world.poses.copy()))
+        ep["layout"] = env.world.layout
+        ep["gps"] = [env.config.robot_spec(i).has_gps for i in range(env.config.n_robots)]
+        ep["world_size"] = env.config.world_size
+    finally:
+        env.close()
+    return np.array(poses), ep
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the episodes and write the figure; returns the exit status."""
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--scenario", default="rendezvous")
+    p.add_argument("--policies", required=True, metavar="A,B,...")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
+    p.add_argument("--out", type=Path, required=True)
+    args = p.parse_args(argv)
+    try:
+        specs = parse_policy_list(args.policies)
+        overrides = parse_overrides(args.overrides)
+        runs = [record_paths(args.scenario, s, args.seed, overrides) for s in specs]
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(runs), figsize=(4.6 * len(runs), 4.6), squeeze=False)
+    for ax, spec, (paths, ep) in zip(axes[0], specs, runs, strict=True):
+        layout = ep["layout"]
+        for c, r in zip(layout.canopy_centers, layout.canopy_radii, strict=True):
+            ax.add_patch(plt.Circle(c, r, color="green", alpha=0.25, lw=0))
+        for i, gps in enumerate(ep["gps"]):
+            color = "tab:blue" if gps else "tab:orange"
+            ax.plot(paths[:, i, 0], paths[:, i, 1], color=color, lw=1.5)
+            ax.plot(*paths[0, i, :2], "o", color=color)
+            ax.plot(*paths[-1, i, :2], "x", color=color, ms=8, mew=2)
+        w, h = ep["world_size"]
+        ax.set(xlim=(0, w), ylim=(0, h), aspect="equal", xlabel="x (m)", ylabel="y (m)",
+               title=f"{Path(spec).stem}: team error {ep['localization_error_m']:.2f} m")
+    fig.suptitle(f"{args.scenario}, seed {args.seed} (blue: GPS, orange: no GPS, "
+                 "green: canopy)", fontsize=9)
+    fig.tight_layout()
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(args.out, dpi=80)
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
