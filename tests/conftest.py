@@ -32,3 +32,21 @@ def script_main():
         return module.main
 
     return load
+
+
+@pytest.fixture(scope="session")
+def steep_and_flat():
+    """Start poses ``(on a steep patch, far from it on flat ground)`` of ``outdoor_terrain``:
+    a robot started on the first tips over at its first step, one on the second does not."""
+    import numpy as np
+
+    import coop_loc_env
+
+    terrain = coop_loc_env.parallel_env("outdoor_terrain").world.terrain
+    cx, cy = terrain.steep_centers[0]
+    grid = np.stack(np.meshgrid(np.linspace(1, 39, 77), np.linspace(1, 39, 77)), -1).reshape(-1, 2)
+    steep = grid[terrain.is_steep(grid)]
+    flat = grid[~terrain.is_steep(grid)]
+    s = steep[np.argmin(np.hypot(*(steep - (cx, cy)).T))]
+    f = flat[np.argmax(np.hypot(*(flat - s).T))]
+    return (float(s[0]), float(s[1]), 0.0), (float(f[0]), float(f[1]), 0.0)
