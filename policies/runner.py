@@ -26,14 +26,19 @@ import numpy as np
 import coop_loc_env
 from policies.baselines import Policy, RandomPolicy, SeekTeammatePolicy
 from policies.fsm import FSMPolicy
-from policies.learned import SB3Policy, detect_sb3_algo  # noqa: F401 (re-exported)
+from policies.learned import (  # noqa: F401 (re-exported)
+    SB3Policy,
+    detect_sb3_algo,
+    load_learned_policy,
+)
 
 FIGURES = ("localization_error_m", "coverage", "map_rmse_m", "collisions", "tip_overs")
 POLICY_NAMES = ("fsm", "random", "seek")
 
 
 def make_policy(spec: str) -> Policy:
-    """A policy from a name (``fsm``, ``random``, ``seek``) or a saved SB3 ``.zip`` path."""
+    """A policy from a name (``fsm``, ``random``, ``seek``), a saved SB3 ``.zip`` path or a
+    training directory (SB3 or RLlib, :func:`policies.learned.load_learned_policy`)."""
     if spec == "fsm":
         return FSMPolicy()
     if spec == "random":
@@ -42,9 +47,11 @@ def make_policy(spec: str) -> Policy:
         return SeekTeammatePolicy()
     if str(spec).endswith(".zip") or Path(spec).is_file():
         return SB3Policy(spec)
+    if Path(spec).is_dir():  # a training DIR: SB3 (final_model.zip) or RLlib (checkpoint/)
+        return load_learned_policy(spec)
     raise ValueError(
-        f"unknown policy {spec!r}: use one of {POLICY_NAMES} or the path of a saved "
-        f"stable-baselines3 model (.zip)"
+        f"unknown policy {spec!r}: use one of {POLICY_NAMES}, the path of a saved "
+        f"stable-baselines3 model (.zip) or a training directory"
     )
 
 

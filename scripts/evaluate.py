@@ -40,7 +40,8 @@ def build_parser() -> argparse.ArgumentParser:
     """The command-line interface (other scripts may extend it)."""
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--scenario", default="outdoor_terrain", help="registered scenario name")
-    p.add_argument("--policy", default="fsm", help="fsm | random | seek | PATH.zip (SB3 model)")
+    p.add_argument("--policy", default="fsm",
+                   help="fsm | random | seek | PATH.zip (SB3 model) | DIR (SB3 or RLlib run)")
     p.add_argument("--episodes", type=int, default=None,
                    help="number of episodes (default 3, or 20 with --compare)")
     p.add_argument("--compare", default=None, metavar="A,B,...",

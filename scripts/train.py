@@ -7,6 +7,8 @@ Examples::
         --reward-localization-weight 5 --reward-coverage-weight 1
     python scripts/train.py --out runs/ppo_outdoor --resume runs/ppo_outdoor --timesteps 100000
     python scripts/evaluate.py --policy runs/ppo_outdoor/final_model.zip --episodes 20
+    python scripts/train.py --backend rllib --num-env-runners 2 --timesteps 40000 --out runs/rl
+    python scripts/evaluate.py --policy runs/rl --episodes 3
 
 Writes ``DIR/final_model.zip`` (loadable by ``scripts/evaluate.py --policy``),
 ``DIR/checkpoints/``, TensorBoard logs in ``DIR/tb`` (``tensorboard --logdir DIR/tb``;
@@ -14,6 +16,12 @@ periodic evaluation against the FSM baseline under ``eval/`` and ``baseline/``),
 ``DIR/train_config.json`` and ``DIR/train_summary.json``. ``--timesteps`` counts
 agent steps (one per robot per env step). Evaluate with the same ``--set``
 overrides as in training (the observation size depends on some of them).
+
+``--backend rllib`` trains the same shared policy with Ray RLlib's PPO
+(``--num-env-runners N`` sampling processes, ``--address`` of a Ray cluster;
+see docs/scaling.md) and writes the checkpoint ``DIR/checkpoint``, TensorBoard
+logs in ``DIR/tb``, ``DIR/train_config.json`` and ``DIR/train_summary.json``.
+``scripts/evaluate.py --policy DIR`` evaluates either kind of run.
 """
 
 from __future__ import annotations
@@ -85,6 +93,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--bc-log-std", type=float, default=d.bc_log_std,
                    help="log standard deviation of the actions after cloning")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    p.add_argument("--backend", default="sb3", choices=("sb3", "rllib"),
+                   help="sb3: stable-baselines3 on this machine; rllib: Ray RLlib's PPO "
+                        "(policies.rllib_backend, the rllib extra)")
+    p.add_argument("--num-env-runners", type=int, default=None,
+                   help="rllib: parallel sampling processes (default 1; 0 = in this process)")
+    p.add_argument("--address", default=None,
+                   help="rllib: address of a running Ray cluster (local Ray when unset)")
     return p
 
 
@@ -125,6 +140,10 @@ def main(argv: list[str] | None = None) -> int:
         import coop_loc_env
 
         coop_loc_env.make_config(cfg.scenario, **cfg.env_overrides())
+        if args.backend == "rllib":
+            return _train_rllib(cfg, args)
+        if args.num_env_runners is not None or args.address is not None:
+            raise ValueError("--num-env-runners and --address need --backend rllib")
         summary = train(cfg)
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)
@@ -145,6 +164,20 @@ def main(argv: list[str] | None = None) -> int:
         b = summary["baseline"]
         print(f"  baseline {args.eval_baseline}: error {b['localization_error_m']:.3f} m, "
               f"coverage {b['coverage']:.4f}")
+    return 0
+
+
+def _train_rllib(cfg: TrainConfig, args: argparse.Namespace) -> int:
+    """``--backend rllib`` (raises ``ValueError`` on options that path does not have)."""
+    try:
+        from policies.rllib_backend import run_from_train_config, train_rllib
+    except ImportError as err:
+        raise ValueError(f"--backend rllib needs the rllib extra (pip install -e "
+                         f"'.[rllib]'): {err}") from err
+    summary = train_rllib(run_from_train_config(cfg, args.num_env_runners, args.address))
+    print(f"trained {summary['timesteps']} agent steps with RLlib in {summary['wall_s']:.0f} s "
+          f"({summary['steps_per_s']:.0f} steps/s), {summary['total_wall_s']:.0f} s in all; "
+          f"checkpoint: {summary['checkpoint']}")
     return 0
 
 
