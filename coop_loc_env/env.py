@@ -394,16 +394,15 @@ class CoopLocParallelEnv(ParallelEnv):
             loc, cover = -w_loc * exy - w_head * eth, w_cov * float(cells)
             hit, tip_term = pen_hit * hits, pen_tip * tip
             rewards[agent] = 0.0 + loc + cover + hit + tip_term  # what sum() of the terms gives
+            terms = {"localization": loc, "coverage": cover, "collision": hit,
+                     "tip_over": tip_term}
             info = {
                 "true_pose": poses[i],
                 "est_pose": est[i],
                 "pose_cov": cov[i],
                 "position_error": exy,
                 "heading_error": eth,
-                "reward_localization": loc,
-                "reward_coverage": cover,
-                "reward_collision": hit,
-                "reward_tip_over": tip_term,
+                **{f"reward_{name}": value for name, value in terms.items()},
                 "gps_fix": bool(gps),
                 "satellites": int(nsat),
                 "collisions": int(hits),
@@ -414,8 +413,7 @@ class CoopLocParallelEnv(ParallelEnv):
                 **extra.get(i, {}),
             }
             if terms_dict:
-                info["reward_terms"] = {"localization": loc, "coverage": cover,
-                                        "collision": hit, "tip_over": tip_term}
+                info["reward_terms"] = terms
             infos[agent] = info
         return infos, rewards
 

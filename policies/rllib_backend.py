@@ -37,6 +37,11 @@ ENV_NAME = "coop_loc_rllib"
 MODULE_ID = "shared"  # the one policy every robot maps to
 CHECKPOINT = "checkpoint"  # DIR/checkpoint: the final algorithm checkpoint
 MODULE_PATH = ("learner_group", "learner", "rl_module", MODULE_ID)
+HISTORY_KEYS = {  # train_summary.json's history: name -> RLlib result key
+    "episode_return_mean": "env_runners/episode_return_mean",
+    "policy_loss": f"learners/{MODULE_ID}/policy_loss",
+    "vf_loss": f"learners/{MODULE_ID}/vf_loss",
+}
 
 
 class CoopLocMultiAgentEnv(MultiAgentEnv):
@@ -290,8 +295,8 @@ def train_rllib(run: RLlibRun) -> dict[str, Any]:
             for key, value in scalars.items():
                 if not key.startswith(("config/", "perf/", "pid", "timestamp")):
                     writer.add_scalar(key, value, steps)
-            history.append({"agent_steps": steps, "episode_return_mean": scalars.get(
-                "env_runners/episode_return_mean", float("nan"))})
+            history.append({"agent_steps": steps, **{
+                name: scalars.get(key, float("nan")) for name, key in HISTORY_KEYS.items()}})
             if run.checkpoint_freq and steps >= next_checkpoint:
                 algo.save_to_path(str((out / "checkpoints" / f"agent_steps_{steps}").resolve()))
                 next_checkpoint = steps + run.checkpoint_freq
