@@ -276,11 +276,14 @@ def train_rllib(run: RLlibRun) -> dict[str, Any]:
     (out / "train_config.json").write_text(json.dumps(settings, indent=2))
     started_ray = not ray.is_initialized()
     if started_ray:
+        # Fixed string hashing in the env runners: RLlib iterates sets of agent ids, whose
+        # order would otherwise differ between processes (and so the seeded samples).
+        runtime_env = {"env_vars": {"PYTHONHASHSEED": "0"}}
         if run.address:
-            ray.init(address=run.address, log_to_driver=False)
+            ray.init(address=run.address, log_to_driver=False, runtime_env=runtime_env)
         else:
-            ray.init(num_cpus=run.num_env_runners + 1, include_dashboard=False,
-                     log_to_driver=False, configure_logging=False)
+            ray.init(address="local", num_cpus=run.num_env_runners + 1, include_dashboard=False,
+                     log_to_driver=False, configure_logging=False, runtime_env=runtime_env)
     t0 = time.perf_counter()
     algo = run.config().build_algo()
     writer = SummaryWriter(str(out / "tb"))

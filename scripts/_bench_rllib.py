@@ -77,8 +77,8 @@ def rllib_agent_steps_per_s(scenario: str, steps: int, num_env_runners: int) -> 
 
     from policies.rllib_backend import ppo_config
 
-    ray.init(num_cpus=num_env_runners + 1, include_dashboard=False, log_to_driver=False,
-             configure_logging=False)
+    ray.init(address="local", num_cpus=num_env_runners + 1, include_dashboard=False,
+             log_to_driver=False, configure_logging=False)
     try:
         algo = ppo_config(_env_config(scenario), num_env_runners=num_env_runners).build_algo()
         group = algo.env_runner_group
