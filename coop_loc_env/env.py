@@ -236,7 +236,7 @@ class CoopLocParallelEnv(ParallelEnv):
             backend.step(readings, self._active)
         self._gather_beliefs()
         self._new_cells = self.mapper.step(readings, self._est_mean, self._est_cov, self._active)
-        self.observations.ingest(readings, self.sensors.range_max)
+        self.observations.ingest(readings, self.sensors.range_max, self._step_count)
         self._last_action = act
         self._step_count += 1
 
@@ -264,7 +264,8 @@ class CoopLocParallelEnv(ParallelEnv):
     def _validate_actions(self, actions: dict[str, Any]) -> np.ndarray:
         """Check every action before touching any state; returns ``(n, 2)`` floats."""
         if not self.agents:
-            raise ValueError("step() called on a finished episode: call reset() first")
+            when = "on a finished episode" if self._np_random is not None else "before reset()"
+            raise ValueError(f"step() called {when}: call reset() first")
         if not isinstance(actions, dict):
             raise ValueError(
                 f"actions must be a dict agent -> action, got {type(actions).__name__}"
@@ -283,8 +284,12 @@ class CoopLocParallelEnv(ParallelEnv):
             if missing:
                 raise ValueError(f"missing actions for agents {missing}")
             rows = [self.agent_name_mapping[a] for a in actions]
+        values = list(actions.values())
+        if any(type(v) is not np.ndarray or v.dtype.kind not in "fiu" for v in values):
+            for agent, action in actions.items():  # lists, or arrays of strings, bools...
+                self._check_action(agent, action)
         try:
-            stacked = np.asarray(list(actions.values()), dtype=float)
+            stacked = np.asarray(values, dtype=float)
         except (TypeError, ValueError):
             stacked = None
         # The largest magnitude: NaN (which fails every comparison) if any entry is NaN.
@@ -314,7 +319,32 @@ class CoopLocParallelEnv(ParallelEnv):
 
     @staticmethod
     def _check_action(agent: str, action: Any) -> None:
-        """Raise a ``ValueError`` naming ``agent`` if ``action`` is malformed."""
+        """Raise a ``ValueError`` naming ``agent`` if ``action`` is malformed.
+
+        An action is a numpy array of integers or floats, or a list or tuple of
+        two Python or numpy numbers; strings, booleans and complex numbers are refused.
+        """
+        if isinstance(action, np.ndarray):
+            if action.dtype.kind not in "fiu":
+                raise ValueError(
+                    f"action of {agent!r} must hold real numbers, got dtype {action.dtype}: "
+                    f"{action!r}"
+                )
+        elif isinstance(action, (list, tuple)):
+            for x in action:
+                if isinstance(x, (bool, np.bool_)) or not isinstance(
+                    x, (int, float, np.integer, np.floating)
+                ):
+                    raise ValueError(
+                        f"action of {agent!r} must hold two real numbers, got {x!r} in {action!r}"
+                    )
+        elif isinstance(action, (bool, np.bool_)) or not isinstance(
+            action, (int, float, np.number)
+        ):
+            raise ValueError(
+                f"action of {agent!r} is not numeric (an array or a list of two numbers): "
+                f"{type(action).__name__} {action!r}"
+            )
         try:
             a = np.asarray(action, dtype=float)
         except (TypeError, ValueError) as err:

@@ -14,7 +14,7 @@ import numpy as np
 import pymunk
 import pymunk.batch
 
-from coop_loc_env.config import Obstacle, ScenarioConfig
+from coop_loc_env.config import START_GAP, Obstacle, ScenarioConfig
 from coop_loc_env.raycast import RayScene
 from coop_loc_env.terrain import HeightField
 from estimators.geometry import wrap_angle
@@ -270,7 +270,7 @@ class World:
                     continue
                 if self.layout.clearance(p[None])[0] < r + 0.2:
                     continue
-                if all(np.hypot(*(p - q[:2])) > 2 * r + 0.3 for q in poses):
+                if all(np.hypot(*(p - q[:2])) > 2 * r + START_GAP for q in poses):
                     break
             else:
                 raise ValueError(

@@ -30,7 +30,7 @@ import argparse
 import sys
 
 from policies.runner import parse_overrides
-from policies.training import ALGOS, TrainConfig, train
+from policies.training import ALGOS, TrainConfig, train, trained_timesteps
 from policies.vec_env import REWARD_MODES
 
 
@@ -144,6 +144,11 @@ def main(argv: list[str] | None = None) -> int:
             return _train_rllib(cfg, args)
         if args.num_env_runners is not None or args.address is not None:
             raise ValueError("--num-env-runners and --address need --backend rllib")
+        steps = trained_timesteps(cfg)
+        if steps != cfg.timesteps:
+            print(f"note: training {steps} agent steps, not {cfg.timesteps}: the agent slots "
+                  f"(--n-envs x robots) step together, and PPO learns in whole rollouts of "
+                  f"--n-steps steps per slot")
         summary = train(cfg)
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)

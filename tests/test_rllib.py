@@ -105,7 +105,6 @@ def test_same_seed_same_first_batch():
     assert not np.array_equal(a[1], c[1])  # another seed, other actions
 
 
-@pytest.mark.slow  # ~30-50 s: local Ray, one env-runner process, checkpoints
 def test_tiny_training_then_evaluate_and_compare(tmp_path, script_main):
     out = tmp_path / "run"
     train, evaluate = script_main("train"), script_main("evaluate")
