@@ -27,6 +27,7 @@ logs in ``DIR/tb``, ``DIR/train_config.json`` and ``DIR/train_summary.json``.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 from policies.runner import parse_overrides
@@ -187,4 +188,9 @@ def _train_rllib(cfg: TrainConfig, args: argparse.Namespace) -> int:
 
 
 if __name__ == "__main__":
+    if {"rllib", "--backend=rllib"} & set(sys.argv) and "PYTHONHASHSEED" not in os.environ:
+        # RLlib orders agents by iterating sets of their names: with string hashing fixed,
+        # the same seed gives the same samples and batches (the env runners get it too).
+        os.environ["PYTHONHASHSEED"] = "0"
+        os.execv(sys.executable, [sys.executable, *sys.argv])
     sys.exit(main())
