@@ -32,8 +32,10 @@ class CoopLocParallelEnv(ParallelEnv):
     sensors feed its estimator; its observation is its belief plus its own
     readings (see :mod:`coop_loc_env.observations`); its reward is the
     weighted negative true localization error, plus the weighted number of
-    team-map cells it newly mapped (``reward_coverage_weight``), minus
-    collision and tip-over penalties (terms in ``info["reward_<term>"]``).
+    drivable cells it was first in the team to cover at its *true* pose
+    (``reward_coverage_weight``; belief drift earns nothing), minus
+    ``collision_penalty`` for every step it spends touching an obstacle, a wall
+    or another robot, and the tip-over penalty (terms in ``info["reward_<term>"]``).
     The team terrain map (:mod:`coop_loc_env.mapping`) is updated every step
     from the robots' beliefs, inclinometers and DGPS altitudes; camera ranges
     come from depth from motion (:mod:`coop_loc_env.depth_from_motion`).
@@ -49,14 +51,17 @@ class CoopLocParallelEnv(ParallelEnv):
     ``reward_localization``, ``reward_coverage``, ``reward_collision`` and
     ``reward_tip_over`` (and as the dict ``reward_terms`` unless the config's
     ``reward_terms_dict`` is False), ``gps_fix``, ``satellites``, ``collisions``
-    (new contacts this step),
-    ``tipped_over``, ``new_cells`` (team-map cells this robot newly mapped this
-    step), ``coverage`` (fraction of the drivable area the team has mapped)
-    and ``map_rmse`` (m, team map vs true height field over mapped cells), plus
-    the estimators' own entries (MCL: ``particle_spread``, ``n_particles``,
-    ``detections_used``), NaN for robots whose estimator does not report them:
-    every agent of a team has the same keys. With ``reward_terms_dict=False``
-    every value is a number or a fixed-shape array (what TorchRL needs).
+    (new contacts this step), ``in_contact`` (touched something this step: the
+    collision penalty applies), ``tipped_over``, ``new_cells`` (team-map cells
+    this robot newly mapped this step, at its estimated pose), ``covered_cells``
+    (drivable cells this robot was first to cover this step, at its true pose:
+    the coverage reward counts these), ``coverage`` (fraction of the drivable
+    area the team has mapped) and ``map_rmse`` (m, team map vs true height field
+    over mapped cells), plus the estimators' own entries (MCL:
+    ``particle_spread``, ``n_particles``, ``detections_used``), NaN for robots
+    whose estimator does not report them: every agent of a team has the same
+    keys. With ``reward_terms_dict=False`` every value is a number or a
+    fixed-shape array (what TorchRL needs).
     """
 
     metadata = {
@@ -186,6 +191,7 @@ class CoopLocParallelEnv(ParallelEnv):
         self._last_readings: Readings | None = None
         self._camera_filled = False
         self._new_cells = np.zeros(n, dtype=np.int64)
+        self._covered_cells = np.zeros(n, dtype=np.int64)
 
     def reset(
         self, seed: int | None = None, options: dict | None = None
@@ -235,7 +241,10 @@ class CoopLocParallelEnv(ParallelEnv):
         for backend in self.backends:
             backend.step(readings, self._active)
         self._gather_beliefs()
-        self._new_cells = self.mapper.step(readings, self._est_mean, self._est_cov, self._active)
+        self._new_cells = self.mapper.step(
+            readings, self._est_mean, self._est_cov, self._active, true_poses=poses
+        )
+        self._covered_cells = self.mapper.last_covered_cells
         self.observations.ingest(readings, self.sensors.range_max, self._step_count)
         self._last_action = act
         self._step_count += 1
@@ -246,7 +255,9 @@ class CoopLocParallelEnv(ParallelEnv):
             self._active &= ~newly_tipped
         truncate = self._step_count >= cfg.max_cycles
 
-        infos, rewards = self._infos(newly_tipped.astype(float), contacts, live)
+        infos, rewards = self._infos(
+            newly_tipped.astype(float), contacts, live, in_contact=self.world.in_contact
+        )
         if truncate or np.count_nonzero(self._active) < self._active.size:
             active = self._active.tolist()
             terminations = {a: not active[self.agent_name_mapping[a]] for a in live}
@@ -385,7 +396,11 @@ class CoopLocParallelEnv(ParallelEnv):
         return {a: obs[self.agent_name_mapping[a]] for a in agents}
 
     def _infos(
-        self, tipped: np.ndarray, new_contacts: np.ndarray, agents: list[str] | None = None
+        self,
+        tipped: np.ndarray,
+        new_contacts: np.ndarray,
+        agents: list[str] | None = None,
+        in_contact: np.ndarray | None = None,
     ) -> tuple[dict[str, dict], dict[str, float]]:
         """Infos and rewards of ``agents`` (all possible agents by default), in that order."""
         cfg = self.config
@@ -409,10 +424,11 @@ class CoopLocParallelEnv(ParallelEnv):
             fix, sats = readings.gps_mask.tolist(), readings.satellites.tolist()
         else:
             fix, sats = [False] * n, [0] * n
+        touching = [False] * n if in_contact is None else in_contact.tolist()
         columns = zip(
             self.possible_agents, err_xy.tolist(), err_th.tolist(), fix, sats,
-            new_contacts.tolist(), tipped.tolist(), self._tipped.tolist(),
-            self._new_cells.tolist(), strict=True,
+            new_contacts.tolist(), touching, tipped.tolist(), self._tipped.tolist(),
+            self._new_cells.tolist(), self._covered_cells.tolist(), strict=True,
         )
         if agents is not None and len(agents) < n:  # only the live agents' entries
             every = list(columns)
@@ -420,9 +436,10 @@ class CoopLocParallelEnv(ParallelEnv):
         else:
             columns = enumerate(columns)
         infos, rewards = {}, {}
-        for i, (agent, exy, eth, gps, nsat, hits, tip, tipped_over, cells) in columns:
-            loc, cover = -w_loc * exy - w_head * eth, w_cov * float(cells)
-            hit, tip_term = pen_hit * hits, pen_tip * tip
+        for i, (agent, exy, eth, gps, nsat, hits, touch, tip, tipped_over, cells,
+                covered) in columns:
+            loc, cover = -w_loc * exy - w_head * eth, w_cov * float(covered)
+            hit, tip_term = pen_hit * float(touch), pen_tip * tip
             rewards[agent] = 0.0 + loc + cover + hit + tip_term  # what sum() of the terms gives
             terms = {"localization": loc, "coverage": cover, "collision": hit,
                      "tip_over": tip_term}
@@ -436,8 +453,10 @@ class CoopLocParallelEnv(ParallelEnv):
                 "gps_fix": bool(gps),
                 "satellites": int(nsat),
                 "collisions": int(hits),
+                "in_contact": bool(touch),
                 "tipped_over": bool(tipped_over),
                 "new_cells": int(cells),
+                "covered_cells": int(covered),
                 "coverage": coverage,
                 "map_rmse": map_rmse,
                 **extra.get(i, {}),

@@ -21,8 +21,8 @@ import numpy as np
 
 INFERENCE_THREADS = 1
 """Torch threads for acting: a forward pass of one team observation is too small to gain
-from more (on a 2-core machine, 14.0 ms per predict with torch's default of 2 threads vs
-0.96 ms with 1 under load: ``python scripts/_bench_inference.py``)."""
+from more (on a shared 2-core machine, 14.0-27.3 ms per predict with torch's default of 2
+threads vs 0.96-1.08 ms with 1: ``python scripts/_bench_inference.py``)."""
 
 
 class LearnedPolicy:

@@ -30,7 +30,7 @@ import argparse
 import os
 import sys
 
-from policies.runner import parse_overrides
+from policies.runner import parse_overrides, policy_names
 from policies.training import ALGOS, TrainConfig, train, trained_timesteps
 from policies.vec_env import REWARD_MODES
 
@@ -67,7 +67,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--eval-freq", type=int, default=d.eval_freq,
                    help="agent steps between evaluations against the baseline (0 = off)")
     p.add_argument("--eval-episodes", type=int, default=d.eval_episodes)
-    p.add_argument("--eval-baseline", default=d.eval_baseline, help="fsm | random | seek")
+    p.add_argument("--eval-baseline", default=d.eval_baseline, help=" | ".join(policy_names()))
     p.add_argument("--checkpoint-freq", type=int, default=d.checkpoint_freq,
                    help="agent steps between checkpoints (0 = off)")
     p.add_argument("--resume", default=None, help="checkpoint .zip or run DIR to continue from")

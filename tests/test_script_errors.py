@@ -79,3 +79,10 @@ def test_reproduce_madhavan_runs_longer_than_the_scenario_and_skips_an_empty_plo
     line = run_failing(capsys, "reproduce_madhavan",
                        ["--duration", "60", "--set", "max_cycles=500", "--plot", ""])
     assert "at least 600" in line
+
+
+def test_reproduce_howard_says_how_to_run_longer(capsys):
+    line = run_failing(capsys, "reproduce_howard", ["--experiments", "circuit",
+                                                    "--circuit-duration", "200", "--plot", "",
+                                                    "--no-progress"])
+    assert "--set max_cycles=2000" in line
