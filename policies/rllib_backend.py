@@ -285,11 +285,12 @@ def train_rllib(run: RLlibRun) -> dict[str, Any]:
             ray.init(address="local", num_cpus=run.num_env_runners + 1, include_dashboard=False,
                      log_to_driver=False, configure_logging=False, runtime_env=runtime_env)
     t0 = time.perf_counter()
-    algo = run.config().build_algo()
     writer = SummaryWriter(str(out / "tb"))
     history: list[dict[str, float]] = []
     next_checkpoint = run.checkpoint_freq
+    algo = None
     try:
+        algo = run.config().build_algo()
         steps, t_train = 0, time.perf_counter()
         while steps < run.timesteps:
             result = algo.train()
@@ -309,7 +310,8 @@ def train_rllib(run: RLlibRun) -> dict[str, Any]:
         algo.save_to_path(str((out / CHECKPOINT).resolve()))
     finally:
         writer.close()
-        algo.stop()
+        if algo is not None:
+            algo.stop()
         if started_ray:
             ray.shutdown()
     summary = {
