@@ -8,7 +8,7 @@ for every physics substep, and pymunk resolves collisions with obstacles,
 objects of interest, the world boundary and other robots.
 
 Physics holds every accepted speed: each odometry substep is split into as many
-physics steps as keep a robot's travel per physics step within half its radius
+physics steps as keep a robot's travel per physics step within 0.4 of its radius
 (:data:`MAX_TRAVEL_PER_RADIUS`), so a robot pushed into a wall, an obstacle or
 another robot never sinks past their middle and out the other side; speeds that
 would need more than :data:`MAX_PHYSICS_STEPS` physics steps per odometry
@@ -31,9 +31,11 @@ from estimators.geometry import wrap_angle
 
 ROBOT_COLLISION_TYPE = 1
 #: Most a robot may travel in one physics step, in robot radii. pymunk lets a body
-#: pressed into a surface sink about one step of travel before pushing it out; half
-#: a radius keeps two robots meeting head-on, or a robot and the thinnest wall, apart.
-MAX_TRAVEL_PER_RADIUS = 0.5
+#: pressed into a surface sink about one step of travel before pushing it out, two when
+#: another robot pushes it there: 0.4 radius keeps that within 0.8 radius, short of the
+#: middle of two robots meeting head-on or of a robot and the thinnest wall. Every
+#: scenario's default speed needs one physics step per odometry substep.
+MAX_TRAVEL_PER_RADIUS = 0.4
 #: Most physics steps per odometry substep (faster robots are refused).
 MAX_PHYSICS_STEPS = 16
 _WALL_RADIUS = 0.05
@@ -57,7 +59,7 @@ def physics_steps_for(cfg: ScenarioConfig, max_speed: float) -> int:
     """
     dt = cfg.dt / cfg.odometry_substeps
     reach = MAX_TRAVEL_PER_RADIUS * cfg.robot_radius
-    steps = max(1, math.ceil(max_speed * dt / reach - 1e-9))
+    steps = max(1, math.ceil(max_speed * dt / reach * (1 - 1e-9)))  # no rounding up at a limit
     if steps > MAX_PHYSICS_STEPS:
         limit = MAX_PHYSICS_STEPS * reach / dt
         raise ValueError(
