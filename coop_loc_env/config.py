@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 ESTIMATORS = ("ekf", "mcl", "mle")
-DETECTION_MODELS = ("fox", "howard", "laser", "camera")
+DETECTION_MODELS = ("fox", "howard", "laser", "camera", "scan_min")
 OBSTACLE_KINDS = ("tree", "rock", "wall", "ooi", "building")
 OBSTACLE_SHAPES = ("circle", "segment", "polygon")
 RANGE_SENSOR_TYPES = ("laser", "sonar")
@@ -194,6 +194,8 @@ class ScenarioConfig:
     detection_bearing_std: float = 0.04
     detection_orientation_std: float = 0.1
     detection_range_fraction: float = 0.05
+    # False: range and bearing only (the orientation reads 0 with a huge variance)
+    detection_orientation: bool = True
     cooperative_updates: bool = True
     cooperative_fusion: str = "ci"
     cooperative_rounds_per_step: int = 1
@@ -333,6 +335,9 @@ class ScenarioConfig:
             raise ValueError(
                 f"detection_model must be one of {DETECTION_MODELS}, got {self.detection_model!r}"
             )
+        if not isinstance(self.detection_orientation, bool):
+            raise ValueError(f"detection_orientation must be True or False, got "
+                             f"{self.detection_orientation!r}")
         if len(self.world_size) != 2 or not all(
             isinstance(v, (int, float)) and math.isfinite(v) and v > 0 for v in self.world_size
         ):

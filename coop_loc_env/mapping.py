@@ -151,10 +151,11 @@ class TeamMapper:
         if not np.count_nonzero(fresh):
             return new
         flat, owner = flat[fresh], owner[fresh]
-        first_cells, first = np.unique(flat, return_index=True)  # owners come in id order
-        self._truly_covered[first_cells] = True
-        np.add.at(new, owner[first], 1)
-        return new
+        if flat.size > 1 and len(set(flat.tolist())) < flat.size:  # shared by two robots
+            flat, first = np.unique(flat, return_index=True)  # owners come in id order
+            owner = owner[first]
+        self._truly_covered[flat] = True
+        return np.bincount(owner, minlength=self.cfg.n_robots)
 
     def step(
         self,

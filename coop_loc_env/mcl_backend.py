@@ -5,7 +5,10 @@ in a known map built from the scenario's layout. Per env step and robot:
 
 1. resample when the effective sample size falls below half the count
    (low-variance, with random particles injected and KLD-sampling of the count
-   between ``n_min`` and ``n_particles``, the maximum);
+   between ``n_min`` and ``n_particles``, the maximum); with
+   ``extras["mcl_random_every_step"]`` at every step, as the paper's sampling
+   importance resampling does, so its few uniform random particles enter after
+   every estimation step;
 2. predict with the step's odometry sub-steps (one composed motion);
 3. weight by the range scan: the likelihood-field model for a laser (or the
    beam model without cones, ``extras["mcl_laser_model"] = "beam"``), the beam
@@ -17,7 +20,8 @@ in a known map built from the scenario's layout. Per env step and robot:
    robot's belief is multiplied by the density of where the observer's particles
    say it is (:class:`estimators.detection_transfer.DetectionTransfer`, density
    trees, the paper's 2.5 m lockout, negative sightings ignored; the factor may
-   be tempered, ``extras["mcl_detection_exponent"]``).
+   be tempered, ``extras["mcl_detection_exponent"]``). Without
+   ``cfg.detection_orientation`` the transfer samples (x, y) only.
 
 Maps: one :class:`~estimators.occupancy.OccupancyGrid` per range-sensor type,
 rasterized from ``world.layout.obstacles`` honouring each obstacle's
@@ -49,6 +53,7 @@ outside it, and an 8-bin heading histogram.
 from __future__ import annotations
 
 from collections import OrderedDict
+from dataclasses import replace
 
 import numpy as np
 
@@ -278,6 +283,7 @@ class MCLBackend:
             )
         )
         self.reset_fraction = detection_reset_fraction(cfg)
+        self.resample_every_step = bool(cfg.extras.get("mcl_random_every_step", False))
         self.init_factor = global_init_factor(cfg)
         self.filters: list[ParticleFilter] = []
         self.rng = np.random.default_rng(0)
@@ -337,7 +343,9 @@ class MCLBackend:
             # ParticleFilter.resample_if_needed does while injection is on): every
             # resampling lets symmetric modes drift, so fewer keep them alive longer.
             # Random particles are injected at these resamplings.
-            if pf.ess < pf.config.resample_ess_fraction * pf.n_particles:
+            if self.resample_every_step or (
+                pf.ess < pf.config.resample_ess_fraction * pf.n_particles
+            ):
                 pf.resample()
             odo = readings.odometry[:, g]
             pf.predict_odometry_sequence(odo[:, 0], odo[:, 1], dt_sub)
@@ -361,6 +369,8 @@ class MCLBackend:
                 if not (active[a] and active[b]):
                     continue
                 rec = detection_from_measurement(a, b, det.z[k], det.cov[k])
+                if not cfg.detection_orientation:
+                    rec = replace(rec, orientation=None, orientation_std=None)
                 observer, target = self.filters[ia], self.filters[ib]
                 if self.reset_fraction > 0 and not self.transfer.lockout.is_locked(
                     a, b, observer.odometer

@@ -10,12 +10,28 @@ GPS, compass and the range finder are not used (Howard et al. have neither GPS
 nor landmarks).
 
 **Global frame.** Howard et al.'s formulation fixes no absolute frame: only
-relative poses are determined by the data. Here the frame is anchored by a
-Gaussian prior on each robot's first pose, centred at the noisy start the env
-gives every estimator (std ``init_pos_std``, ``init_pos_std``,
-``init_heading_std``), so that the absolute ``position_error`` and
-``heading_error`` of the infos stay meaningful; the relative metrics (Eq. 15)
-do not depend on it.
+relative poses are determined by the data. The gauge is fixed by anchoring one
+robot (``anchoring = "one_robot"``): the backend's first robot gets a Gaussian
+prior on its start pose, centred at the noisy start the env gives every
+estimator (std ``init_pos_std``, ``init_pos_std``, ``init_heading_std``), so
+that the absolute ``position_error`` and ``heading_error`` of the infos stay
+meaningful. The other robots' start poses are free: their priors
+(:data:`~estimators.mle_online.UNKNOWN_POSE_STD`, 1 km and pi rad) only keep a
+robot no teammate has seen yet well posed, and move relative poses by about
+``(sigma_data / 1 km)^2`` of themselves, so the relative metrics (Eq. 15) are set
+by the odometry and the detections alone.
+
+**Window.** ``extras["mle_window"]`` keyframes per robot stay in the
+optimization (default 5, about 5 s when robots see each other), older ones are
+marginalized; ``None`` solves the whole graph at every step (the paper's batch
+problem, cost growing with the episode). ``extras["mle_keyframe_interval"]``
+(s, default 1) is the odometry a robot integrates before an observation starts
+a fresh keyframe for it; ``0`` gives every observation its own nodes, at its own
+time, as in the paper's graph; ``None``: keyframes only every ``MOTION_WINDOW_S``
+(10 s, the paper's sampled times), observations attached to them through the
+odometry since. ``extras["mle_keep_history"] = True`` also records
+the whole graph (``backend.mle.history``) whatever the window, e.g. to re-solve
+it offline or hand it to another solver.
 
 **Features** (``feature_names``): the Gaussian belief of the robot's latest pose
 (:func:`~coop_loc_env.estimation.gaussian_features`, 10 entries), then its
@@ -46,7 +62,7 @@ from coop_loc_env.estimation import (
 )
 from coop_loc_env.sensors import Readings
 from coop_loc_env.world import World
-from estimators.mle_online import TeamMLE
+from estimators.mle_online import UNKNOWN_POSE_STD, TeamMLE
 from estimators.relative_metrics import (
     ERROR_NAMES,
     relative_errors_per_robot,
@@ -57,6 +73,8 @@ DEFAULT_RELATIVE_SLOTS = 3
 RELATIVE_FIELDS = ("present", "range", "cos_bearing", "sin_bearing", "cos_orient", "sin_orient")
 MOTION_WINDOW_S = 10.0  # odometry integrated into one motion factor (Howard et al.)
 WINDOW_KEYFRAMES = 5  # keyframes per robot kept in the optimization window (>= 5 s)
+KEYFRAME_INTERVAL_S = 1.0  # odometry (s) before an observation starts fresh keyframes
+ANCHORING = "one_robot"  # how the gauge is fixed (see the module docstring)
 
 
 def relative_slots(cfg: ScenarioConfig) -> int:
@@ -65,6 +83,20 @@ def relative_slots(cfg: ScenarioConfig) -> int:
     if isinstance(k, bool) or not isinstance(k, int) or k < 0:
         raise ValueError(f"extras['mle_relative_slots'] must be an integer >= 0, got {k!r}")
     return k
+
+
+def window_options(cfg: ScenarioConfig) -> tuple[int | None, float | None]:
+    """``(window, keyframe_interval)`` from ``extras`` (see the module docstring)."""
+    window = cfg.extras.get("mle_window", WINDOW_KEYFRAMES)
+    if window is not None and (isinstance(window, bool) or not isinstance(window, int)
+                               or window < 1):
+        raise ValueError(f"extras['mle_window'] must be an integer >= 1 or None, got {window!r}")
+    interval = cfg.extras.get("mle_keyframe_interval", KEYFRAME_INTERVAL_S)
+    if interval is not None and (isinstance(interval, bool) or not isinstance(
+            interval, int | float) or not interval >= 0):
+        raise ValueError(f"extras['mle_keyframe_interval'] must be a number >= 0 or None, got "
+                         f"{interval!r}")
+    return window, None if interval is None else float(interval)
 
 
 def relative_pose_features(poses: np.ndarray, slots: int, range_scale: float) -> np.ndarray:
@@ -128,22 +160,27 @@ class MLEBackend:
         self.robots = np.asarray(robots, dtype=int)
         self._local = {int(g): i for i, g in enumerate(self.robots)}
         self.slots = relative_slots(cfg)
+        self.window, self.keyframe_interval = window_options(cfg)
         self.feature_size = len(GAUSSIAN_FEATURE_NAMES) + 6 * self.slots
         self.feature_names = GAUSSIAN_FEATURE_NAMES + relative_feature_names(self.slots)
         self.mle: TeamMLE | None = None
 
     def reset(self, true_poses: np.ndarray, rng: np.random.Generator) -> None:
-        """A fresh pose graph; each robot's first pose gets a prior around a noisy start."""
+        """A fresh pose graph anchored by a prior on the first robot's (noisy) start."""
         cfg = self.cfg
         start, std = noisy_start(cfg, true_poses, self.robots, rng)
+        stds = np.tile(np.asarray(UNKNOWN_POSE_STD, dtype=float), (len(self.robots), 1))
+        stds[0] = std
         self.mle = TeamMLE(
             len(self.robots),
             initial_poses=start,
-            initial_std=std,
+            initial_std=stds,
             anchor=None,
             odometry_std=(cfg.odom_v_std, cfg.odom_w_std),
             motion_window=MOTION_WINDOW_S,
-            window=WINDOW_KEYFRAMES,
+            window=self.window,
+            keyframe_interval=self.keyframe_interval,
+            keep_history=bool(cfg.extras.get("mle_keep_history", False)),
             gate_prob=cfg.gate_prob if cfg.gate_prob < 1.0 else None,
         )
         self._cache: tuple[np.ndarray, np.ndarray] | None = None

@@ -122,6 +122,50 @@ def _noisy_ranges(
     return out
 
 
+UNMEASURED_ORIENTATION_STD = 1e3
+"""Std (rad) of an orientation the detector does not measure: uninformative to any filter."""
+
+
+def without_orientation(det: Detections) -> Detections:
+    """``det`` with range and bearing only: orientation 0 with an uninformative variance."""
+    z, cov = det.z.copy(), det.cov.copy()
+    z[:, 2] = 0.0
+    cov[:, 2, :] = cov[:, :, 2] = 0.0
+    cov[:, 2, 2] = UNMEASURED_ORIENTATION_STD**2
+    return Detections(det.observer, det.target, z, cov, det.genuine)
+
+
+def scan_minimum_detections(
+    det: Detections, ranges: np.ndarray, scanned: np.ndarray, beam_angles: Sequence[np.ndarray],
+    radius: float, max_range: float,
+) -> Detections:
+    """Madhavan et al.'s laser-based relative measurement: the minimum of the observer's scan.
+
+    The observer takes the closest return of its laser profile for the teammate it
+    identified (of its detections, the one read nearest; the teammate tells who it
+    is and sends its pose): range = that return + ``radius`` (the robot's centre
+    behind its surface), bearing = the beam's angle. Whatever the minimum hits (a
+    tree, a wall) is taken for the teammate, as in the paper. Observers without a
+    scan this step, or whose minimum lies beyond ``max_range``, give no detection.
+    """
+    keep, z = [], det.z.copy()
+    for a in np.unique(det.observer):
+        rows = np.flatnonzero(det.observer == a)
+        if not scanned[a]:
+            continue
+        scan = ranges[a, : len(beam_angles[a])]
+        if not np.isfinite(scan).any() or np.nanmin(scan) + radius > max_range:
+            continue
+        k = rows[np.argmin(det.z[rows, 0])]
+        beam = int(np.nanargmin(scan))
+        z[k, 0], z[k, 1] = scan[beam] + radius, beam_angles[a][beam]
+        keep.append(k)
+    if not keep:
+        return _NO_DETECTIONS
+    k = np.array(keep)
+    return Detections(det.observer[k], det.target[k], z[k], det.cov[k], det.genuine[k])
+
+
 def _due(step: int, dt: float, rate: float) -> bool:
     """Whether a sensor of ``rate`` Hz fires during env step ``step`` (0-based)."""
     return int((step + 1) * dt * rate + 1e-9) > int(step * dt * rate + 1e-9)
@@ -277,6 +321,13 @@ class SensorSuite:
         detections = _NO_DETECTIONS
         if _due(step, dt, cfg.detector_rate) and self._any_detector and n > 1:
             detections = self._detect(poses, rng, active)
+            if cfg.detection_model == "scan_min":
+                detections = scan_minimum_detections(
+                    detections, ranges, range_mask, self.beam_angles, cfg.robot_radius,
+                    cfg.detector_range,
+                )
+            if not cfg.detection_orientation and len(detections):
+                detections = without_orientation(detections)
         return Readings(
             odometry=odo,
             gps_mask=gps_mask,
@@ -581,13 +632,13 @@ class SensorSuite:
         model = cfg.detection_model
         if model == "howard":
             std[:, 0] = cfg.detection_range_fraction * ranges + 1e-3
-        elif model == "laser":
+        elif model in ("laser", "scan_min"):
             std[:, 0] = cfg.laser_range_std + 0.05  # centre of the robot from its surface
         elif model == "camera":
             std[:, 0] = cfg.camera_range_std
         else:
             std[:, 0] = cfg.detection_range_std
-        if model == "laser":
+        if model in ("laser", "scan_min"):
             spacing = np.deg2rad(cfg.laser_fov_deg) / max(cfg.laser_beams - 1, 1)
             std[:, 1] = spacing / np.sqrt(12)
         elif model == "camera":

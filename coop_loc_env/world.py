@@ -413,7 +413,8 @@ class World:
         vk = v_cmd * slip[:, :, 0]  # (substeps, n)
         wk = w_cmd * slip[:, :, 1]
         # Bodies have infinite moment: contacts never change their turn rate, so the
-        # heading at each substep's start is known in advance (summed in pymunk's order).
+        # heading at each substep's start is known in advance (summed in pymunk's order;
+        # with several physics steps per substep, equal to pymunk's up to rounding).
         heading = np.empty((n_sub + 1, n))
         heading[0] = self._angles
         np.multiply(wk, dt, out=heading[1:])

@@ -16,6 +16,13 @@ prints it); run this file to print it standalone::
   (wall clock and CPU) and both final costs are reported. Timings are best of
   ``repeats``; on a loaded machine prefer the CPU figures, and set
   ``OPENBLAS_NUM_THREADS=1`` (threaded BLAS on small matrices under load is slow).
+* **howard_circuit**: the whole pose graph of the ``circuit`` reproduction
+  (``--profile paper``: every robot observation on nodes at its own time, no
+  gate; 175 s, seed 0; recorded with ``extras["mle_keep_history"]``, the same
+  factors as the whole-graph run) solved from dead reckoning by our
+  Levenberg-Marquardt and, if ``gtsam`` is installed, by GTSAM's
+  (:mod:`estimators.gtsam_bridge`): both final costs, their relative
+  difference and the time ratios (best of ``repeats``).
 * **online**: :class:`estimators.mle_online.TeamMLE` fed a simulated 20-robot
   stream at 10 Hz (odometry every step, robot observations within 6 m); the
   per-step wall time (add data + ``step`` + ``poses`` + ``covariances``) is
@@ -29,6 +36,7 @@ import time
 
 import numpy as np
 
+from estimators.gtsam_bridge import dead_reckoning
 from estimators.mle_online import TeamMLE, simulate_team_stream
 from estimators.pose_graph import PoseGraph, optimize, random_team_graph
 from estimators.relative_metrics import relative_errors
@@ -117,6 +125,66 @@ def bench_batch(n_robots: int = 20, n_times: int = 30, repeats: int = 3, seed: i
     return out
 
 
+def howard_circuit_graph(duration_s: float = 175.0, seed: int = 0) -> PoseGraph:
+    """The whole pose graph of the paper-profile ``circuit`` run (every factor, no window)."""
+    import coop_loc_env
+    from coop_loc_env.mle_backend import MLEBackend
+    from coop_loc_env.profiles import with_profile
+    from policies.howard import CircuitPolicy
+
+    overrides = with_profile("circuit", "paper")
+    # A short window while recording: the same factors, far cheaper than re-solving them all.
+    overrides["extras"] = {**overrides["extras"], "mle_window": 5, "mle_keep_history": True}
+    env = coop_loc_env.parallel_env("circuit", **overrides)
+    obs, _ = env.reset(seed=seed)
+    policy = CircuitPolicy()
+    policy.reset(env, seed)
+    for _ in range(int(round(duration_s / env.config.dt))):
+        obs, *_ = env.step(policy.act(obs))
+    graph = next(b for b in env.backends if isinstance(b, MLEBackend)).mle.history
+    env.close()
+    return graph
+
+
+def bench_howard_circuit(repeats: int = 3) -> dict[str, float]:
+    """Our batch solve vs GTSAM's on the circuit reproduction's whole graph."""
+    graph = howard_circuit_graph()
+    start = dead_reckoning(graph)
+    best = best_cpu = np.inf
+    for _ in range(repeats):
+        graph.poses[:] = start
+        t0, c0 = time.perf_counter(), time.process_time()
+        res = optimize(graph, max_iterations=100)
+        best = min(best, time.perf_counter() - t0)
+        best_cpu = min(best_cpu, time.process_time() - c0)
+    out = {
+        "howard_circuit_nodes": float(graph.n_nodes),
+        "howard_circuit_robot_observations": float(graph.n_observations),
+        "howard_circuit_time_s": best,
+        "howard_circuit_cpu_s": best_cpu,
+        "howard_circuit_iterations": float(res.iterations),
+        "howard_circuit_final_cost": res.cost,
+    }
+    try:
+        from estimators.gtsam_bridge import gtsam_solve
+
+        gt = [gtsam_solve(graph, start) for _ in range(repeats)]
+    except ImportError:
+        return out
+    gt_best = min(g.seconds for g in gt)
+    gt_cpu = min(g.cpu_seconds for g in gt)
+    out.update({
+        "howard_circuit_gtsam_time_s": gt_best,
+        "howard_circuit_gtsam_cpu_s": gt_cpu,
+        "howard_circuit_gtsam_iterations": float(gt[0].iterations),
+        "howard_circuit_gtsam_final_cost": gt[0].cost,
+        "howard_circuit_cost_rel_diff": abs(res.cost - gt[0].cost) / abs(gt[0].cost),
+        "howard_circuit_mle_over_gtsam_time_ratio": best / gt_best,
+        "howard_circuit_mle_over_gtsam_cpu_ratio": best_cpu / gt_cpu,
+    })
+    return out
+
+
 def bench_online(n_robots: int = 20, n_steps: int = 1500, seed: int = 0) -> dict:
     """Per-step cost of :class:`TeamMLE` on a simulated dispersal stream (10 Hz)."""
     stream = simulate_team_stream(
@@ -153,8 +221,9 @@ def bench_online(n_robots: int = 20, n_steps: int = 1500, seed: int = 0) -> dict
 
 
 def bench_mle(quick: bool = False) -> dict[str, float]:
-    """All team-MLE figures: batch (and GTSAM if installed) and online per-step cost."""
+    """All team-MLE figures: batch and Howard circuit (and GTSAM if installed), online cost."""
     out = bench_batch(repeats=1 if quick else 3)
+    out.update(bench_howard_circuit(repeats=1 if quick else 3))
     out.update(bench_online(n_steps=300 if quick else 1500))
     return out
 

@@ -17,7 +17,11 @@ def example(name: str):
     return module.main
 
 
-def test_custom_scenario_example(capsys):
+def test_custom_scenario_example(capsys, monkeypatch):
+    from coop_loc_env import scenarios
+
+    # The example registers its scenario; keep the registry of the other tests as shipped.
+    monkeypatch.setattr(scenarios, "_REGISTRY", dict(scenarios._REGISTRY))
     example("custom_scenario")()
     out = capsys.readouterr().out
     assert "('ekf', 'mcl', 'ekf', 'mcl')" in out and out.count("position error") == 4

@@ -55,9 +55,12 @@ def test_circuit_error_drops_at_each_sighting_and_at_loop_closure(circuit):
     sightings = circuit["sightings_s"]
     assert list(sightings) == [0, 1, 2, 3, 4, 5]  # met in order around the loop
     assert np.all(np.diff(list(sightings.values())) > 15.0)
-    for robot in (1, 2, 3, 4, 5):
+    # One robot anchors the frame, the others are free: a robot nobody has seen yet sits
+    # at its (2 m noisy) start, so the first sightings trade that noise for the driver's
+    # dead-reckoning drift and barely move the team mean; from the third on it falls.
+    for robot in (3, 4, 5):
         k = int(np.argmin(np.abs(t - sightings[robot])))
-        assert e[k + 10] < e[k - 1] - 0.1, robot  # one second after the first sighting
+        assert e[k + 10] < e[k - 1] - 0.3, robot  # one second after the first sighting
     closure = circuit["closure_time_s"]
     assert sightings[5] < closure < t[-1] - 5.0
     before, after = circuit["error_before_closure_m"], circuit["error_after_closure_m"]
@@ -104,7 +107,8 @@ def test_script_writes_json(tmp_path, capsys):
             "--circuit-duration", "3", "--no-progress"]
     assert mod.main(argv) == 0
     data = json.loads(out.read_text())
-    assert set(data) == {"dispersal", "circuit"}
+    assert set(data) == {"profile", "anchoring", "dispersal", "circuit"}
+    assert data["profile"] == "default" and data["anchoring"] == "one_robot"
     assert set(data["dispersal"]) == {"times_s", "range_error_m"}
     assert set(data["circuit"]) == {"times_s", "range_error_m", "closure_time_s",
                                     "error_before_closure_m", "error_after_closure_m"}
@@ -114,3 +118,8 @@ def test_script_writes_json(tmp_path, capsys):
     assert (tmp_path / "h.png").stat().st_size > 10_000
     assert "dispersal" in capsys.readouterr().out
     assert mod.main(["--set", "n_robots=0", "--no-progress"]) == 2
+    paper = tmp_path / "p.json"
+    assert mod.main(["--profile", "paper", "--json", str(paper), "--plot",
+                     str(tmp_path / "p.png"), "--experiments", "circuit", "--circuit-duration",
+                     "2", "--no-progress"]) == 0
+    assert json.loads(paper.read_text())["profile"] == "paper"

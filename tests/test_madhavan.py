@@ -10,6 +10,13 @@ import numpy as np
 import pytest
 
 import coop_loc_env
+from coop_loc_env.profiles import with_profile
+from coop_loc_env.sensors import (
+    UNMEASURED_ORIENTATION_STD,
+    Detections,
+    scan_minimum_detections,
+    without_orientation,
+)
 from policies.madhavan import run_dgps_outage
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -67,8 +74,39 @@ def test_script_writes_json(tmp_path, capsys):
     assert mod.main(["--json", str(out), "--plot", str(tmp_path / "f.png"), "--duration",
                      "45"]) == 0
     data = json.loads(out.read_text())
-    assert set(data) == {"std_before_outage_m", "std_peak_m", "std_after_first_coop_update_m"}
+    assert set(data) == {"profile", "std_before_outage_m", "std_peak_m",
+                         "std_after_first_coop_update_m"}
+    assert data["profile"] == "default"
     assert data["std_peak_m"] > data["std_before_outage_m"] > 0
     assert (tmp_path / "f.png").stat().st_size > 10_000
     assert "std_peak_m" in capsys.readouterr().out
     assert mod.main(["--set", "n_robots=0"]) == 2
+
+
+def _detections(observer, target, ranges):
+    k = len(observer)
+    return Detections(np.array(observer), np.array(target),
+                      np.column_stack([ranges, np.zeros(k), np.full(k, 0.3)]),
+                      np.tile(np.diag([0.01, 0.01, 0.01]), (k, 1, 1)), np.ones(k, bool))
+
+
+def test_scan_minimum_detection_reads_the_laser_profile():
+    angles = [np.linspace(-np.pi / 2, np.pi / 2, 5)] * 3
+    scans = np.array([[9.0, 9.0, 3.0, 2.0, 9.0],  # minimum at beam 3 (+45 deg)
+                      [9.0, 9.0, 9.0, 9.0, 9.0],  # nothing within range
+                      [1.0, 1.0, 1.0, 1.0, 1.0]])  # no scan this step
+    det = _detections([0, 0, 1, 2], [1, 2, 0, 0], [4.0, 2.5, 3.0, 1.0])
+    out = scan_minimum_detections(det, scans, np.array([True, True, False]), angles,
+                                  radius=0.25, max_range=8.0)
+    # One detection per observer: the nearest identified teammate (2), at the scan minimum.
+    assert out.observer.tolist() == [0] and out.target.tolist() == [2]
+    np.testing.assert_allclose(out.z[0, :2], [2.25, np.pi / 4])
+    bare = without_orientation(out)
+    assert bare.z[0, 2] == 0.0 and bare.cov[0, 2, 2] == UNMEASURED_ORIENTATION_STD**2
+    np.testing.assert_array_equal(bare.cov[0, :2, :2], out.cov[0, :2, :2])
+
+
+def test_paper_profile_scan_minimum_outage_figure():
+    res = run_dgps_outage(seed=0, duration_s=45.0, **with_profile("dgps_outage", "paper"))
+    assert res["std_peak_m"] > 1.4 * res["std_before_outage_m"]
+    assert res["std_after_first_coop_update_m"] <= 0.7 * res["std_peak_m"]

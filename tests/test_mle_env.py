@@ -185,3 +185,18 @@ def test_add_odometry_team_matches_sequential_calls():
         b.add_odometry_team(np.zeros(2), np.zeros(2), dt)
     with pytest.raises(ValueError, match="dt"):
         b.add_odometry_team(np.zeros(n), np.zeros(n), -1.0)
+
+
+def test_gauge_is_fixed_by_one_anchored_robot():
+    """Only the first robot's start pose is informative; the others are free (Eq. 15 data only)."""
+    env = coop_loc_env.parallel_env("circuit", max_cycles=2)
+    env.reset(seed=0)
+    backend = next(b for b in env.backends if isinstance(b, MLEBackend))
+    cfg = env.config
+    priors = backend.mle.graph.priors
+    assert len(priors) == cfg.n_robots
+    std = np.array([1.0 / np.diag(p.A) for p in priors])
+    np.testing.assert_allclose(std[0], [cfg.init_pos_std, cfg.init_pos_std, cfg.init_heading_std])
+    assert np.all(std[1:, :2] >= 1e3) and np.all(std[1:, 2] >= np.pi)
+    with pytest.raises(ValueError, match="mle_window"):
+        coop_loc_env.parallel_env("circuit", extras={"mle_window": 0}).reset(seed=0)

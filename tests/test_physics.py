@@ -138,3 +138,14 @@ def test_coverage_reward_counts_true_coverage_not_estimate_drift():
     assert covered > 5
     assert covered + 5 == np.count_nonzero(mapper._truly_covered)  # + the 5 start cells
     assert not np.any(mapper._truly_covered & ~mapper._drivable_flat)
+
+
+def test_a_cell_two_robots_cover_at_once_counts_for_the_lower_index():
+    env = coop_loc_env.parallel_env(n_robots=3, steep_patches=0, n_random_trees=0,
+                                    n_random_rocks=0, n_random_ooi=0)
+    env.reset(seed=0)
+    mapper = env.mapper
+    poses = np.array([[30.2, 30.2, 0.0], [10.2, 10.2, 0.0], [30.2, 30.2, 0.0]])
+    new = mapper.cover(poses, np.arange(3))
+    np.testing.assert_array_equal(new, [5, 5, 0])  # robot 2 stands where robot 0 does
+    np.testing.assert_array_equal(mapper.cover(poses, np.arange(3)), [0, 0, 0])
