@@ -13,7 +13,9 @@ in a known map built from the scenario's layout. Per env step and robot:
 3. weight by the range scan: the likelihood-field model for a laser (or the
    beam model without cones, ``extras["mcl_laser_model"] = "beam"``), the beam
    model with wide cones for a sonar (``cone_half_width = 0.5 * sonar_fov / sonar_beams``);
-   beam models look expected ranges up in a precomputed range table;
+   beam models look expected ranges and likelihoods up in tables built once per
+   map (:mod:`estimators.beam_table`), all robots of a sensor type in one call
+   (:func:`estimators.mcl_batch.update_beam_batch`);
 4. weight by DGPS fixes and compass readings when the robot has them
    (Gaussian likelihoods with the variances the receivers report);
 5. detections between two MCL robots (``cooperative_updates``): the observed
@@ -42,6 +44,10 @@ Not handled: detections between an MCL robot and a robot running another
 estimator (EKF/MLE) are ignored by this backend (and by the EKF's); the
 relative measurement would need a Gaussian <-> particle conversion.
 
+Odometry is composed for the whole team at once, and the means, covariances,
+features and particle spreads of all filters are computed together once per
+step (:mod:`estimators.mcl_batch`).
+
 Observation features: :meth:`ParticleFilter.belief_features` (48 values, layout
 in :func:`estimators.particle_filter.belief_feature_names`): weighted mean and
 covariance (as the EKF's first ten entries), heading resultant, normalized
@@ -68,7 +74,12 @@ from estimators.detection_transfer import (
     detection_from_measurement,
     sample_detected_poses,
 )
-from estimators.geometry import wrap_angle
+from estimators.mcl_batch import (
+    belief_summaries,
+    compose_odometry_batch,
+    particle_spreads,
+    update_beam_batch,
+)
 from estimators.occupancy import OccupancyGrid
 from estimators.particle_filter import (
     MCLConfig,
@@ -83,7 +94,7 @@ __all__ = ["MCLBackend", "beam_angles", "known_map", "map_resolution"]
 HIST_CELLS = 5
 HIST_CELL = 1.0  # m, edge of one egocentric histogram cell
 HEADING_BINS = 8
-RANGE_LOOKUP_BINS = 180
+RANGE_LOOKUP_BINS = 256
 LOCKOUT_DISTANCE = 2.5  # m (Fox et al.)
 RESET_STD = 1.0  # m: confident observers (position std below) seed uncertain targets (above)
 GLOBAL_INIT_FACTOR = 4  # global localization starts with this many times n_particles
@@ -217,14 +228,6 @@ def known_map(world: World, sensor: str, resolution: float) -> OccupancyGrid:
     return grid
 
 
-def _position_std(pf: ParticleFilter) -> float:
-    """RMS per-axis position standard deviation (m) of a particle belief."""
-    w = pf.weights
-    xy = pf.particles[:, :2]
-    mean = w @ xy
-    return float(np.sqrt(0.5 * (w @ ((xy - mean) ** 2)).sum()))
-
-
 class MCLBackend:
     """Per-robot particle filters with detection-based belief transfer for ``robots``.
 
@@ -290,6 +293,7 @@ class MCLBackend:
         self.transfers_applied = np.zeros(len(self.robots), dtype=int)
         self._t = 0
         self._conflicts: dict[int, list] = {}
+        self._summary: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     # ------------------------------------------------------------------ reset
     def _sensor(self, i: int) -> str:
@@ -322,11 +326,13 @@ class MCLBackend:
         self.transfers_applied[:] = 0
         self._t = 0
         self._conflicts = {}
+        self._summary = None
         # build the shared range tables now, not inside the first step
-        if self._sonar.any():
-            self._grids["sonar"].range_table(cfg.sonar_max_range, RANGE_LOOKUP_BINS)
-        if self._laser_beam and not self._sonar.all():
-            self._grids["laser"].range_table(cfg.laser_max_range, RANGE_LOOKUP_BINS)
+        for i in range(k):
+            if self._sonar[i]:
+                self.filters[i].beam_tables(cfg.sonar_max_range, self._cone)
+            elif self._laser_beam:
+                self.filters[i].beam_tables(cfg.laser_max_range)
 
     # ------------------------------------------------------------------ step
     def step(self, readings: Readings, active: np.ndarray) -> dict[str, int]:
@@ -335,9 +341,9 @@ class MCLBackend:
         dt_sub = cfg.dt / cfg.odometry_substeps
         stats = {"range_updates": 0, "detections_applied": 0, "detections_ignored": 0}
         self._t += 1
-        for i, g in enumerate(self.robots):
-            if not active[g]:
-                continue
+        self._summary = None
+        live = [i for i, g in enumerate(self.robots) if active[g]]
+        for i in live:
             pf = self.filters[i]
             # Resample only when the weights degenerate (not on every step, as
             # ParticleFilter.resample_if_needed does while injection is on): every
@@ -347,18 +353,21 @@ class MCLBackend:
                 pf.ess < pf.config.resample_ess_fraction * pf.n_particles
             ):
                 pf.resample()
-            odo = readings.odometry[:, g]
-            pf.predict_odometry_sequence(odo[:, 0], odo[:, 1], dt_sub)
-            if self._has_range[i] and readings.range_mask[g]:
-                self._range_update(i, readings.ranges[g])
-                stats["range_updates"] += 1
-            if self._has_gps[i] and readings.gps_mask[g]:
-                d = pf.particles[:, :2] - readings.gps_xy[g]
-                var = float(readings.gps_var[g])
-                pf.apply_weight_factors(np.exp(-0.5 * np.einsum("nd,nd->n", d, d) / var) + 1e-12)
-            if self._has_compass[i] and readings.compass_mask[g]:
-                e = wrap_angle(pf.particles[:, 2] - readings.compass[g])
-                pf.apply_weight_factors(np.exp(-0.5 * (e / cfg.compass_std) ** 2) + 1e-12)
+        if live:
+            odo = readings.odometry[:, self.robots[live]]  # (substeps, robots, 2)
+            deltas = compose_odometry_batch(odo[..., 0].T, odo[..., 1].T, dt_sub)
+            for i, delta in zip(live, deltas, strict=True):
+                self.filters[i].predict_delta(delta)
+        stats["range_updates"] = self._range_updates(live, readings)
+        for i in live:
+            g = self.robots[i]
+            pf = self.filters[i]
+            gps = self._has_gps[i] and readings.gps_mask[g]
+            compass = self._has_compass[i] and readings.compass_mask[g]
+            if gps or compass:
+                pf.update_fix(readings.gps_xy[g] if gps else None,
+                              float(readings.gps_var[g]) if gps else 1.0,
+                              float(readings.compass[g]) if compass else None, cfg.compass_std)
         det = readings.detections
         if cfg.cooperative_updates and len(det):
             for k in range(len(det)):
@@ -368,13 +377,14 @@ class MCLBackend:
                 ia, ib = self._local[a], self._local[b]
                 if not (active[a] and active[b]):
                     continue
+                observer, target = self.filters[ia], self.filters[ib]
+                if self.transfer.lockout.is_locked(a, b, observer.odometer):
+                    stats["detections_ignored"] += 1  # what transfer.apply would answer
+                    continue
                 rec = detection_from_measurement(a, b, det.z[k], det.cov[k])
                 if not cfg.detection_orientation:
                     rec = replace(rec, orientation=None, orientation_std=None)
-                observer, target = self.filters[ia], self.filters[ib]
-                if self.reset_fraction > 0 and not self.transfer.lockout.is_locked(
-                    a, b, observer.odometer
-                ):
+                if self.reset_fraction > 0:
                     self._detection_reset(ib, rec, observer, target)
                 res = self.transfer.apply(rec, observer, target, self.rng)
                 if res.applied:
@@ -404,9 +414,9 @@ class MCLBackend:
         has, and a target whose set collapsed onto a wrong mode of a symmetric
         map has none near the truth (sensor resetting, Lenser and Veloso 2000).
         """
-        if _position_std(observer) > RESET_STD:
+        if observer.position_std() > RESET_STD:
             return
-        if _position_std(target) <= RESET_STD and not self._confirmed_conflict(
+        if target.position_std() <= RESET_STD and not self._confirmed_conflict(
             ib, rec, observer, target
         ):
             return
@@ -460,44 +470,69 @@ class MCLBackend:
             self._conflicts[ib] = []
         return confirmed
 
-    def _range_update(self, i: int, row: np.ndarray) -> None:
+    def _range_updates(self, live: list[int], readings: Readings) -> int:
+        """Weight the live robots' particles by their range scans; returns how many scans.
+
+        Robots sharing a beam model (sonars; lasers with ``mcl_laser_model="beam"``)
+        are updated together (:func:`estimators.mcl_batch.update_beam_batch`); the
+        likelihood-field laser robot by robot.
+        """
         cfg = self.cfg
-        t = self._sensor(i)
-        angles = self._angles[t]
-        ranges = row[: len(angles)]
-        ok = np.isfinite(ranges)
-        if not ok.any():
-            return
-        pf = self.filters[i]
-        if t == "sonar":
-            pf.update_beam(ranges[ok], angles[ok], cfg.sonar_max_range, self._cone)
-        elif self._laser_beam:
-            pf.update_beam(ranges[ok], angles[ok], cfg.laser_max_range)
-        else:
-            pf.update_likelihood_field(ranges[ok], angles[ok], cfg.laser_max_range)
+        groups: dict[str, list[int]] = {}
+        scans = 0
+        for i in live:
+            g = self.robots[i]
+            if not (self._has_range[i] and readings.range_mask[g]):
+                continue
+            scans += 1
+            t = self._sensor(i)
+            if np.isfinite(readings.ranges[g][: len(self._angles[t])]).any():
+                groups.setdefault(t, []).append(i)  # a scan without a reading carries nothing
+        for t, members in groups.items():
+            angles = self._angles[t]
+            rows = readings.ranges[self.robots[members], : len(angles)]
+            filters = [self.filters[i] for i in members]
+            if t == "sonar":
+                update_beam_batch(filters, rows, angles, cfg.sonar_max_range, self._cone)
+            elif self._laser_beam:
+                update_beam_batch(filters, rows, angles, cfg.laser_max_range)
+            else:
+                for pf, row in zip(filters, rows, strict=True):
+                    ok = np.isfinite(row)
+                    pf.update_likelihood_field(row[ok], angles[ok], cfg.laser_max_range)
+        return scans
 
     # ------------------------------------------------------------------ outputs
+    def _summaries(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Means, covariances and features of all filters, computed together once per step."""
+        if self._summary is None:
+            if self.filters:
+                self._summary = belief_summaries(self.filters, HIST_CELLS, HIST_CELL,
+                                                 HEADING_BINS)
+            else:
+                self._summary = (np.zeros((0, 3)), np.zeros((0, 3, 3)),
+                                 np.zeros((0, self.feature_size), dtype=np.float32))
+        return self._summary
+
     def mean(self) -> np.ndarray:
         """Weighted mean poses ``(k, 3)`` (circular mean heading)."""
-        return np.array([pf.mean_pose() for pf in self.filters]).reshape(-1, 3)
+        return self._summaries()[0].copy()
 
     def cov(self) -> np.ndarray:
         """Weighted covariances ``(k, 3, 3)`` (heading deviations wrapped about the mean)."""
-        return np.array([pf.belief().cov for pf in self.filters]).reshape(-1, 3, 3)
+        return self._summaries()[1].copy()
 
     def features(self) -> np.ndarray:
         """Belief embeddings ``(k, 48)`` (layout: :attr:`feature_names`)."""
-        return np.array(
-            [pf.belief_features(HIST_CELLS, HIST_CELL, HEADING_BINS) for pf in self.filters],
-            dtype=float,
-        ).reshape(-1, self.feature_size)
+        return self._summaries()[2].astype(float)
 
     def extra_info(self, true_poses: np.ndarray) -> dict[int, dict]:
         """``particle_spread`` (weighted mean particle distance from the truth, m),
         ``n_particles`` and ``detections_used`` (belief transfers received) per robot."""
+        spread = particle_spreads(self.filters, np.asarray(true_poses)[self.robots, :2])
         return {
             int(g): {
-                "particle_spread": self.filters[i].particle_spread(true_poses[g]),
+                "particle_spread": float(spread[i]),
                 "n_particles": int(self.filters[i].n_particles),
                 "detections_used": int(self.transfers_applied[i]),
             }

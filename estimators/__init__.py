@@ -1,4 +1,5 @@
-"""State estimators for cooperative localization: pure numpy/scipy, no environment import.
+"""State estimators for cooperative localization: numpy/scipy (and a few numba loops for the
+particle filters), no environment import.
 
 Everything here consumes plain arrays, so it runs on simulated data and on
 real robot logs alike:
@@ -7,7 +8,9 @@ real robot logs alike:
   :class:`TeamEKF` the centralized full-covariance variant used on real logs,
   and :class:`GateMonitor`, their recovery from validation-gate lock-out;
 - :class:`ParticleFilter`, :class:`DensityTree`, :class:`DetectionTransfer` —
-  multi-robot Monte Carlo localization (Fox et al.);
+  multi-robot Monte Carlo localization (Fox et al.), with per-map beam-model
+  tables (:mod:`estimators.beam_table`) and team-level batched updates
+  (:mod:`estimators.mcl_batch`);
 - :class:`PoseGraph`, :class:`TeamMLE` — maximum-likelihood team localization
   (Howard et al.) and its Eq. 15 metrics;
 - :class:`TerrainMap` — elevation-gradient terrain mapping;

@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from estimators._kernels import grow_tree, tree_density
+
 __all__ = ["DensityTree"]
 
 
@@ -97,58 +99,21 @@ class DensityTree:
 
     def _build(self, x: np.ndarray, w: np.ndarray, scale: np.ndarray, leaf_size: int,
                max_depth: int) -> None:
-        lows: list[np.ndarray] = []
-        highs: list[np.ndarray] = []
-        split_dim: list[int] = []
-        split_val: list[float] = []
-        left: list[int] = []
-        right: list[int] = []
-        mass: list[float] = []
-        depth_max = 0
-
-        def new_node(lo: np.ndarray, hi: np.ndarray, idx: np.ndarray) -> int:
-            lows.append(lo)
-            highs.append(hi)
-            split_dim.append(-1)
-            split_val.append(0.0)
-            left.append(-1)
-            right.append(-1)
-            mass.append(float(w[idx].sum()))
-            return len(lows) - 1
-
-        root = new_node(self.low, self.high, np.arange(x.shape[0]))
-        stack = [(root, np.arange(x.shape[0]), 0)]
-        while stack:
-            node, idx, depth = stack.pop()
-            depth_max = max(depth_max, depth)
-            if idx.size <= leaf_size or depth >= max_depth:
-                continue
-            lo, hi = lows[node], highs[node]
-            k = int(np.argmax((hi - lo) * scale))
-            mid = 0.5 * (lo[k] + hi[k])
-            go_left = x[idx, k] < mid
-            hi_l = hi.copy()
-            hi_l[k] = mid
-            lo_r = lo.copy()
-            lo_r[k] = mid
-            il, ir = idx[go_left], idx[~go_left]
-            n_l = new_node(lo, hi_l, il)
-            n_r = new_node(lo_r, hi, ir)
-            split_dim[node], split_val[node] = k, mid
-            left[node], right[node] = n_l, n_r
-            stack.append((n_l, il, depth + 1))
-            stack.append((n_r, ir, depth + 1))
-        self._lo = np.array(lows)
-        self._hi = np.array(highs)
-        self._split_dim = np.array(split_dim, dtype=np.intp)
-        self._split_val = np.array(split_val)
-        self._left = np.array(left, dtype=np.intp)
-        self._right = np.array(right, dtype=np.intp)
-        self._mass = np.array(mass)
-        volume = np.prod(self._hi - self._lo, axis=1)
-        self._is_leaf = self._left < 0
-        self._density = np.where(self._is_leaf, self._mass / volume, 0.0)
-        self.depth = depth_max
+        """Grow the tree breadth first, level by level, in one compiled pass
+        (:func:`estimators._kernels.grow_tree`); a node's children are consecutive."""
+        lo, hi, dim, val, left, mass, depth = grow_tree(
+            np.ascontiguousarray(x), w, self.low, self.high, scale, leaf_size, max_depth)
+        self._lo = lo
+        self._hi = hi
+        self._split_dim = dim
+        self._split_val = val
+        self._left = left
+        self._right = np.where(left >= 0, left + 1, -1)
+        self._mass = mass
+        volume = np.prod(hi - lo, axis=1)
+        self._is_leaf = left < 0
+        self._density = np.where(self._is_leaf, mass / volume, 0.0)
+        self.depth = int(depth)
 
     @property
     def n_leaves(self) -> int:
@@ -177,17 +142,7 @@ class DensityTree:
             raise ValueError(f"points must have a trailing axis of {self.dim}, got {p.shape}")
         if not np.all(np.isfinite(p)):
             raise ValueError("points must be finite")
-        flat = p.reshape(-1, self.dim)
-        node = np.zeros(flat.shape[0], dtype=np.intp)
-        rows = np.arange(flat.shape[0])
-        for _ in range(self.depth):
-            dim = self._split_dim[node]
-            internal = dim >= 0
-            if not internal.any():
-                break
-            val = flat[rows, np.maximum(dim, 0)]
-            nxt = np.where(val < self._split_val[node], self._left[node], self._right[node])
-            node = np.where(internal, nxt, node)
-        inside = np.all((flat >= self.low) & (flat < self.high), axis=1)
-        out = np.where(inside, self._density[node], 0.0)
+        flat = np.ascontiguousarray(p.reshape(-1, self.dim))
+        out = tree_density(flat, self.low, self.high, self._split_dim, self._split_val,
+                           self._left, self._density)
         return out.reshape(p.shape[:-1])

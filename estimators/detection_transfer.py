@@ -322,7 +322,8 @@ class DetectionTransfer:
         if use_heading:
             pts = samples[inside]
             low = np.array([xmin, ymin, -np.pi])
-            high = np.array([xmax, ymax, np.pi])
+            # headings lie in [-pi, pi]: wrap_angle may return +pi itself
+            high = np.array([xmax, ymax, np.nextafter(np.pi, np.inf)])
             scale = np.array([1.0, 1.0, cfg.heading_scale])
         else:
             pts = samples[inside, :2]

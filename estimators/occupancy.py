@@ -323,38 +323,6 @@ class OccupancyGrid:
             active = active[~done]
         return (t * res).reshape(out_shape)
 
-    def range_table(self, max_range: float, n_bins: int = 180,
-                    chunk: int = 200_000) -> np.ndarray:
-        """Precomputed ray-cast ranges from every cell centre: ``(ny * nx, n_bins)`` uint16.
-
-        Column ``k`` holds the range (in units of ``max_range / 65535``) along
-        world angle ``-pi + (k + 0.5) * 2 pi / n_bins``; occupied cells hold 0.
-        Cached on the grid. Costs one :meth:`cast_rays` per free cell and bin
-        (seconds for a 100 x 100 cell map with 180 bins), after which a beam
-        model's expected ranges are table lookups.
-        """
-        if n_bins < 4:
-            raise ValueError(f"n_bins must be >= 4, got {n_bins}")
-        if not np.isfinite(max_range) or max_range <= 0:
-            raise ValueError(f"max_range must be a positive finite number, got {max_range}")
-
-        def build() -> np.ndarray:
-            ny, nx = self.shape
-            table = np.zeros((ny * nx, n_bins), dtype=np.uint16)
-            free = np.flatnonzero(~self.occupied.ravel())
-            centres = self.cell_to_world(np.column_stack([free % nx, free // nx]))
-            angles = -np.pi + (np.arange(n_bins) + 0.5) * (2.0 * np.pi / n_bins)
-            scale = 65535.0 / max_range
-            per = max(1, chunk // n_bins)
-            for start in range(0, free.size, per):
-                sel = slice(start, start + per)
-                r = self.cast_rays(centres[sel, None, :], angles[None, :], max_range)
-                table[free[sel]] = np.rint(r * scale).astype(np.uint16)
-            table.setflags(write=False)
-            return table
-
-        return self.memo(("range_table", float(max_range), int(n_bins)), build)
-
     def simulate_scan(
         self, pose: np.ndarray, beam_angles: np.ndarray, max_range: float
     ) -> np.ndarray:

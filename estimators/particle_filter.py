@@ -20,7 +20,13 @@ weighted particle set and offers
   (:meth:`ParticleFilter.belief_features`, layout in
   :func:`belief_feature_names`).
 
-Only numpy/scipy are used. All randomness comes from the
+One file on purpose: every method works on the same private state layout
+(float32 poses relative to the centre of map cell (0, 0), lazily wrapped
+headings, reused work buffers), which splitting would expose. Per-map tables
+live in :mod:`estimators.beam_table`, team-level batching in
+:mod:`estimators.mcl_batch`, compiled loops in :mod:`estimators._kernels`.
+
+Numerics use numpy/scipy, plus the few numba loops there. All randomness comes from the
 ``numpy.random.Generator`` given to the constructor, so two filters built with
 equal seeds and fed equal data produce identical particles.
 """
@@ -29,11 +35,21 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import lru_cache
 from typing import NamedTuple
 
 import numpy as np
-from scipy.special import ndtr, ndtri
+from scipy.special import ndtri
 
+from estimators._kernels import first_occurrences, kld_bins
+from estimators.beam_table import (
+    BeamLUT,
+    RangeTable,
+    beam_lut,
+    beam_probability,
+    range_table,
+    scan_loglik,
+)
 from estimators.geometry import wrap_angle
 from estimators.occupancy import OccupancyGrid
 
@@ -121,9 +137,12 @@ class MCLConfig:
     point mass at max range, ``beam_z_rand`` uniform. A beam with a cone
     (``cone_half_width`` > 0) expects the nearest of ``beam_rays_per_cone``
     rays spread over the cone. ``beam_lookup_bins`` > 0 replaces ray casting
-    by lookups in :meth:`OccupancyGrid.range_table` (that many angle bins,
-    position quantized to the cell centre): built once per map and shared,
-    then an update costs a gather instead of a ray cast per particle.
+    by lookups in a :class:`~estimators.beam_table.RangeTable` (that many
+    heading bins; ranges from the cell centre corrected to first order for
+    the particle's exact position and heading) and the model's terms by a
+    :class:`~estimators.beam_table.BeamLUT` over ranges quantized to
+    ``max_range / 511``: both built once per map and shared, then an update
+    costs two gathers per particle and beam instead of a ray cast.
 
     ``likelihood_exponent`` multiplies every scan log-likelihood (< 1 tempers
     the overconfidence of treating beams as independent). Particles whose
@@ -289,6 +308,13 @@ def kld_sample_bound(k: np.ndarray, epsilon: float, delta: float) -> np.ndarray:
     return np.where(k <= 1, 1.0, np.ceil(n))
 
 
+@lru_cache(maxsize=32)
+def _kld_need(epsilon: float, delta: float, n_min: int, n_max: int) -> np.ndarray:
+    """``max(kld_sample_bound(k), n_min)`` for ``k = 0 .. n_max`` (read-only, cached)."""
+    need = np.maximum(kld_sample_bound(np.arange(n_max + 1), epsilon, delta), n_min)
+    need.flags.writeable = False
+    return need
+
 def compose_odometry(v: np.ndarray, w: np.ndarray, dt: float) -> np.ndarray:
     """Relative motion ``(dx, dy, dheading)`` of a sequence of unicycle odometry readings.
 
@@ -398,6 +424,7 @@ class ParticleFilter:
         self.w_fast = 0.0
         self._unwrapped_steps = 0
         self._lf_cache: dict[float, _LFField] = {}
+        self._beam_tabs: dict[tuple[float, float], tuple[RangeTable, BeamLUT]] = {}
         self._mats: dict[bytes, tuple] = {}  # reusable beam matrices by beam angles
         self._lfb: dict[tuple[int, int], tuple] = {}  # likelihood-field work arrays
         self._angles_ok = b""  # bytes of the last beam angles found finite
@@ -418,7 +445,7 @@ class ParticleFilter:
         # The work arrays are views into each other; pickling or deep-copying them
         # would break them apart, so they are rebuilt instead.
         state = self.__dict__.copy()
-        state.update(_lfb={}, _mats={}, _mb=())
+        state.update(_lfb={}, _mats={}, _mb=(), _beam_tabs={})
         return state
 
     # ---------------------------------------------------------------- state
@@ -429,7 +456,12 @@ class ParticleFilter:
         A read-only snapshot of the filter's state.
         """
         world = self._world()
-        world[2] = wrap_angle(world[2])  # exactly: float32 pi lies just beyond float64 pi
+        h = world[2]
+        # float32 pi lies just beyond float64 pi: wrap what falls outside (a floating
+        # modulo of every heading costs more than the rest of this copy)
+        out = (h < -np.pi) | (h >= np.pi)
+        if out.any():
+            h[out] = wrap_angle(h[out])
         view = world.T
         view.flags.writeable = False
         return view
@@ -837,25 +869,34 @@ class ParticleFilter:
         angles = np.asarray(angles, dtype=float).ravel()
         if not np.isfinite(cone_half_width) or cone_half_width < 0:
             raise ValueError(f"cone_half_width must be finite and >= 0, got {cone_half_width}")
+        if self.config.beam_lookup_bins:
+            table = self.beam_tables(max_range, cone_half_width)[0]
+            st = self._state
+            return table.expected(st[0], st[1], st[2], angles).astype(float)
         k = self.config.beam_rays_per_cone if cone_half_width > 0 else 1
         offsets = np.linspace(-cone_half_width, cone_half_width, k) if k > 1 else np.zeros(1)
         st = self._world()
         world = st[2][:, None, None] + angles[None, :, None] + offsets[None, None, :]
-        bins = self.config.beam_lookup_bins
-        if bins:
-            table = self.grid.range_table(max_range, bins)
-            ny, nx = self.grid.shape
-            cells = self.grid.world_to_cell(st[:2].T)
-            inside = (cells[:, 0] >= 0) & (cells[:, 0] < nx) & (cells[:, 1] >= 0) & (
-                cells[:, 1] < ny)
-            flat = np.where(inside, cells[:, 1] * nx + cells[:, 0], 0)
-            k = np.floor((world + np.pi) * (bins / (2.0 * np.pi))).astype(np.intp) % bins
-            rays = table[flat[:, None, None], k] * (max_range / 65535.0)
-            rays[~inside] = 0.0  # outside the map: treated like the inside of a wall
-        else:
-            origins = st[:2].T[:, None, None, :]
-            rays = self.grid.cast_rays(origins, world, max_range)
+        rays = self.grid.cast_rays(st[:2].T[:, None, None, :], world, max_range)
         return rays.min(axis=2)
+
+    def beam_tables(self, max_range: float, cone_half_width: float = 0.0
+                    ) -> tuple[RangeTable, BeamLUT]:
+        """The shared range table and beam-likelihood table of this map and model.
+
+        Built on first use and cached per map (see :mod:`estimators.beam_table`).
+        """
+        key = (float(max_range), float(cone_half_width))
+        tables = self._beam_tabs.get(key)
+        if tables is None:
+            cfg = self.config
+            table = range_table(self.grid, max_range, cfg.beam_lookup_bins or 256,
+                                cone_half_width, cfg.beam_rays_per_cone)
+            lut = beam_lut(max_range, cfg.beam_sigma, cfg.beam_z_hit, cfg.beam_z_short,
+                           cfg.beam_z_max, cfg.beam_z_rand, cfg.beam_lambda_short,
+                           cfg.likelihood_exponent)
+            tables = self._beam_tabs[key] = (table, lut)
+        return tables
 
     def update_beam(
         self,
@@ -875,25 +916,18 @@ class ParticleFilter:
         cfg = self.config
         if ranges.size == 0:
             return self._apply_loglik(self._position_penalty(), 0)
+        if cfg.beam_lookup_bins:
+            if not np.isfinite(cone_half_width) or cone_half_width < 0:
+                raise ValueError(f"cone_half_width must be finite and >= 0, "
+                                 f"got {cone_half_width}")
+            table, lut = self.beam_tables(max_range, cone_half_width)
+            loglik = scan_loglik(table, lut, self._state, angles, lut.rows(ranges)[None, :],
+                                 np.array([self.n_particles]), cfg.occupied_loglik)
+            return self._apply_loglik(loglik, ranges.size * cfg.likelihood_exponent)
         zexp = self.expected_ranges(angles, max_range, cone_half_width)
         z = np.minimum(ranges, max_range)[None, :]
-        is_max = z >= max_range
-        sig = cfg.beam_sigma
-        norm = ndtr((max_range - zexp) / sig) - ndtr(-zexp / sig)
-        p_hit = np.exp(-0.5 * ((z - zexp) / sig) ** 2 - _LOG_SQRT_2PI) / (
-            sig * np.maximum(norm, 1e-12)
-        )
-        lam = cfg.beam_lambda_short
-        with np.errstate(divide="ignore", invalid="ignore"):
-            short_norm = 1.0 - np.exp(-lam * zexp)
-            p_short = np.where(
-                (z <= zexp) & (short_norm > 0), lam * np.exp(-lam * z) / short_norm, 0.0
-            )
-        p = np.where(
-            is_max,
-            cfg.beam_z_max + cfg.beam_z_rand / max_range,
-            cfg.beam_z_hit * p_hit + cfg.beam_z_short * p_short + cfg.beam_z_rand / max_range,
-        )
+        p = beam_probability(z, zexp, max_range, cfg.beam_sigma, cfg.beam_z_hit, cfg.beam_z_short,
+                             cfg.beam_z_max, cfg.beam_z_rand, cfg.beam_lambda_short)
         loglik = cfg.likelihood_exponent * np.log(p).sum(axis=1) + self._position_penalty()
         return self._apply_loglik(loglik, ranges.size * cfg.likelihood_exponent)
 
@@ -977,6 +1011,60 @@ class ParticleFilter:
         if total > 0 and np.isfinite(total):
             self._weights = w / total
 
+    def update_fix(
+        self,
+        xy: np.ndarray | None = None,
+        xy_var: float = 1.0,
+        heading: float | None = None,
+        heading_std: float = 1.0,
+    ) -> None:
+        """Weight by a position fix and/or a heading fix (Gaussian likelihoods).
+
+        A position ``xy`` with isotropic variance ``xy_var`` (m^2) multiplies each
+        weight by ``exp(-|p - xy|^2 / (2 xy_var)) + 1e-12``; a heading (rad) with
+        standard deviation ``heading_std`` by ``exp(-e^2 / (2 heading_std^2)) + 1e-12``
+        with ``e`` the wrapped difference (the floors keep a wrong fix from zeroing
+        every weight). Computed in float32 on the internal state.
+        """
+        st = self._state
+        factor = None
+        if xy is not None:
+            t = np.asarray(xy, dtype=float)
+            if t.shape != (2,) or not np.all(np.isfinite(t)):
+                raise ValueError(f"xy must be 2 finite numbers, got {xy}")
+            if not (math.isfinite(xy_var) and xy_var > 0):
+                raise ValueError(f"xy_var must be finite and > 0, got {xy_var}")
+            t = t - self._org[:2, 0]
+            dx = st[0] - np.float32(t[0])
+            dy = st[1] - np.float32(t[1])
+            dx *= dx
+            dy *= dy
+            dx += dy
+            dx *= np.float32(-0.5 / xy_var)
+            factor = np.exp(dx)
+            factor += np.float32(1e-12)
+        if heading is not None:
+            if not math.isfinite(heading):
+                raise ValueError(f"heading must be finite, got {heading}")
+            if not (math.isfinite(heading_std) and heading_std > 0):
+                raise ValueError(f"heading_std must be finite and > 0, got {heading_std}")
+            e = st[2] - np.float32(heading)
+            turns = np.rint(e * np.float32(0.5 / np.pi))
+            turns *= np.float32(2.0 * np.pi)
+            e -= turns
+            e *= e
+            e *= np.float32(-0.5 / heading_std**2)
+            g = np.exp(e)
+            g += np.float32(1e-12)
+            factor = g if factor is None else factor * g
+        if factor is None:
+            return
+        w = self._weights * factor
+        total = w.sum()
+        if total > 0 and np.isfinite(total):
+            w *= 1.0 / total
+            self._weights = w
+
     # ----------------------------------------------------------- resampling
     def resample(self) -> None:
         """Low-variance resampling with augmented-MCL injection and optional KLD sampling.
@@ -1045,20 +1133,18 @@ class ParticleFilter:
         if self._unwrapped_steps:
             self._wrap_headings()
         st = np.take(self._state, idx, axis=1)
-        world = st + self._org
-        world[2] = wrap_angle(world[2])
         bx, by, bt = cfg.kld_bin
-        kx = np.floor(world[0] / bx).astype(np.int64)
-        ky = np.floor(world[1] / by).astype(np.int64)
-        kt = np.floor((world[2] + np.pi) / bt).astype(np.int64)
-        kx -= kx.min()
-        ky -= ky.min()
-        key = (kx * (ky.max() + 1) + ky) * (kt.max() + 1) + kt
-        _, first = np.unique(key, return_index=True)
-        is_new = np.zeros(n_max, dtype=bool)
-        is_new[first] = True
+        n_t = math.ceil(2.0 * math.pi / bt)
+        key, size = kld_bins(st, self._org[0, 0], self._org[1, 0], 1.0 / bx, 1.0 / by,
+                             1.0 / bt, n_t)
+        if size <= 16 * n_max + 2**20:  # a marker array of this size is cheap
+            is_new = first_occurrences(key, size)
+        else:
+            _, first = np.unique(key, return_index=True)
+            is_new = np.zeros(n_max, dtype=bool)
+            is_new[first] = True
         k = np.cumsum(is_new)  # bins occupied by the first i + 1 particles
-        need = np.maximum(kld_sample_bound(k, cfg.kld_epsilon, cfg.kld_delta), cfg.n_min)
+        need = _kld_need(cfg.kld_epsilon, cfg.kld_delta, cfg.n_min, n_max)[k]
         enough = np.flatnonzero(np.arange(1, n_max + 1) >= need)
         n = int(enough[0]) + 1 if enough.size else n_max
         n = int(np.clip(n, cfg.n_min, n_max))
@@ -1084,6 +1170,19 @@ class ParticleFilter:
         cov = (d * w) @ d.T
         cov = 0.5 * (cov + cov.T)
         return ParticleBelief(mean=mean, cov=cov, particles=particles, weights=w.copy())
+
+    def position_std(self) -> float:
+        """RMS per-axis weighted standard deviation (m) of the particles' positions."""
+        w = self._weights
+        st = self._state
+        total = 0.0
+        for row in (st[0], st[1]):
+            x = row.astype(np.float64)
+            mean = float(w @ x)
+            x -= mean
+            x *= x
+            total += float(w @ x)
+        return math.sqrt(0.5 * max(total, 0.0))
 
     def particle_spread(self, true_pose: np.ndarray) -> float:
         """Weighted mean distance (m) of the particles from the true position (Fox et al.)."""

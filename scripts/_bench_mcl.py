@@ -8,6 +8,8 @@ same log-likelihood field, measured in the same run, and their ratio. The lead's
 
 from __future__ import annotations
 
+import argparse
+import sys
 import time
 import timeit
 from collections.abc import Callable
@@ -171,9 +173,18 @@ def bench_mcl(
     return out
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     """Print the figures."""
-    for key, val in bench_mcl().items():
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--particles", type=int, default=1000, help="particles of the filter")
+    parser.add_argument("--beams", type=int, default=30, help="laser beams per scan")
+    parser.add_argument("--number", type=int, default=200, help="calls per timing round")
+    parser.add_argument("--repeat", type=int, default=7, help="interleaved rounds (best kept)")
+    args = parser.parse_args(argv)
+    if min(args.particles, args.beams, args.number, args.repeat) < 1:
+        print("error: --particles, --beams, --number and --repeat must be >= 1", file=sys.stderr)
+        sys.exit(2)
+    for key, val in bench_mcl(args.particles, args.beams, args.number, args.repeat).items():
         print(f"{key:>20s}: {val:10.2f}")
 
 

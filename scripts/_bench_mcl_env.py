@@ -16,6 +16,8 @@ imports it; ``python scripts/_bench_mcl_env.py`` prints it.
 
 from __future__ import annotations
 
+import argparse
+import sys
 import time
 
 import numpy as np
@@ -64,6 +66,18 @@ def bench_mcl_env(seconds: float = 3.0) -> dict[str, float]:
     return out
 
 
-if __name__ == "__main__":
-    for key, value in bench_mcl_env().items():
+def main(argv: list[str] | None = None) -> None:
+    """Print :func:`bench_mcl_env`'s figures."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--seconds", type=float, default=3.0,
+                        help="CPU seconds per measurement")
+    args = parser.parse_args(argv)
+    if not args.seconds > 0:
+        print(f"error: --seconds must be > 0, got {args.seconds}", file=sys.stderr)
+        sys.exit(2)
+    for key, value in bench_mcl_env(args.seconds).items():
         print(f"{key:<50} {value:10.1f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -3,7 +3,11 @@
 Env steps per second for teams of 4, 8, 20 and 50 robots (EKF, lasers on,
 random actions), next to PettingZoo MPE ``simple_spread`` (package ``mpe2``)
 at the same agent counts, with the ratio; plus the estimator micro-benchmarks
-of the other modules (``scripts/_bench_*.py``) when present.
+of the other modules (``scripts/_bench_*.py``) when present, among them the
+multi-robot MCL step of ``symmetric_hallway`` over a bare gather
+(``hallway_ratio``) and PPO agent steps per second on that hallway with 4
+robots x 1000 particles (``ppo_hallway_agent_steps_per_s``, from
+``scripts/_bench_mcl_team.py``).
 
     python scripts/benchmark.py [--seconds 3] [--sizes 4 8 20 50] [--json PATH]
 """

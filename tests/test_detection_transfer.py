@@ -265,3 +265,22 @@ def test_detection_records_validate_their_numbers():
         RobotDetection(0, 1, 1.0, 0.0, 0.1, 0.1, orientation=0.2)
     with pytest.raises(ValueError, match="false_positive_prob"):
         TransferConfig(false_positive_prob=1.0)
+
+
+def test_target_samples_with_heading_pi_are_accepted():
+    # wrap_angle can return +pi itself (for angles a hair below -pi); such a detected
+    # heading must land in the transfer's density tree, not raise.
+    grid = room()
+    observer = localized(grid, POSE_M, 1)
+    target = lost(grid, 2)
+    parts = observer.particles.copy()
+    parts[:, 2] = -1.0
+    observer.set_particles(parts)
+    h = float(observer.particles[0, 2])
+    o = float(np.nextafter(-np.pi, -np.inf)) - h
+    assert wrap_angle(h + o) == np.pi  # the detected heading is +pi
+    det = RobotDetection(observer=0, target=1, range=2.0, bearing=0.3, range_std=0.3,
+                         bearing_std=0.04, orientation=o, orientation_std=1e-300)
+    res = DetectionTransfer(TransferConfig()).apply(det, observer, target,
+                                                    np.random.default_rng(0))
+    assert res.applied

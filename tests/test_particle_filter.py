@@ -160,29 +160,6 @@ def test_rasterized_shapes_match_their_geometry():
     assert np.all(ends[:, 1] - ends[:, 0] < 0.2)  # stopped at (or just past) the diagonal
 
 
-def test_range_table_holds_ray_cast_ranges_from_cell_centres():
-    g = room(0.2)
-    table = g.range_table(MAX_RANGE, n_bins=36)
-    assert table.shape == (g.shape[0] * g.shape[1], 36) and table.dtype == np.uint16
-    assert g.range_table(MAX_RANGE, n_bins=36) is table  # cached on the grid
-    rng = np.random.default_rng(3)
-    cells = np.column_stack([rng.integers(0, g.shape[1], 50), rng.integers(0, g.shape[0], 50)])
-    k = rng.integers(0, 36, 50)
-    angles = -np.pi + (k + 0.5) * 2 * np.pi / 36
-    expected = g.cast_rays(g.cell_to_world(cells), angles, MAX_RANGE)
-    expected[g.occupied[cells[:, 1], cells[:, 0]]] = 0.0
-    got = table[cells[:, 1] * g.shape[1] + cells[:, 0], k] * (MAX_RANGE / 65535)
-    np.testing.assert_allclose(got, expected, atol=MAX_RANGE / 65535)
-    # lookups agree with exact ray casting for most particles (quantization aside)
-    exact = ParticleFilter(g, np.random.default_rng(0), MCLConfig(n_particles=400))
-    fast = ParticleFilter(g, np.random.default_rng(0), MCLConfig(n_particles=400,
-                                                                  beam_lookup_bins=360))
-    ang = np.linspace(-np.pi, np.pi, 8, endpoint=False)
-    d = np.abs(exact.expected_ranges(ang, MAX_RANGE, 0.2) - fast.expected_ranges(ang, MAX_RANGE,
-                                                                                  0.2))
-    assert np.median(d) < 0.2 and np.mean(d < 0.5) > 0.9
-
-
 def test_grid_rejects_bad_input():
     with pytest.raises(ValueError, match="resolution"):
         OccupancyGrid(np.zeros((3, 3), bool), 0.0)
@@ -633,3 +610,36 @@ def test_weights_stay_finite_under_hopeless_scans_and_out_of_map_particles():
     assert np.all(np.isfinite(pf.weights))
     pf.resample()
     assert pf.n_particles == 200
+
+
+def test_kld_bins_and_first_occurrences_match_numpy():
+    from estimators._kernels import first_occurrences, kld_bins
+
+    rng = np.random.default_rng(6)
+    st = np.stack([rng.normal(3.0, 2.0, 3000), rng.normal(-2.0, 1.0, 3000),
+                   rng.uniform(-np.pi, np.pi, 3000)]).astype(np.float32)
+    st[2, :3] = [np.float32(np.pi), -np.float32(np.pi), 0.0]  # float32 pi lies beyond pi
+    bx, by, bt = 0.5, 0.5, np.deg2rad(10.0)
+    n_t = int(np.ceil(2 * np.pi / bt))
+    key, size = kld_bins(st, 1.25, -0.5, 1 / bx, 1 / by, 1 / bt, n_t)
+    kx = np.floor((st[0] + 1.25) / bx).astype(int)
+    ky = np.floor((st[1] - 0.5) / by).astype(int)
+    kt = np.clip(np.floor((st[2] + np.float32(np.pi)) * np.float32(1 / bt)).astype(int), 0,
+                 n_t - 1)
+    ref = ((kx - kx.min()) * (ky.max() - ky.min() + 1) + ky - ky.min()) * n_t + kt
+    np.testing.assert_array_equal(key, ref)
+    assert size == (kx.max() - kx.min() + 1) * (ky.max() - ky.min() + 1) * n_t
+    _, first = np.unique(key, return_index=True)
+    expected = np.zeros(key.size, dtype=bool)
+    expected[first] = True
+    np.testing.assert_array_equal(first_occurrences(key, size), expected)
+
+
+def test_position_std_is_the_rms_weighted_axis_std():
+    pf = ParticleFilter(room(), np.random.default_rng(3), MCLConfig(n_particles=500))
+    pf.set_particles(pf.particles, np.random.default_rng(4).random(500))
+    w, xy = pf.weights, pf.particles[:, :2]
+    var = w @ (xy - w @ xy) ** 2
+    assert pf.position_std() == pytest.approx(np.sqrt(var.mean()), rel=1e-9)
+    pf.init_gaussian(np.array([5.0, 3.0, 0.0]), np.diag([0.0, 0.0, 0.1]))
+    assert pf.position_std() < 1e-5  # float32 state rounding only

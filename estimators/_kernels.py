@@ -1,0 +1,338 @@
+"""Compiled loops (numba, cached on disk) for the team particle-filter summaries.
+
+Each kernel fuses what numpy would do in several passes with temporaries into
+one or two passes over the particles. They are private helpers of
+:mod:`estimators.mcl_batch`; inputs are checked there.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+__all__ = ["summary_sums"]
+
+
+@njit(cache=True)
+def summary_sums(
+    st: np.ndarray, cos_h: np.ndarray, sin_h: np.ndarray, w: np.ndarray, ends: np.ndarray,
+    hist_cells: int, inv_cell: float, heading_bins: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover (compiled)
+    """Per-segment weighted sums of particle sets stored back to back.
+
+    ``st`` ``(3, N)`` holds ``x, y, heading`` (``cos_h``, ``sin_h``: the headings'
+    cosines and sines), ``w`` ``(N,)`` the weights (each segment's summing to 1),
+    segment ``r`` ending (exclusive) at ``ends[r]``.
+    Returns ``sums (R, 5)`` (weighted sums of ``x, y, cos, sin`` and of ``w**2``),
+    ``cov (R, 3, 3)`` (about the weighted mean, the heading wrapped about the
+    circular mean), ``hist (R, hist_cells**2)`` (weight in the egocentric grid
+    of cells ``1 / inv_cell`` m, rows forward, columns from the right) and
+    ``hhist (R, heading_bins)`` (weight per bin of heading minus the mean).
+    """
+    nr = ends.size
+    sums = np.zeros((nr, 5))
+    cov = np.zeros((nr, 3, 3))
+    hist = np.zeros((nr, hist_cells * hist_cells))
+    hhist = np.zeros((nr, heading_bins))
+    half = hist_cells / 2.0
+    two_pi = 2.0 * math.pi
+    hscale = heading_bins / two_pi
+    start = 0
+    for r in range(nr):
+        end = ends[r]
+        sx = 0.0
+        sy = 0.0
+        sc = 0.0
+        ss = 0.0
+        s2 = 0.0
+        for i in range(start, end):
+            wi = w[i]
+            sx += wi * st[0, i]
+            sy += wi * st[1, i]
+            sc += wi * cos_h[i]
+            ss += wi * sin_h[i]
+            s2 += wi * wi
+        sums[r, 0] = sx
+        sums[r, 1] = sy
+        sums[r, 2] = sc
+        sums[r, 3] = ss
+        sums[r, 4] = s2
+        mh = math.atan2(ss, sc)
+        cm = math.cos(mh) * inv_cell
+        sm = math.sin(mh) * inv_cell
+        c00 = 0.0
+        c01 = 0.0
+        c02 = 0.0
+        c11 = 0.0
+        c12 = 0.0
+        c22 = 0.0
+        for i in range(start, end):
+            wi = w[i]
+            dx = st[0, i] - sx
+            dy = st[1, i] - sy
+            dh = st[2, i] - mh
+            dh -= two_pi * math.floor(dh / two_pi + 0.5)
+            c00 += wi * dx * dx
+            c01 += wi * dx * dy
+            c02 += wi * dx * dh
+            c11 += wi * dy * dy
+            c12 += wi * dy * dh
+            c22 += wi * dh * dh
+            fwd = math.floor(cm * dx + sm * dy + half)
+            col = math.floor(half - (cm * dy - sm * dx))
+            if 0.0 <= fwd < hist_cells and 0.0 <= col < hist_cells:
+                hist[r, int(fwd) * hist_cells + int(col)] += wi
+            b = int((dh + math.pi) * hscale)
+            hhist[r, min(max(b, 0), heading_bins - 1)] += wi
+        cov[r, 0, 0] = c00
+        cov[r, 0, 1] = c01
+        cov[r, 1, 0] = c01
+        cov[r, 0, 2] = c02
+        cov[r, 2, 0] = c02
+        cov[r, 1, 1] = c11
+        cov[r, 1, 2] = c12
+        cov[r, 2, 1] = c12
+        cov[r, 2, 2] = c22
+        start = end
+    return sums, cov, hist, hhist
+
+
+@njit(cache=True)
+def beam_loglik(
+    rows: np.ndarray, scales: np.ndarray, free_cells: np.ndarray, nx: int, ny: int,
+    res: float, n_bins: int, max_range: float, st: np.ndarray, angles: np.ndarray,
+    lut: np.ndarray, inv_step: float, row_offsets: np.ndarray, ends: np.ndarray,
+    occupied_loglik: float,
+) -> np.ndarray:  # pragma: no cover (compiled)
+    """Scan log-likelihoods ``(N,)`` of particle sets stored back to back (see
+    :meth:`RangeTable.expected` and :meth:`BeamLUT.loglik`, whose float32 steps
+    this repeats in the same order), plus ``occupied_loglik`` for particles
+    outside the map's free cells.
+
+    ``row_offsets (R, B)``: the likelihood-table row of robot ``r``'s reading of
+    beam ``b``; segment ``r`` of the particles ends (exclusive) at ``ends[r]``.
+    """
+    n = st.shape[1]
+    nb = angles.size
+    out = np.empty(n)
+    inv = np.float32(1.0 / res)
+    res32 = np.float32(res)
+    scale = np.float32(n_bins / (2.0 * math.pi))
+    inv_scale = np.float32(1.0) / scale
+    half_bins = np.float32(n_bins / 2)
+    half = np.float32(0.5)
+    rmax = np.float32(max_range)
+    zero = np.float32(0.0)
+    istep = np.float32(inv_step)
+    s0, s1, s2, s3 = scales[0], scales[1], scales[2], scales[3]
+    a_bins = np.empty(nb, dtype=np.float32)
+    for b in range(nb):
+        a_bins[b] = np.float32(angles[b]) * scale
+    pow2 = (n_bins & (n_bins - 1)) == 0
+    r_i = 0
+    for i in range(n):
+        while i >= ends[r_i]:
+            r_i += 1
+        x = st[0, i]
+        y = st[1, i]
+        ux = np.float32(np.rint(x * inv))
+        uy = np.float32(np.rint(y * inv))
+        ix = int(ux)
+        iy = int(uy)
+        dx = x - ux * res32
+        dy = y - uy * res32
+        inside = 0 <= ix < nx and 0 <= iy < ny
+        cell = iy * nx + ix if inside else 0
+        hb = st[2, i] * scale + half_bins
+        total = 0.0
+        for b in range(nb):
+            kf = hb + a_bins[b]
+            k = np.float32(math.floor(kf))
+            dphi = ((kf - k) - half) * inv_scale
+            ki = int(k)
+            ki = ki & (n_bins - 1) if pow2 else ki % n_bins
+            j = cell * n_bins + ki
+            if inside:
+                r = np.float32(rows[j, 0]) * s0
+                r += (np.float32(rows[j, 1]) * s1) * dx
+                r += (np.float32(rows[j, 2]) * s2) * dy
+                r += (np.float32(rows[j, 3]) * s3) * dphi
+                r = min(max(r, zero), rmax)
+            else:
+                r = zero
+            q = r * istep
+            q += half
+            total += lut[int(q) + row_offsets[r_i, b]]
+        if not (inside and free_cells[cell]):
+            total += occupied_loglik
+        out[i] = total
+    return out
+
+
+@njit(cache=True)
+def tree_density(
+    points: np.ndarray, low: np.ndarray, high: np.ndarray, split_dim: np.ndarray,
+    split_val: np.ndarray, left: np.ndarray, density: np.ndarray,
+) -> np.ndarray:  # pragma: no cover (compiled)
+    """Density of a :class:`~estimators.density_tree.DensityTree` at ``points (M, d)``:
+    descend from the root (node 0; a node's right child is ``left + 1``) to the leaf;
+    0 outside ``[low, high)``."""
+    m, d = points.shape
+    out = np.zeros(m)
+    for i in range(m):
+        inside = True
+        for j in range(d):
+            if not (low[j] <= points[i, j] < high[j]):
+                inside = False
+                break
+        if not inside:
+            continue
+        node = 0
+        while split_dim[node] >= 0:
+            if points[i, split_dim[node]] < split_val[node]:
+                node = left[node]
+            else:
+                node = left[node] + 1
+        out[i] = density[node]
+    return out
+
+
+@njit(cache=True)
+def kld_bins(
+    st: np.ndarray, org_x: float, org_y: float, inv_bx: float, inv_by: float, inv_bt: float,
+    n_t: int,
+) -> tuple[np.ndarray, int]:  # pragma: no cover (compiled)
+    """KLD histogram bin of every particle of ``st (3, n)`` (state coordinates, heading in
+    ``[-pi, pi]``): keys ``0 .. size - 1`` and ``size``, the number of possible keys."""
+    n = st.shape[1]
+    kx = np.empty(n, dtype=np.int64)
+    ky = np.empty(n, dtype=np.int64)
+    kx_min = ky_min = np.int64(2**62)
+    ky_max = np.int64(-(2**62))
+    kx_max = ky_max
+    for i in range(n):
+        a = np.int64(math.floor((np.float64(st[0, i]) + org_x) * inv_bx))
+        b = np.int64(math.floor((np.float64(st[1, i]) + org_y) * inv_by))
+        kx[i] = a
+        ky[i] = b
+        kx_min = min(kx_min, a)
+        ky_min = min(ky_min, b)
+        kx_max = max(kx_max, a)
+        ky_max = max(ky_max, b)
+    ny_b = ky_max - ky_min + 1
+    key = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        t = np.int64(math.floor((st[2, i] + np.float32(math.pi)) * np.float32(inv_bt)))
+        t = min(max(t, 0), n_t - 1)
+        key[i] = ((kx[i] - kx_min) * ny_b + (ky[i] - ky_min)) * n_t + t
+    return key, (kx_max - kx_min + 1) * ny_b * n_t
+
+
+@njit(cache=True)
+def first_occurrences(key: np.ndarray, size: int) -> np.ndarray:  # pragma: no cover
+    """Whether each entry of ``key`` (in ``0 .. size - 1``) is its value's first occurrence."""
+    seen = np.zeros(size, dtype=np.bool_)
+    out = np.empty(key.size, dtype=np.bool_)
+    for i in range(key.size):
+        k = key[i]
+        out[i] = not seen[k]
+        seen[k] = True
+    return out
+
+
+@njit(cache=True)
+def weighted_distances(
+    st: np.ndarray, w: np.ndarray, ends: np.ndarray, targets: np.ndarray,
+) -> np.ndarray:  # pragma: no cover (compiled)
+    """Per segment ``r``: the weighted mean distance of the particles' positions
+    ``st[:2]`` from ``targets[r]`` (same coordinates)."""
+    out = np.zeros(ends.size)
+    start = 0
+    for r in range(ends.size):
+        tx = targets[r, 0]
+        ty = targets[r, 1]
+        acc = 0.0
+        for i in range(start, ends[r]):
+            acc += w[i] * math.hypot(st[0, i] - tx, st[1, i] - ty)
+        out[r] = acc
+        start = ends[r]
+    return out
+
+
+@njit(cache=True)
+def grow_tree(
+    x: np.ndarray, w: np.ndarray, low: np.ndarray, high: np.ndarray, scale: np.ndarray,
+    leaf_size: int, max_depth: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+    # pragma: no cover (compiled)
+    """Grow a :class:`~estimators.density_tree.DensityTree` breadth first.
+
+    Nodes are processed in creation order (level by level); a node holding
+    more than ``leaf_size`` samples above ``max_depth`` is halved along its
+    longest scaled side, its children numbered consecutively. Each node's
+    samples stay contiguous in a permutation (partitioned in place). Returns
+    ``(lo, hi, split_dim, split_val, left, mass, depth)`` trimmed to the nodes.
+    """
+    m, d = x.shape
+    cap = 1 + 2 * max_depth * (m // (leaf_size + 1) + 1)
+    lo = np.empty((cap, d))
+    hi = np.empty((cap, d))
+    split_dim = np.full(cap, -1, dtype=np.intp)
+    split_val = np.zeros(cap)
+    left = np.full(cap, -1, dtype=np.intp)
+    mass = np.zeros(cap)
+    depth = np.zeros(cap, dtype=np.intp)
+    first = np.zeros(cap, dtype=np.intp)
+    last = np.zeros(cap, dtype=np.intp)
+    order = np.arange(m)
+    lo[0] = low
+    hi[0] = high
+    mass[0] = w.sum()
+    last[0] = m
+    n_nodes = 1
+    node = 0
+    deepest = 0
+    while node < n_nodes:
+        s, e = first[node], last[node]
+        deepest = max(deepest, depth[node])
+        if e - s > leaf_size and depth[node] < max_depth:
+            k = 0
+            best = (hi[node, 0] - lo[node, 0]) * scale[0]
+            for j in range(1, d):
+                ext = (hi[node, j] - lo[node, j]) * scale[j]
+                if ext > best:
+                    best = ext
+                    k = j
+            mid = 0.5 * (lo[node, k] + hi[node, k])
+            # partition order[s:e]: samples below mid first
+            i, j = s, e - 1
+            while i <= j:
+                if x[order[i], k] < mid:
+                    i += 1
+                else:
+                    tmp = order[i]
+                    order[i] = order[j]
+                    order[j] = tmp
+                    j -= 1
+            c = n_nodes
+            n_nodes += 2
+            split_dim[node] = k
+            split_val[node] = mid
+            left[node] = c
+            for child, cs, ce in ((c, s, i), (c + 1, i, e)):
+                lo[child] = lo[node]
+                hi[child] = hi[node]
+                first[child] = cs
+                last[child] = ce
+                depth[child] = depth[node] + 1
+                acc = 0.0
+                for t in range(cs, ce):
+                    acc += w[order[t]]
+                mass[child] = acc
+            hi[c, k] = mid
+            lo[c + 1, k] = mid
+        node += 1
+    return (lo[:n_nodes].copy(), hi[:n_nodes].copy(), split_dim[:n_nodes].copy(),
+            split_val[:n_nodes].copy(), left[:n_nodes].copy(), mass[:n_nodes].copy(), deepest)

@@ -1,0 +1,219 @@
+"""Team MCL cost per env step against a bare numpy gather, and PPO throughput with MCL.
+
+``bench_mcl_team()`` returns, measured in one run with the process CPU clock
+(``time.process_time``, so time spent descheduled on a shared machine does not
+count):
+
+* ``hallway_step_ms``: one ``symmetric_hallway`` env step as shipped (8 sonar
+  robots, up to 2000 particles each, 16 beams, detections on; random actions,
+  after a warm-up that builds the tables and lets KLD-sampling settle);
+* ``hallway_gather_us``: ``numpy.take`` of robots x particles x beams
+  (8 x 2000 x 16 = 256,000) float64 values at random indices of a
+  2**16-entry table (512 KiB, held in cache: the strict floor), the fastest
+  of three gathers after every step, and ``hallway_ratio``, the step over the
+  gather; ``hallway_gather_8mib_us`` and ``hallway_ratio_8mib`` are the same
+  with a 2**20-entry table (8 MiB, the size class of a map's lookup table);
+* ``outdoor_mcl_extra_us_per_robot``: in ``outdoor_terrain`` with 4 robots,
+  1000 particles and 30 laser beams, the CPU time per robot and step that
+  ``estimator="mcl"`` adds over ``estimator="ekf"`` (fixed particle count), and
+  ``outdoor_ratio``, that over a 30,000-value gather of the same kind;
+* with ``training=True``, ``ppo_hallway_agent_steps_per_s``: PPO agent steps
+  per wall-clock second on ``symmetric_hallway`` with 4 robots and 1000
+  particles (``scripts/_bench_training.py``'s settings otherwise);
+* with ``memory=True``, ``tables_mb_*``: the lookup tables each shipped
+  scenario builds (:func:`table_memory_mb`), and ``table_err_*``: the range
+  tables' error against exact ray casts (:func:`table_accuracy`).
+
+Run ``python scripts/_bench_mcl_team.py --help`` for the options.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+import numpy as np
+
+import coop_loc_env
+
+__all__ = ["bench_mcl_team", "step_ms", "table_accuracy", "table_memory_mb"]
+
+TABLE_ENTRIES = 2**20
+SMALL_TABLE_ENTRIES = 2**16  # 512 KiB: stays in cache, the strictest floor
+
+
+def step_ms(scenario: str, steps: int, warmup: int = 10, gather_n: int = 0,
+            tables: tuple[int, ...] = (TABLE_ENTRIES,), **overrides) -> tuple[float, ...]:
+    """Mean CPU milliseconds per env step with random actions (after ``warmup`` steps), then
+    for each size in ``tables`` the least CPU microseconds of ``numpy.take`` of ``gather_n``
+    float64 values at random indices of a table of that many entries (0 when ``gather_n``
+    is 0), timed three times after every step: the fastest, cache-warm gather of the run."""
+    env = coop_loc_env.parallel_env(scenario, max_cycles=10**9, **overrides)
+    env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    arrays = [(rng.random(size), rng.integers(0, size, max(gather_n, 1))) for size in tables]
+
+    def one() -> None:
+        if not env.agents:
+            env.reset()
+        env.step({a: rng.uniform(-1, 1, 2).astype(np.float32) for a in env.agents})
+
+    for _ in range(warmup):
+        one()
+    total = 0.0
+    best = [np.inf] * len(tables)
+    for _ in range(steps):
+        t = time.process_time()
+        one()
+        total += time.process_time() - t
+        for k, (table, idx) in enumerate(arrays if gather_n else []):
+            for _ in range(3):  # the first one refills the cache
+                t = time.process_time()
+                table.take(idx)
+                best[k] = min(best[k], time.process_time() - t)
+    gathers = [b * 1e6 if gather_n else 0.0 for b in best]
+    return (total / steps * 1e3, *gathers)
+
+
+def bench_mcl_team(steps: int = 60, training: bool = True, timesteps: int = 4096,
+                   memory: bool = True) -> dict[str, float]:
+    """The figures listed in the module docstring."""
+    out: dict[str, float] = {}
+    cfg = coop_loc_env.make_config("symmetric_hallway")
+    n_values = cfg.n_robots * cfg.n_particles * cfg.sonar_beams
+    hall, gather, gather_big = step_ms("symmetric_hallway", steps, gather_n=n_values,
+                                       tables=(SMALL_TABLE_ENTRIES, TABLE_ENTRIES))
+    out["hallway_step_ms"] = hall
+    out["hallway_gather_us"] = gather
+    out["hallway_ratio"] = hall * 1e3 / gather
+    out["hallway_gather_8mib_us"] = gather_big
+    out["hallway_ratio_8mib"] = hall * 1e3 / gather_big
+    outdoor = {"n_robots": 4, "n_particles": 1000, "laser_beams": 30, "start_region": None,
+               "extras": {**coop_loc_env.make_config("outdoor_terrain").extras,
+                          "mcl": {"adaptive": False}}}
+    ekf, g_ekf = step_ms("outdoor_terrain", steps, gather_n=30_000, estimator="ekf", **outdoor)
+    mcl, g_mcl = step_ms("outdoor_terrain", steps, gather_n=30_000, estimator="mcl", **outdoor)
+    g30 = min(g_ekf, g_mcl)
+    extra = (mcl - ekf) * 1e3 / 4
+    out["outdoor_ekf_step_ms"] = ekf
+    out["outdoor_mcl_step_ms"] = mcl
+    out["outdoor_mcl_extra_us_per_robot"] = extra
+    out["outdoor_gather_30k_us"] = g30
+    out["outdoor_ratio"] = extra / g30
+    if training:
+        out["ppo_hallway_agent_steps_per_s"] = ppo_hallway_steps_per_second(timesteps)
+    if memory:
+        out.update(table_memory_mb())
+        out.update(table_accuracy())
+    return out
+
+
+def table_memory_mb() -> dict[str, float]:
+    """MB of the MCL lookup tables (range tables, beam-likelihood tables and likelihood
+    fields) each shipped scenario builds, with ``estimator="mcl"`` for every scenario
+    (the shipped MCL scenarios as they are), after a few steps; then their total."""
+    from coop_loc_env.mcl_backend import MCLBackend
+    from coop_loc_env.scenarios import list_scenarios
+
+    out: dict[str, float] = {}
+    seen: dict[int, int] = {}
+    for name in list_scenarios():
+        cfg = coop_loc_env.make_config(name)
+        mcl = cfg.estimator == "mcl" or any(cfg.robot_spec(i).estimator == "mcl"
+                                            for i in range(cfg.n_robots))
+        env = coop_loc_env.parallel_env(name, **({} if mcl else {"estimator": "mcl"}))
+        env.reset(seed=0)
+        for _ in range(3):
+            if env.agents:
+                env.step({a: np.zeros(2, dtype=np.float32) for a in env.agents})
+        arrays: dict[int, int] = {}
+        for backend in env.unwrapped.backends:
+            if not isinstance(backend, MCLBackend):
+                continue
+            for pf in backend.filters:
+                for table, lut in pf._beam_tabs.values():
+                    for arr in (table.rows, table.free_cells, lut.table):
+                        arrays[id(arr)] = arr.nbytes
+                for lf in pf._lf_cache.values():
+                    arrays[id(lf.table)] = lf.table.nbytes
+        label = name if mcl else f"{name} (estimator=mcl)"
+        out[f"tables_mb_{label}"] = sum(arrays.values()) / 2**20
+        seen.update(arrays)
+    out["tables_mb_total_distinct"] = sum(seen.values()) / 2**20
+    return out
+
+
+def table_accuracy(n: int = 20000) -> dict[str, float]:
+    """Percentiles (m) of the range-table error against exact ray casts
+    (:func:`estimators.beam_table.table_error`, ``n`` random free poses) for the beam-model
+    maps of the shipped MCL scenarios."""
+    from coop_loc_env.mcl_backend import MCLBackend
+    from estimators.beam_table import table_error
+
+    out: dict[str, float] = {}
+    for name in ("symmetric_hallway", "hexagon"):
+        env = coop_loc_env.parallel_env(name)
+        env.reset(seed=0)
+        for backend in env.unwrapped.backends:
+            if not isinstance(backend, MCLBackend):
+                continue
+            done = set()
+            for pf in backend.filters:
+                for table, _ in pf._beam_tabs.values():
+                    sensor = "sonar" if table.rays_per_cone > 1 else "laser"
+                    if sensor in done:
+                        continue
+                    done.add(sensor)
+                    err = table_error(pf.grid, table, n)
+                    for q in (50, 90, 99):
+                        out[f"table_err_p{q}_m_{name}_{sensor}"] = float(np.percentile(err, q))
+    return out
+
+
+def ppo_hallway_steps_per_second(timesteps: int = 4096, seed: int = 0) -> float:
+    """PPO agent steps per wall-clock second on ``symmetric_hallway`` (4 robots x 1000
+    particles, 4 env copies in this process, ``scripts/_bench_training.py``'s settings)."""
+    import torch
+    from stable_baselines3 import PPO
+
+    from policies.vec_env import ParallelEnvVecEnv, make_env_fn
+
+    torch.set_num_threads(1)
+    venv = ParallelEnvVecEnv(
+        make_env_fn("symmetric_hallway", n_robots=4, n_particles=1000, max_cycles=500),
+        n_envs=4, n_procs=1,
+    )
+    try:
+        model = PPO("MlpPolicy", venv, n_steps=128, batch_size=256, n_epochs=5, seed=seed,
+                    device="cpu", verbose=0)
+        model.learn(total_timesteps=128 * venv.num_envs)  # warm-up rollout and update
+        start_steps = model.num_timesteps
+        start = time.perf_counter()
+        model.learn(total_timesteps=timesteps, reset_num_timesteps=False)
+        return (model.num_timesteps - start_steps) / (time.perf_counter() - start)
+    finally:
+        venv.close()
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Print :func:`bench_mcl_team`'s figures."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--steps", type=int, default=60, help="timed env steps per case")
+    parser.add_argument("--no-training", action="store_true", help="skip the PPO figure")
+    parser.add_argument("--timesteps", type=int, default=4096, help="timed PPO agent steps")
+    parser.add_argument("--no-memory", action="store_true",
+                        help="skip the tables' sizes and accuracy")
+    args = parser.parse_args(argv)
+    if args.steps < 1 or args.timesteps < 1:
+        print(f"error: --steps and --timesteps must be >= 1, got {args.steps}, "
+              f"{args.timesteps}", file=sys.stderr)
+        sys.exit(2)
+    figures = bench_mcl_team(args.steps, not args.no_training, args.timesteps,
+                             not args.no_memory)
+    for key, value in figures.items():
+        print(f"{key:<50} {value:12.2f}")
+
+
+if __name__ == "__main__":
+    main()
