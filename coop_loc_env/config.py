@@ -223,6 +223,9 @@ class ScenarioConfig:
     reward_uncertainty_weight: float = 0.0  # times minus the change of own 0.5 log det P_xy
     collision_penalty: float = 0.1
     tip_over_penalty: float = 10.0
+    # --- infos: False leaves out the ``reward_terms`` dict, so that every info value is a
+    # number or a fixed-shape array (TorchRL, BenchMARL); ``reward_<term>`` keys are always there
+    reward_terms_dict: bool = True
     # --- free-form extras for scenario-specific modules
     extras: dict[str, Any] = field(default_factory=dict)
 
@@ -282,6 +285,10 @@ class ScenarioConfig:
         _int_at_least(self, "n_particles", 10)
         if not isinstance(self.teammate_obs, bool):
             raise ValueError(f"teammate_obs must be True or False, got {self.teammate_obs!r}")
+        if not isinstance(self.reward_terms_dict, bool):
+            raise ValueError(
+                f"reward_terms_dict must be True or False, got {self.reward_terms_dict!r}"
+            )
         if not isinstance(self.global_localization, bool):
             raise ValueError(
                 f"global_localization must be True or False, got {self.global_localization!r}"

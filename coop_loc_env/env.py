@@ -35,7 +35,7 @@ class CoopLocParallelEnv(ParallelEnv):
     drivable cells it was first in the team to cover at its *true* pose
     (``reward_coverage_weight``; belief drift earns nothing), minus
     ``collision_penalty`` for every step it spends touching an obstacle, a wall
-    or another robot, and the tip-over penalty (terms in ``info["reward_terms"]``).
+    or another robot, and the tip-over penalty (terms in ``info["reward_<term>"]``).
     The team terrain map (:mod:`coop_loc_env.mapping`) is updated every step
     from the robots' beliefs, inclinometers and DGPS altitudes; camera ranges
     come from depth from motion (:mod:`coop_loc_env.depth_from_motion`).
@@ -47,14 +47,21 @@ class CoopLocParallelEnv(ParallelEnv):
             e.g. ``n_robots=4``, ``estimator="ekf"``, ``max_cycles=200``.
 
     Infos (per agent): ``true_pose``, ``est_pose`` (x, y, heading), ``pose_cov``
-    (3x3), ``position_error`` (m), ``heading_error`` (rad), ``reward_terms``,
-    ``gps_fix``, ``satellites``, ``collisions`` (new contacts this step),
-    ``in_contact`` (touched something this step: the collision penalty applies),
-    ``tipped_over``, ``new_cells`` (team-map cells this robot newly mapped this
-    step, at its estimated pose), ``covered_cells`` (drivable cells this robot
-    was first to cover this step, at its true pose: the coverage reward counts
-    these), ``coverage`` (fraction of the drivable area the team has mapped)
-    and ``map_rmse`` (m, team map vs true height field over mapped cells).
+    (3x3), ``position_error`` (m), ``heading_error`` (rad), the reward terms as
+    ``reward_localization``, ``reward_coverage``, ``reward_collision`` and
+    ``reward_tip_over`` (and as the dict ``reward_terms`` unless the config's
+    ``reward_terms_dict`` is False), ``gps_fix``, ``satellites``, ``collisions``
+    (new contacts this step), ``in_contact`` (touched something this step: the
+    collision penalty applies), ``tipped_over``, ``new_cells`` (team-map cells
+    this robot newly mapped this step, at its estimated pose), ``covered_cells``
+    (drivable cells this robot was first to cover this step, at its true pose:
+    the coverage reward counts these), ``coverage`` (fraction of the drivable
+    area the team has mapped) and ``map_rmse`` (m, team map vs true height field
+    over mapped cells), plus the estimators' own entries (MCL:
+    ``particle_spread``, ``n_particles``, ``detections_used``), NaN for robots
+    whose estimator does not report them: every agent of a team has the same
+    keys. With ``reward_terms_dict=False`` every value is a number or a
+    fixed-shape array (what TorchRL needs).
     """
 
     metadata = {
@@ -213,7 +220,12 @@ class CoopLocParallelEnv(ParallelEnv):
 
     # ------------------------------------------------------------------ step
     def step(self, actions: dict[str, Any]):
-        """Apply one action per live agent; returns PettingZoo's five dicts."""
+        """Apply one action per live agent; returns PettingZoo's five dicts.
+
+        Actions of agents already done (terminated or truncated) are ignored,
+        unchecked: a trainer that sends an action for every agent of the team
+        (TorchRL with ``done_on_any=False``) works. Every live agent must act.
+        """
         act = self._validate_actions(actions)
         cfg = self.config
         rng = self.np_random
@@ -278,9 +290,9 @@ class CoopLocParallelEnv(ParallelEnv):
             unknown = [a for a in actions if a not in self.agent_name_mapping]
             if unknown:
                 raise ValueError(f"unknown agent(s) {unknown} in actions; agents: {self.agents}")
-            done = [a for a in actions if a not in self.agents]
-            if done:
-                raise ValueError(f"agent(s) {done} are done and cannot act until reset()")
+            if len(actions) > len(self.agents):  # ignore actions of agents already done
+                live = set(self.agents)
+                actions = {a: v for a, v in actions.items() if a in live}
             missing = [a for a in self.agents if a not in actions]
             if missing:
                 raise ValueError(f"missing actions for agents {missing}")
@@ -406,11 +418,7 @@ class CoopLocParallelEnv(ParallelEnv):
         err_xy = np.hypot(diff[:, 0], diff[:, 1])
         err_th = np.abs(wrap_angle(diff[:, 2]))
         readings = self._last_readings
-        extra: dict[int, dict] = {}
-        for backend in self.backends:
-            if hasattr(backend, "extra_info"):
-                for i, entries in backend.extra_info(self.world.poses).items():
-                    extra.setdefault(int(i), {}).update(entries)
+        extra = self._extra_infos()
         coverage = self.mapper.coverage()
         map_rmse = self.mapper.map_rmse()
         # Reward terms in Python floats (the same IEEE arithmetic as numpy, per robot).
@@ -423,6 +431,7 @@ class CoopLocParallelEnv(ParallelEnv):
         team_term = -cfg.reward_team_weight * float(err_xy[self._active].mean()) if (
             self._active.any()) else 0.0
         pen_hit, pen_tip = -cfg.collision_penalty, -cfg.tip_over_penalty
+        terms_dict = cfg.reward_terms_dict
         n = cfg.n_robots
         if readings is not None:
             fix, sats = readings.gps_mask.tolist(), readings.satellites.tolist()
@@ -446,15 +455,16 @@ class CoopLocParallelEnv(ParallelEnv):
             hit, tip_term = pen_hit * float(touch), pen_tip * tip
             # what sum() of the terms gives
             rewards[agent] = 0.0 + loc + cover + hit + tip_term + team_term + unc
-            infos[agent] = {
+            terms = {"localization": loc, "coverage": cover, "collision": hit,
+                     "tip_over": tip_term, "team_localization": team_term,
+                     "uncertainty": unc}
+            info = {
                 "true_pose": poses[i],
                 "est_pose": est[i],
                 "pose_cov": cov[i],
                 "position_error": exy,
                 "heading_error": eth,
-                "reward_terms": {"localization": loc, "coverage": cover, "collision": hit,
-                                 "tip_over": tip_term, "team_localization": team_term,
-                                 "uncertainty": unc},
+                **{f"reward_{name}": value for name, value in terms.items()},
                 "gps_fix": bool(gps),
                 "satellites": int(nsat),
                 "collisions": int(hits),
@@ -466,12 +476,47 @@ class CoopLocParallelEnv(ParallelEnv):
                 "map_rmse": map_rmse,
                 **extra.get(i, {}),
             }
+            if terms_dict:
+                info["reward_terms"] = terms
+            infos[agent] = info
         return infos, rewards
 
+    def _extra_infos(self) -> dict[int, dict]:
+        """The estimators' extra info entries per robot, every robot with the same keys.
+
+        In a mixed team a key that only some robots' estimator reports (e.g. MCL's
+        ``particle_spread``) is NaN for the others, so every agent's info has the
+        same keys (TorchRL stacks them per team).
+        """
+        extra: dict[int, dict] = {}
+        for backend in self.backends:
+            if hasattr(backend, "extra_info"):
+                for i, entries in backend.extra_info(self.world.poses).items():
+                    extra.setdefault(int(i), {}).update(entries)
+        if not extra:
+            return extra
+        keys: dict[str, None] = {}
+        for entries in extra.values():
+            keys.update(dict.fromkeys(entries))
+        for i in range(self.config.n_robots):
+            entries = extra.setdefault(i, {})
+            if len(entries) < len(keys):
+                for key in keys:
+                    entries.setdefault(key, float("nan"))
+        return extra
+
     # ------------------------------------------------------------------ render
-    def render(self) -> np.ndarray | None:
+    def render(self, mode: str | None = None) -> np.ndarray | None:
         """Draw the scene: terrain, canopy, obstacles, true/estimated poses with 2-sigma
-        ellipses, range rays and detections. ``rgb_array`` returns ``uint8 (H, W, 3)``."""
+        ellipses, range rays and detections. ``rgb_array`` returns ``uint8 (H, W, 3)``.
+
+        ``mode`` (for callers of the older ``render(mode)`` API, e.g. RLlib's
+        PettingZoo wrappers) must be ``None`` or the env's ``render_mode``.
+        """
+        if mode is not None and mode != self.render_mode:
+            raise ValueError(
+                f"render mode {mode!r} differs from the env's render_mode {self.render_mode!r}"
+            )
         if self.render_mode is None:
             gymnasium.logger.warn("render() called without a render_mode; pass render_mode=...")
             return None

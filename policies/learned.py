@@ -6,7 +6,9 @@ acts for every live agent (parameter sharing), deterministically, one batched
 forward pass per step. :func:`load_learned_policy` loads ``DIR/final_model.zip``
 (or any SB3 zip, the algorithm detected from the file), the same file
 ``scripts/evaluate.py --policy PATH`` loads through :func:`policies.runner.make_policy`
-(as :class:`SB3Policy`).
+(as :class:`SB3Policy`). A directory written by ``scripts/train.py --backend
+rllib`` loads as :class:`policies.rllib_backend.RLlibPolicy`, with the same
+``reset``/``act`` interface.
 """
 
 from __future__ import annotations
@@ -104,9 +106,28 @@ def detect_sb3_algo(path: str | Path) -> str:
     return "PPO"
 
 
-def load_learned_policy(path: str | Path) -> SB3Policy:
-    """Load a saved SB3 model (``.zip``, or a training ``DIR`` holding ``final_model.zip``)."""
+def is_rllib_run(path: str | Path) -> bool:
+    """Whether ``path`` is an RLlib run ``DIR`` (holding ``checkpoint/``) or checkpoint."""
     path = Path(path)
+    return (path / "checkpoint" / "rllib_checkpoint.json").is_file() or (
+        path / "rllib_checkpoint.json"
+    ).is_file()
+
+
+def load_learned_policy(path: str | Path):
+    """Load a trained policy: a saved SB3 model (``.zip``, or a training ``DIR`` holding
+    ``final_model.zip``) or an RLlib run ``DIR`` / checkpoint
+    (:class:`policies.rllib_backend.RLlibPolicy`, needs the ``rllib`` extra)."""
+    path = Path(path)
+    if is_rllib_run(path):
+        try:
+            from policies.rllib_backend import RLlibPolicy
+        except ImportError as err:
+            raise ValueError(
+                f"{str(path)!r} is an RLlib checkpoint: install the rllib extra "
+                f"(pip install -e \".[rllib]\") to load it ({err})"
+            ) from err
+        return RLlibPolicy(path)
     if path.is_dir():
         path = path / "final_model.zip"
     if not path.is_file():

@@ -29,7 +29,11 @@ import numpy as np
 import coop_loc_env
 from policies.baselines import Policy, RandomPolicy, SeekTeammatePolicy, StandStillPolicy
 from policies.fsm import FSMPolicy
-from policies.learned import SB3Policy, detect_sb3_algo  # noqa: F401 (re-exported)
+from policies.learned import (  # noqa: F401 (re-exported)
+    SB3Policy,
+    detect_sb3_algo,
+    load_learned_policy,
+)
 
 FIGURES = ("localization_error_m", "coverage", "map_rmse_m", "collisions", "tip_overs")
 
@@ -57,16 +61,19 @@ def policy_help() -> str:
 
 
 def make_policy(spec: str) -> Policy:
-    """A policy from a registered name (``NAME`` or ``NAME:ARG``, see :func:`policy_names`)
-    or the path of a saved stable-baselines3 model (``.zip``)."""
+    """A policy from a registered name (``NAME`` or ``NAME:ARG``, see :func:`policy_names`),
+    the path of a saved stable-baselines3 model (``.zip``) or a training directory (SB3 or
+    RLlib, :func:`policies.learned.load_learned_policy`)."""
     name, _, arg = str(spec).partition(":")
     if name in _POLICIES:
         return _POLICIES[name][0](arg)
     if str(spec).endswith(".zip") or Path(spec).is_file():
         return SB3Policy(spec)
+    if Path(spec).is_dir():  # a training DIR: SB3 (final_model.zip) or RLlib (checkpoint/)
+        return load_learned_policy(spec)
     raise ValueError(
-        f"unknown policy {spec!r}: use one of {policy_names()} or the path of a saved "
-        f"stable-baselines3 model (.zip)"
+        f"unknown policy {spec!r}: use one of {policy_names()}, the path of a saved "
+        f"stable-baselines3 model (.zip) or a training directory"
     )
 
 

@@ -143,8 +143,9 @@ class TimeToLocalizeReward:
     @staticmethod
     def spread(info: dict) -> float:
         """The robot's spread (m): ``particle_spread``, else ``sqrt(var_x + var_y)``."""
-        if "particle_spread" in info:
-            return float(info["particle_spread"])
+        spread = float(info.get("particle_spread", np.nan))  # NaN: not an MCL robot
+        if np.isfinite(spread):
+            return spread
         cov = np.asarray(info["pose_cov"])
         return float(np.sqrt(cov[0, 0] + cov[1, 1]))
 

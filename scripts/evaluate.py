@@ -55,7 +55,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--scenario", default="outdoor_terrain", help="registered scenario name")
     p.add_argument("--policy", default="fsm",
-                   help="a policy name (listed below) or PATH.zip (SB3 model)")
+                   help="a policy name (listed below), PATH.zip (SB3 model) or DIR (SB3 or "
+                        "RLlib training run)")
     p.add_argument("--episodes", type=int, default=None,
                    help="number of episodes (default 3, or 20 with --compare)")
     p.add_argument("--compare", default=None, metavar="A,B,...",

@@ -7,6 +7,8 @@ Examples::
         --reward-localization-weight 5 --reward-coverage-weight 1
     python scripts/train.py --out runs/ppo_outdoor --resume runs/ppo_outdoor --timesteps 100000
     python scripts/evaluate.py --policy runs/ppo_outdoor/final_model.zip --episodes 20
+    python scripts/train.py --backend rllib --num-env-runners 2 --timesteps 40000 --out runs/rl
+    python scripts/evaluate.py --policy runs/rl --episodes 3
 
 A scenario may carry its own training defaults (``rendezvous`` does: its
 reward, observation and PPO settings, see ``coop_loc_env/scenarios/rendezvous.py``);
@@ -18,11 +20,18 @@ periodic evaluation against the FSM baseline under ``eval/`` and ``baseline/``),
 ``DIR/train_config.json`` and ``DIR/train_summary.json``. ``--timesteps`` counts
 agent steps (one per robot per env step). Evaluate with the same ``--set``
 overrides as in training (the observation size depends on some of them).
+
+``--backend rllib`` trains the same shared policy with Ray RLlib's PPO
+(``--num-env-runners N`` sampling processes, ``--address`` of a Ray cluster;
+see docs/scaling.md) and writes the checkpoint ``DIR/checkpoint``, TensorBoard
+logs in ``DIR/tb``, ``DIR/train_config.json`` and ``DIR/train_summary.json``.
+``scripts/evaluate.py --policy DIR`` evaluates either kind of run.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 from policies.runner import parse_overrides, policy_names
@@ -94,6 +103,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dagger-epochs", type=int, default=d.dagger_epochs,
                    help="epochs of each DAgger refit (on all labels so far)")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    p.add_argument("--backend", default="sb3", choices=("sb3", "rllib"),
+                   help="sb3: stable-baselines3 on this machine; rllib: Ray RLlib's PPO "
+                        "(policies.rllib_backend, the rllib extra)")
+    p.add_argument("--num-env-runners", type=int, default=None,
+                   help="rllib: parallel sampling processes (default 1; 0 = in this process)")
+    p.add_argument("--address", default=None,
+                   help="rllib: address of a running Ray cluster (local Ray when unset)")
     return p
 
 
@@ -130,13 +146,14 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     """Parse ``argv``; options left unset take the scenario's training defaults, if it has
-    any (:func:`coop_loc_env.scenarios.training_defaults`), then the built-in ones."""
+    any (:func:`coop_loc_env.scenarios.training_defaults`; stable-baselines3 backend only),
+    then the built-in ones."""
     from coop_loc_env.scenarios import training_defaults
 
     parser = build_parser()
     first, _ = parser.parse_known_args(argv)
     defaults = training_defaults(first.scenario)
-    if defaults:
+    if defaults and first.backend == "sb3":  # the scenarios' recipes are stable-baselines3 ones
         parser.set_defaults(**defaults)
     return parser.parse_args(argv)
 
@@ -150,6 +167,10 @@ def main(argv: list[str] | None = None) -> int:
         import coop_loc_env
 
         coop_loc_env.make_config(cfg.scenario, **cfg.env_overrides())
+        if args.backend == "rllib":
+            return _train_rllib(cfg, args)
+        if args.num_env_runners is not None or args.address is not None:
+            raise ValueError("--num-env-runners and --address need --backend rllib")
         steps = trained_timesteps(cfg)
         if steps != cfg.timesteps:
             print(f"note: training {steps} agent steps, not {cfg.timesteps}: the agent slots "
@@ -178,5 +199,24 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
+def _train_rllib(cfg: TrainConfig, args: argparse.Namespace) -> int:
+    """``--backend rllib`` (raises ``ValueError`` on options that path does not have)."""
+    try:
+        from policies.rllib_backend import run_from_train_config, train_rllib
+    except ImportError as err:
+        raise ValueError(f"--backend rllib needs the rllib extra (pip install -e "
+                         f"'.[rllib]'): {err}") from err
+    summary = train_rllib(run_from_train_config(cfg, args.num_env_runners, args.address))
+    print(f"trained {summary['timesteps']} agent steps with RLlib in {summary['wall_s']:.0f} s "
+          f"({summary['steps_per_s']:.0f} steps/s), {summary['total_wall_s']:.0f} s in all; "
+          f"checkpoint: {summary['checkpoint']}")
+    return 0
+
+
 if __name__ == "__main__":
+    if {"rllib", "--backend=rllib"} & set(sys.argv) and "PYTHONHASHSEED" not in os.environ:
+        # RLlib orders agents by iterating sets of their names: with string hashing fixed,
+        # the same seed gives the same samples and batches (the env runners get it too).
+        os.environ["PYTHONHASHSEED"] = "0"
+        os.execv(sys.executable, [sys.executable, *sys.argv])
     sys.exit(main())

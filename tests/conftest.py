@@ -90,6 +90,7 @@ SLOW_TESTS = frozenset({
     "test_mrclam.py::test_cli_writes_the_documented_json",
     "test_mrclam.py::test_mle_runs_on_excerpt_and_beats_dead_reckoning",
     "test_particle_filter.py::test_beam_model_tracks_with_wide_cones[180]",
+    "test_rllib.py::test_tiny_training_then_evaluate_and_compare",
     "test_sb3_adapter.py::test_two_processes_match_one_process",
     "test_training.py::test_tiny_training_saves_a_model_that_evaluate_loads",
 })
@@ -101,3 +102,21 @@ def pytest_collection_modifyitems(config, items):
         nodeid = item.nodeid.removeprefix("tests/")
         if nodeid in SLOW_TESTS or nodeid.split("[")[0] in SLOW_TESTS:
             item.add_marker(pytest.mark.slow)
+
+
+@pytest.fixture(scope="session")
+def steep_and_flat():
+    """Start poses ``(on a steep patch, far from it on flat ground)`` of ``outdoor_terrain``:
+    a robot started on the first tips over at its first step, one on the second does not."""
+    import numpy as np
+
+    import coop_loc_env
+
+    terrain = coop_loc_env.parallel_env("outdoor_terrain").world.terrain
+    cx, cy = terrain.steep_centers[0]
+    grid = np.stack(np.meshgrid(np.linspace(1, 39, 77), np.linspace(1, 39, 77)), -1).reshape(-1, 2)
+    steep = grid[terrain.is_steep(grid)]
+    flat = grid[~terrain.is_steep(grid)]
+    s = steep[np.argmin(np.hypot(*(steep - (cx, cy)).T))]
+    f = flat[np.argmax(np.hypot(*(flat - s).T))]
+    return (float(s[0]), float(s[1]), 0.0), (float(f[0]), float(f[1]), 0.0)
