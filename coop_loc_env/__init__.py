@@ -21,20 +21,28 @@ from __future__ import annotations
 from typing import Any
 
 from pettingzoo.env_registry import register
-from pettingzoo.utils import parallel_to_aec, wrappers
+from pettingzoo.utils import wrappers
 
+from coop_loc_env.aec import CoopLocAECEnv
 from coop_loc_env.config import Obstacle, RobotSpec, ScenarioConfig
 from coop_loc_env.env import CoopLocParallelEnv
-from coop_loc_env.scenarios import list_scenarios, make_config, register_scenario
+from coop_loc_env.scenarios import (
+    describe_scenario,
+    list_scenarios,
+    make_config,
+    register_scenario,
+)
 
 __version__ = "0.1.0"
 REGISTRY_NAMESPACE = "coop_loc"
 
 __all__ = [
+    "CoopLocAECEnv",
     "CoopLocParallelEnv",
     "Obstacle",
     "RobotSpec",
     "ScenarioConfig",
+    "describe_scenario",
     "env",
     "env_id",
     "list_scenarios",
@@ -53,8 +61,9 @@ def parallel_env(
 
 
 def raw_env(scenario: str = "outdoor_terrain", render_mode: str | None = None, **overrides: Any):
-    """The AEC environment obtained by PettingZoo's ``parallel_to_aec`` conversion, unwrapped."""
-    return parallel_to_aec(parallel_env(scenario, render_mode=render_mode, **overrides))
+    """The AEC environment (PettingZoo's ``parallel_to_aec`` conversion that checks each
+    agent's action when it is given), without the order-enforcing wrapper."""
+    return CoopLocAECEnv(parallel_env(scenario, render_mode=render_mode, **overrides))
 
 
 def env(scenario: str = "outdoor_terrain", render_mode: str | None = None, **overrides: Any):

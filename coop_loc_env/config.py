@@ -24,6 +24,11 @@ DETECTION_MODELS = ("fox", "howard", "laser", "camera")
 OBSTACLE_KINDS = ("tree", "rock", "wall", "ooi", "building")
 OBSTACLE_SHAPES = ("circle", "segment", "polygon")
 RANGE_SENSOR_TYPES = ("laser", "sonar")
+#: Largest team the env simulates (sensing is pairwise: at this size on an 80 m field a
+#: step takes ~0.2 s and the random start placement ~10 s).
+MAX_ROBOTS = 1000
+#: Gap (m) the random start placement keeps between two robots' edges (see ``World``).
+START_GAP = 0.3
 
 
 @dataclass(frozen=True)
@@ -227,8 +232,17 @@ class ScenarioConfig:
             max_turn_rate=spec.max_turn_rate or self.max_turn_rate,
         )
 
+    @property
+    def estimators(self) -> tuple[str, ...]:
+        """The estimator each robot runs (``RobotSpec.estimator``, else :attr:`estimator`)."""
+        return tuple(self.robot_spec(i).estimator for i in range(self.n_robots))
+
     def replace(self, **overrides: Any) -> ScenarioConfig:
-        """A validated copy with ``overrides``; unknown keys raise ``ValueError``."""
+        """A validated copy with ``overrides``; unknown keys raise ``ValueError``.
+
+        ``estimator=`` sets every robot's estimator: it clears the per-robot
+        ``RobotSpec.estimator`` of the team unless ``team=`` is given too.
+        """
         known = {f.name for f in dataclasses.fields(self)}
         for key in overrides:
             if key not in known:
@@ -239,6 +253,13 @@ class ScenarioConfig:
         for key in ("team", "obstacles", "world_size", "start_region", "start_poses"):
             if key in overrides and isinstance(overrides[key], list):
                 overrides[key] = tuple(overrides[key])
+        if "estimator" in overrides and "team" not in overrides:
+            # An explicit estimator= overrides the per-robot estimators of this config's team
+            # (a team passed alongside it keeps its own: estimator= is then their default).
+            overrides["team"] = tuple(
+                dataclasses.replace(s, estimator=None) if isinstance(s, RobotSpec) else s
+                for s in self.team
+            )
         cfg = dataclasses.replace(self, **overrides)
         cfg.validate()
         return cfg
@@ -331,6 +352,7 @@ class ScenarioConfig:
                     f"start_region must be (x0, y0, x1, y1) inside the world, "
                     f"got {self.start_region!r}"
                 )
+        self._check_team_size()
         if self.start_poses is not None:
             if len(self.start_poses) < self.n_robots:
                 raise ValueError(
@@ -345,6 +367,39 @@ class ScenarioConfig:
                 f"odometry_rate must be at least 1/dt = {1 / self.dt:g} Hz, "
                 f"got {self.odometry_rate!r}"
             )
+
+    def start_capacity(self) -> int:
+        """An upper bound on how many robots random start placement can fit.
+
+        Robot centres keep ``robot_radius`` from the start region's edges and
+        ``2 robot_radius + START_GAP`` from each other, so disks of half that
+        spacing around them are disjoint and lie in the region grown by half the
+        spacing: no more than its area over one disk's area fit.
+        """
+        w, h = self.world_size
+        x0, y0, x1, y1 = self.start_region or (1.0, 1.0, w - 1.0, h - 1.0)
+        r = self.robot_radius
+        spacing = 2 * r + START_GAP
+        width = max(x1 - x0 - 2 * r, 0.0) + spacing
+        height = max(y1 - y0 - 2 * r, 0.0) + spacing
+        return int(width * height / (math.pi * spacing**2 / 4))
+
+    def _check_team_size(self) -> None:
+        """Refuse teams too large to simulate or to place (before anything is built)."""
+        if self.n_robots > MAX_ROBOTS:
+            raise ValueError(
+                f"n_robots must be <= {MAX_ROBOTS} (the largest team simulated), "
+                f"got {self.n_robots!r}"
+            )
+        if self.start_poses is None:
+            capacity = self.start_capacity()
+            if self.n_robots > capacity:
+                region = self.start_region or "the world"
+                raise ValueError(
+                    f"n_robots={self.n_robots} robots of radius {self.robot_radius:g} m cannot "
+                    f"be placed in start_region {region}: at most {capacity} fit; use fewer "
+                    "robots, a larger start_region, or start_poses"
+                )
 
     @functools.cached_property
     def odometry_substeps(self) -> int:

@@ -32,8 +32,10 @@ class CoopLocParallelEnv(ParallelEnv):
     sensors feed its estimator; its observation is its belief plus its own
     readings (see :mod:`coop_loc_env.observations`); its reward is the
     weighted negative true localization error, plus the weighted number of
-    team-map cells it newly mapped (``reward_coverage_weight``), minus
-    collision and tip-over penalties (terms in ``info["reward_terms"]``).
+    drivable cells it was first in the team to cover at its *true* pose
+    (``reward_coverage_weight``; belief drift earns nothing), minus
+    ``collision_penalty`` for every step it spends touching an obstacle, a wall
+    or another robot, and the tip-over penalty (terms in ``info["reward_terms"]``).
     The team terrain map (:mod:`coop_loc_env.mapping`) is updated every step
     from the robots' beliefs, inclinometers and DGPS altitudes; camera ranges
     come from depth from motion (:mod:`coop_loc_env.depth_from_motion`).
@@ -47,8 +49,11 @@ class CoopLocParallelEnv(ParallelEnv):
     Infos (per agent): ``true_pose``, ``est_pose`` (x, y, heading), ``pose_cov``
     (3x3), ``position_error`` (m), ``heading_error`` (rad), ``reward_terms``,
     ``gps_fix``, ``satellites``, ``collisions`` (new contacts this step),
+    ``in_contact`` (touched something this step: the collision penalty applies),
     ``tipped_over``, ``new_cells`` (team-map cells this robot newly mapped this
-    step), ``coverage`` (fraction of the drivable area the team has mapped)
+    step, at its estimated pose), ``covered_cells`` (drivable cells this robot
+    was first to cover this step, at its true pose: the coverage reward counts
+    these), ``coverage`` (fraction of the drivable area the team has mapped)
     and ``map_rmse`` (m, team map vs true height field over mapped cells).
     """
 
@@ -179,6 +184,7 @@ class CoopLocParallelEnv(ParallelEnv):
         self._last_readings: Readings | None = None
         self._camera_filled = False
         self._new_cells = np.zeros(n, dtype=np.int64)
+        self._covered_cells = np.zeros(n, dtype=np.int64)
 
     def reset(
         self, seed: int | None = None, options: dict | None = None
@@ -223,8 +229,11 @@ class CoopLocParallelEnv(ParallelEnv):
         for backend in self.backends:
             backend.step(readings, self._active)
         self._gather_beliefs()
-        self._new_cells = self.mapper.step(readings, self._est_mean, self._est_cov, self._active)
-        self.observations.ingest(readings, self.sensors.range_max)
+        self._new_cells = self.mapper.step(
+            readings, self._est_mean, self._est_cov, self._active, true_poses=poses
+        )
+        self._covered_cells = self.mapper.last_covered_cells
+        self.observations.ingest(readings, self.sensors.range_max, self._step_count)
         self._last_action = act
         self._step_count += 1
 
@@ -234,7 +243,9 @@ class CoopLocParallelEnv(ParallelEnv):
             self._active &= ~newly_tipped
         truncate = self._step_count >= cfg.max_cycles
 
-        infos, rewards = self._infos(newly_tipped.astype(float), contacts, live)
+        infos, rewards = self._infos(
+            newly_tipped.astype(float), contacts, live, in_contact=self.world.in_contact
+        )
         if truncate or np.count_nonzero(self._active) < self._active.size:
             active = self._active.tolist()
             terminations = {a: not active[self.agent_name_mapping[a]] for a in live}
@@ -252,7 +263,8 @@ class CoopLocParallelEnv(ParallelEnv):
     def _validate_actions(self, actions: dict[str, Any]) -> np.ndarray:
         """Check every action before touching any state; returns ``(n, 2)`` floats."""
         if not self.agents:
-            raise ValueError("step() called on a finished episode: call reset() first")
+            when = "on a finished episode" if self._np_random is not None else "before reset()"
+            raise ValueError(f"step() called {when}: call reset() first")
         if not isinstance(actions, dict):
             raise ValueError(
                 f"actions must be a dict agent -> action, got {type(actions).__name__}"
@@ -271,8 +283,12 @@ class CoopLocParallelEnv(ParallelEnv):
             if missing:
                 raise ValueError(f"missing actions for agents {missing}")
             rows = [self.agent_name_mapping[a] for a in actions]
+        values = list(actions.values())
+        if any(type(v) is not np.ndarray or v.dtype.kind not in "fiu" for v in values):
+            for agent, action in actions.items():  # lists, or arrays of strings, bools...
+                self._check_action(agent, action)
         try:
-            stacked = np.asarray(list(actions.values()), dtype=float)
+            stacked = np.asarray(values, dtype=float)
         except (TypeError, ValueError):
             stacked = None
         # The largest magnitude: NaN (which fails every comparison) if any entry is NaN.
@@ -302,7 +318,32 @@ class CoopLocParallelEnv(ParallelEnv):
 
     @staticmethod
     def _check_action(agent: str, action: Any) -> None:
-        """Raise a ``ValueError`` naming ``agent`` if ``action`` is malformed."""
+        """Raise a ``ValueError`` naming ``agent`` if ``action`` is malformed.
+
+        An action is a numpy array of integers or floats, or a list or tuple of
+        two Python or numpy numbers; strings, booleans and complex numbers are refused.
+        """
+        if isinstance(action, np.ndarray):
+            if action.dtype.kind not in "fiu":
+                raise ValueError(
+                    f"action of {agent!r} must hold real numbers, got dtype {action.dtype}: "
+                    f"{action!r}"
+                )
+        elif isinstance(action, (list, tuple)):
+            for x in action:
+                if isinstance(x, (bool, np.bool_)) or not isinstance(
+                    x, (int, float, np.integer, np.floating)
+                ):
+                    raise ValueError(
+                        f"action of {agent!r} must hold two real numbers, got {x!r} in {action!r}"
+                    )
+        elif isinstance(action, (bool, np.bool_)) or not isinstance(
+            action, (int, float, np.number)
+        ):
+            raise ValueError(
+                f"action of {agent!r} is not numeric (an array or a list of two numbers): "
+                f"{type(action).__name__} {action!r}"
+            )
         try:
             a = np.asarray(action, dtype=float)
         except (TypeError, ValueError) as err:
@@ -343,7 +384,11 @@ class CoopLocParallelEnv(ParallelEnv):
         return {a: obs[self.agent_name_mapping[a]] for a in agents}
 
     def _infos(
-        self, tipped: np.ndarray, new_contacts: np.ndarray, agents: list[str] | None = None
+        self,
+        tipped: np.ndarray,
+        new_contacts: np.ndarray,
+        agents: list[str] | None = None,
+        in_contact: np.ndarray | None = None,
     ) -> tuple[dict[str, dict], dict[str, float]]:
         """Infos and rewards of ``agents`` (all possible agents by default), in that order."""
         cfg = self.config
@@ -370,10 +415,11 @@ class CoopLocParallelEnv(ParallelEnv):
             fix, sats = readings.gps_mask.tolist(), readings.satellites.tolist()
         else:
             fix, sats = [False] * n, [0] * n
+        touching = [False] * n if in_contact is None else in_contact.tolist()
         columns = zip(
             self.possible_agents, err_xy.tolist(), err_th.tolist(), fix, sats,
-            new_contacts.tolist(), tipped.tolist(), self._tipped.tolist(),
-            self._new_cells.tolist(), strict=True,
+            new_contacts.tolist(), touching, tipped.tolist(), self._tipped.tolist(),
+            self._new_cells.tolist(), self._covered_cells.tolist(), strict=True,
         )
         if agents is not None and len(agents) < n:  # only the live agents' entries
             every = list(columns)
@@ -381,9 +427,10 @@ class CoopLocParallelEnv(ParallelEnv):
         else:
             columns = enumerate(columns)
         infos, rewards = {}, {}
-        for i, (agent, exy, eth, gps, nsat, hits, tip, tipped_over, cells) in columns:
-            loc, cover = -w_loc * exy - w_head * eth, w_cov * float(cells)
-            hit, tip_term = pen_hit * hits, pen_tip * tip
+        for i, (agent, exy, eth, gps, nsat, hits, touch, tip, tipped_over, cells,
+                covered) in columns:
+            loc, cover = -w_loc * exy - w_head * eth, w_cov * float(covered)
+            hit, tip_term = pen_hit * float(touch), pen_tip * tip
             rewards[agent] = 0.0 + loc + cover + hit + tip_term  # what sum() of the terms gives
             infos[agent] = {
                 "true_pose": poses[i],
@@ -396,8 +443,10 @@ class CoopLocParallelEnv(ParallelEnv):
                 "gps_fix": bool(gps),
                 "satellites": int(nsat),
                 "collisions": int(hits),
+                "in_contact": bool(touch),
                 "tipped_over": bool(tipped_over),
                 "new_cells": int(cells),
+                "covered_cells": int(covered),
                 "coverage": coverage,
                 "map_rmse": map_rmse,
                 **extra.get(i, {}),

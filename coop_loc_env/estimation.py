@@ -178,13 +178,35 @@ GAUSSIAN_FEATURE_NAMES = (
 )
 
 
+# While the bumper is pressed, how many steps of unknown motion the position variance keeps
+# growing quadratically for (a constant unknown velocity), before it grows linearly.
+CONTACT_CORRELATION_STEPS = 10
+
+
+def contact_variance(distance: np.ndarray, steps_in_contact: np.ndarray) -> np.ndarray:
+    """Position variance (per axis, m^2) to add in a step spent pressed against something.
+
+    Pushing into an obstacle, the wheels turn (the odometry reports the commanded
+    ``distance``) while the robot moves anywhere between not at all and that far
+    (sliding along the obstacle). The prediction takes no translation, and the
+    unknown motion is a velocity that stays the same while the contact lasts:
+    after ``k`` steps its error is up to ``k * distance``, so step ``k`` adds
+    ``(2k - 1) distance^2`` (``k`` capped at :data:`CONTACT_CORRELATION_STEPS`).
+    """
+    k = np.minimum(steps_in_contact, CONTACT_CORRELATION_STEPS)
+    return (2 * k - 1) * distance * distance
+
+
 class EKFBackend:
     """Per-robot EKFs (Madhavan et al.) for the robots in ``robots``.
 
     Each step: predict at the odometry rate, gated DGPS and compass updates,
     then the cooperative joint update (Eq. 3) for every detection between two
     EKF robots (``cooperative_updates``). Cross-backend detections are left to
-    the backend of the observed robot.
+    the backend of the observed robot. While a robot's bumper is pressed its
+    odometry's translation is not trusted (:func:`contact_variance`); DGPS and
+    compass lock-outs are recovered from and relative detections confirmed as
+    described in :class:`~estimators.ekf.PoseEKF`.
     """
 
     feature_size = 10
@@ -199,11 +221,13 @@ class EKFBackend:
         self._encoder_var = np.array([cfg.odom_v_std**2, cfg.odom_w_std**2])[:, None, None]  # V, w
         self._encoder_var.flags.writeable = False
         self.ekf: PoseEKF | None = None
+        self._contact_steps = np.zeros(len(self.robots), dtype=int)
 
     def reset(self, true_poses: np.ndarray, rng: np.random.Generator) -> None:
         """Start each filter at a noisy draw around the true pose."""
         mean, std = noisy_start(self.cfg, true_poses, self.robots, rng)
         self.ekf = PoseEKF(mean, np.diag(std**2), gate_prob=self.cfg.gate_prob)
+        self._contact_steps[:] = 0
 
     def step(self, readings: Readings, active: np.ndarray) -> dict[str, int]:
         """Fuse one step of readings; returns counts of accepted/rejected updates."""
@@ -211,10 +235,25 @@ class EKFBackend:
         ekf = self.ekf
         g = self.robots
         odo, dt_sub = _team_odometry(cfg, readings, g, active, self._whole_team)
+        pressed = readings.bumper
+        if pressed is not None and np.count_nonzero(pressed):
+            pressed = pressed if self._whole_team else pressed[g]
+            self._contact_steps = np.where(pressed, self._contact_steps + 1, 0)
+            hit = np.nonzero(pressed)[0]
+            distance = np.abs(odo[:, hit, 0]).sum(axis=0) * dt_sub
+            odo = odo.copy()
+            odo[:, hit, 0] = 0.0  # the wheels' distance is no measure of motion now
+        else:
+            hit = None
+            self._contact_steps[:] = 0
         # Encoder noise plus the wheel slip the robot's maker specifies, inflated by
         # ``ekf_process_noise_scale`` to cover what the model leaves out; (V, w) together.
         var = _odometry_variance(odo, cfg.slip_std, self._encoder_var, cfg.ekf_process_noise_scale)
         ekf._predict_sequence(odo[..., 0], odo[..., 1], dt_sub, var)
+        if hit is not None:
+            q = np.zeros((len(hit), 3, 3))
+            q[:, 0, 0] = q[:, 1, 1] = contact_variance(distance, self._contact_steps[hit])
+            ekf.inflate(hit, q)
         stats = {"accepted": 0, "rejected": 0, "cooperative": 0}
         whole = self._whole_team
         gps = readings.gps_mask

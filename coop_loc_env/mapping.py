@@ -13,6 +13,14 @@ The two elevation sources are blended with the paper's satellite-count weights
 (``map_fusion_weights="paper"``) or the variance-optimal Kalman gain
 (``"kalman"``, several times smaller map RMSE with the default noise).
 
+The coverage *reward* is counted on the ground truth, not on the map:
+:meth:`TeamMapper.step` also marks, for each robot, the drivable cells its
+footprint covers at its *true* pose, and :attr:`TeamMapper.last_covered_cells`
+holds the cells each robot covered first (no robot of the team had covered them
+before). Estimate drift moves where the map writes, so counting newly mapped
+cells would pay a robot whose belief wanders; the map itself stays built from
+the estimates.
+
 The map frame is the true height field's frame: the DGPS base station's
 altitude ``gps_base_altitude`` maps to elevation 0 (``datum = 0``), so
 :meth:`TeamMapper.map_rmse` compares the map with the height field directly.
@@ -84,6 +92,10 @@ class TeamMapper:
         self._dt_sub = cfg.dt / cfg.odometry_substeps
         self._gps_offset = self.map.datum - float(cfg.gps_base_altitude)
         self.last_new_cells = np.zeros(n, dtype=np.int64)
+        self._truly_covered = np.zeros(self._drivable_flat.size, dtype=bool)
+        self._footprint_cells = np.rint(self.map._footprint / cfg.map_resolution).astype(np.intp)
+        self._cover_key = b""
+        self.last_covered_cells = np.zeros(n, dtype=np.int64)
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -108,6 +120,41 @@ class TeamMapper:
             self.cfg.gps_base_altitude,
         )
         self.last_new_cells = np.zeros(n, dtype=np.int64)
+        self._truly_covered[:] = False
+        self._cover_key = b""
+        self.cover(np.asarray(true_poses, dtype=float), self._all)
+        self.last_covered_cells = np.zeros(n, dtype=np.int64)
+
+    def cover(self, true_poses: np.ndarray, ids: np.ndarray) -> np.ndarray:
+        """Mark the drivable cells the footprints of robots ``ids`` cover at their true poses.
+
+        The footprint is the map's, centred on the cell holding the true position.
+        Returns the number of cells each robot of the team covered first ``(n,)``;
+        a cell two robots reach in the same call counts for the lower index.
+        """
+        new = np.zeros(self.cfg.n_robots, dtype=np.int64)
+        if not ids.size:
+            return new
+        cell = np.floor(true_poses[ids, :2] * (1.0 / self.map.resolution)).astype(np.intp)
+        key = cell.tobytes() + ids.tobytes()
+        if key == self._cover_key:  # every robot still in the cell it was in: nothing new
+            return new
+        self._cover_key = key
+        cells = (cell[:, None, :] + self._footprint_cells).reshape(-1, 2)
+        nx, ny = self.map.shape
+        owner = np.repeat(ids, self._footprint_cells.shape[0])
+        ok = (cells[:, 0] >= 0) & (cells[:, 0] < nx) & (cells[:, 1] >= 0) & (cells[:, 1] < ny)
+        flat = cells[:, 0] * ny + cells[:, 1]
+        if np.count_nonzero(ok) < ok.size:
+            flat, owner = flat[ok], owner[ok]
+        fresh = self._drivable_flat[flat] & ~self._truly_covered[flat]
+        if not np.count_nonzero(fresh):
+            return new
+        flat, owner = flat[fresh], owner[fresh]
+        first_cells, first = np.unique(flat, return_index=True)  # owners come in id order
+        self._truly_covered[first_cells] = True
+        np.add.at(new, owner[first], 1)
+        return new
 
     def step(
         self,
@@ -115,6 +162,7 @@ class TeamMapper:
         est_mean: np.ndarray,
         est_cov: np.ndarray,
         active: np.ndarray,
+        true_poses: np.ndarray | None = None,
     ) -> np.ndarray:
         """Register one elevation sample per active robot; returns newly mapped cells ``(n,)``.
 
@@ -123,12 +171,19 @@ class TeamMapper:
             est_mean: estimated poses ``(n, 3)`` after this step's update.
             est_cov: pose covariances ``(n, 3, 3)``.
             active: robots still in the episode (others are not sampled).
+            true_poses: the robots' true poses ``(n, 3)``; when given, the cells
+                the active robots truly covered first are left in
+                :attr:`last_covered_cells` (zeros otherwise).
         """
         m = readings.inclinometer_mask
         if np.count_nonzero(m):
             self._pitch[m] = readings.pitch[m]
         whole = np.count_nonzero(active) == active.size
         ids = self._all if whole else self._active_ids(active)
+        if true_poses is not None:
+            self.last_covered_cells = self.cover(true_poses, ids)
+        else:
+            self.last_covered_cells = np.zeros(self.cfg.n_robots, dtype=np.int64)
         if not ids.size:
             self.last_new_cells = np.zeros(self.cfg.n_robots, dtype=np.int64)
             return self.last_new_cells

@@ -13,7 +13,8 @@ belief                 ``belief_size``             the estimator backend's featu
                                                    values, the same 10 first, then particle
                                                    statistics and histograms, layout in
                                                    ``particle_filter.belief_feature_names``)
-gps                    2                           fix held (0/1), satellites in view / 12
+gps                    2                           fix held (0/1), satellites in view / 12, as of
+                                                   the last DGPS reading (also one with none)
 inclinometer           2                           last pitch and roll (rad)
 range                  ``laser_obs_bins``          min-pooled ranges / max range (1 = nothing)
 detections             ``6 * max_detections_obs``  per slot, nearest first: present, range /
@@ -43,7 +44,7 @@ import numpy as np
 from gymnasium import spaces
 
 from coop_loc_env.config import ScenarioConfig
-from coop_loc_env.sensors import Readings
+from coop_loc_env.sensors import Readings, _due
 
 OBS_LIMIT = 10.0
 
@@ -111,10 +112,14 @@ class ObservationBuilder:
         self.det[:] = 0.0
         self._det_written = False
 
-    def ingest(self, readings: Readings, max_range: np.ndarray) -> None:
-        """Latch the sensor features of one step."""
+    def ingest(self, readings: Readings, max_range: np.ndarray, step: int) -> None:
+        """Latch the sensor features of env step ``step`` (0-based, as the sensors read it).
+
+        The GPS features are refreshed on every step the DGPS receivers report,
+        also when none of them sees a satellite (the fix is then lost).
+        """
         cfg = self.cfg
-        if np.count_nonzero(readings.satellites) or np.count_nonzero(readings.gps_mask):  # DGPS
+        if _due(step, cfg.dt, cfg.gps_rate):  # DGPS
             self.gps[:, 0] = readings.gps_mask
             self.gps[:, 1] = readings.satellites / 12.0
         m = readings.inclinometer_mask

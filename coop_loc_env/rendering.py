@@ -1,7 +1,13 @@
 """Matplotlib renderer: terrain shading, canopy, obstacles, true and estimated poses.
 
+Each robot has a colour: its true pose is a filled disc with a heading tick,
+its estimate a cross, its belief a 2-sigma ellipse (EKF, MLE) or a subsample
+of its particles (MCL, as in Fox et al.'s sample-set figures: a multi-modal
+belief shows as several clouds). Range beams, detections and a key are drawn
+too; the title names the scenario, the estimator and the time.
+
 Imported lazily by :meth:`CoopLocParallelEnv.render`, so matplotlib is only
-needed when rendering (``pip install coop-loc-env[render]``).
+needed when rendering (``pip install -e ".[render]"`` from the repository).
 """
 
 from __future__ import annotations
@@ -26,14 +32,50 @@ def _import_matplotlib():
         from matplotlib.collections import LineCollection
         from matplotlib.figure import Figure
     except ImportError as err:  # pragma: no cover - exercised only without matplotlib
-        raise ImportError("rendering needs matplotlib: pip install 'coop-loc-env[render]'") from err
-    return Figure, FigureCanvasAgg, patches, LineCollection
+        raise ImportError(
+            "rendering needs matplotlib: pip install -e '.[render]' in the repository (or "
+            "pip install matplotlib imageio)"
+        ) from err
+    from matplotlib.lines import Line2D
+
+    return Figure, FigureCanvasAgg, patches, LineCollection, Line2D
 
 
 def _has_display() -> bool:
     import os
 
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+PARTICLES_DRAWN = 250  # per robot: enough to show every mode, few enough to see the map
+
+
+def particle_subsample(
+    particles: np.ndarray, weights: np.ndarray, k: int = PARTICLES_DRAWN, seed: int = 0
+) -> np.ndarray:
+    """``(min(k, N), 2)`` particle positions drawn in proportion to ``weights`` (systematic
+    resampling with its own generator: drawing never touches the env's random streams)."""
+    n = len(particles)
+    if n <= k:
+        return particles[:, :2]
+    cum = np.cumsum(weights)
+    start = np.random.default_rng(seed).uniform(0.0, cum[-1] / k)
+    idx = np.searchsorted(cum, start + cum[-1] / k * np.arange(k))
+    return particles[np.minimum(idx, n - 1), :2]
+
+
+def particle_sets(env: CoopLocParallelEnv) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """Robot index -> ``(N, 3)`` particles and ``(N,)`` weights of every particle-filter
+    belief (read through each filter's public ``belief()``)."""
+    out = {}
+    for backend in env.backends:
+        filters = getattr(backend, "filters", None)
+        if not filters:
+            continue
+        for robot, pf in zip(backend.robots, filters, strict=True):
+            belief = pf.belief()
+            out[int(robot)] = (belief.particles, belief.weights)
+    return out
 
 
 def covariance_ellipse(mean: np.ndarray, cov: np.ndarray, n_sigma: float = 2.0, points: int = 36):
@@ -50,12 +92,32 @@ class Renderer:
 
     def __init__(self, env: CoopLocParallelEnv, size_px: int = 600) -> None:
         self.env = env
-        figure_cls, canvas_cls, self.patches, self.line_collection = _import_matplotlib()
+        figure_cls, canvas_cls, self.patches, self.line_collection, line = _import_matplotlib()
         dpi = 100
         self.fig = figure_cls(figsize=(size_px / dpi, size_px / dpi), dpi=dpi)
         self.canvas = canvas_cls(self.fig)
-        self.ax = self.fig.add_axes((0, 0, 1, 1))
+        self.ax = self.fig.add_axes((0.01, 0.1, 0.98, 0.85))
+        self.title = self.fig.text(0.5, 0.985, "", ha="center", va="top", fontsize=9)
         self._window = None
+        self._frame = 0
+        estimators = env.config.estimators
+        self.estimator_label = "+".join(dict.fromkeys(estimators))
+        grey = "0.35"
+        key = [
+            line([], [], marker="o", ls="", color=grey, ms=7, label="true pose"),
+            line([], [], marker="x", ls="", color=grey, ms=7, mew=2, label="estimate"),
+        ]
+        if any(e != "mcl" for e in estimators):
+            key.append(line([], [], color=grey, lw=1, label="2-sigma belief"))
+        if "mcl" in estimators:
+            key.append(line([], [], marker=".", ls="", color=grey, ms=4, label="particles"))
+        key += [
+            line([], [], color="k", lw=0.8, ls="--", label="detection"),
+            line([], [], color="m", lw=0.8, ls="--", label="false detection"),
+            line([], [], color="red", lw=0.8, alpha=0.6, label="range beams"),
+        ]
+        self.fig.legend(handles=key, loc="lower center", ncol=4, fontsize=7, frameon=False,
+                        handlelength=1.6, columnspacing=1.0, borderaxespad=0.2)
 
     def draw(self) -> np.ndarray:
         """Render the current state; returns ``uint8 (H, W, 3)``."""
@@ -66,7 +128,10 @@ class Renderer:
         ax.clear()
         w, h = cfg.world_size
         terrain = world.terrain
-        ax.imshow(terrain.z, origin="lower", extent=(0, w, 0, h), cmap="terrain", alpha=0.8)
+        if np.ptp(terrain.z) > 0:
+            ax.imshow(terrain.z, origin="lower", extent=(0, w, 0, h), cmap="terrain", alpha=0.8)
+        else:  # flat floor (indoor scenarios): a plain background shows the particles best
+            ax.add_patch(self.patches.Rectangle((0, 0), w, h, color="#f2f2ee", lw=0))
         if terrain.steep.any():
             ax.contourf(terrain.xs, terrain.ys, terrain.steep.astype(float), levels=[0.5, 1.5],
                         colors=["#b22222"], alpha=0.35)
@@ -97,20 +162,26 @@ class Renderer:
             for o, t, genuine in zip(det.observer, det.target, det.genuine, strict=True):
                 ax.plot(*zip(poses[o, :2], poses[t, :2], strict=True),
                         color="k" if genuine else "m", lw=0.8, ls="--")
+        clouds = particle_sets(env)
+        self._frame += 1
         for i in range(cfg.n_robots):
             color = ROBOT_COLORS[i % len(ROBOT_COLORS)]
             x, y, th = poses[i]
+            if i in clouds:
+                xy = particle_subsample(*clouds[i], seed=self._frame)
+                ax.scatter(xy[:, 0], xy[:, 1], s=3, color=color, alpha=0.7, lw=0)
+            else:
+                ell = covariance_ellipse(est[i, :2], cov[i, :2, :2])
+                ax.plot(ell[:, 0], ell[:, 1], color=color, lw=1)
             ax.add_patch(self.patches.Circle((x, y), cfg.robot_radius, color=color, alpha=0.9))
             ax.plot([x, x + 0.8 * np.cos(th)], [y, y + 0.8 * np.sin(th)], color="k", lw=1)
             ax.plot(est[i, 0], est[i, 1], marker="x", color=color, ms=7, mew=2)
-            ell = covariance_ellipse(est[i, :2], cov[i, :2, :2])
-            ax.plot(ell[:, 0], ell[:, 1], color=color, lw=1)
         ax.set_xlim(0, w)
         ax.set_ylim(0, h)
         ax.set_aspect("equal")
         ax.set_axis_off()
-        ax.text(0.5, h - 0.5, f"{cfg.name}  t = {env._step_count * cfg.dt:.1f} s",
-                va="top", fontsize=9, color="k")
+        self.title.set_text(f"{cfg.name}, estimator {self.estimator_label}, "
+                            f"t = {env._step_count * cfg.dt:.1f} s")
         self.canvas.draw()
         buf = np.asarray(self.canvas.buffer_rgba())
         return np.ascontiguousarray(buf[..., :3])

@@ -1,4 +1,5 @@
-"""Sensor models: odometry, DGPS, compass, inclinometer, range finder, camera, robot detector.
+"""Sensor models: odometry, DGPS, compass, inclinometer, range finder, camera, robot detector,
+bumper.
 
 Every sensor reads the whole team at once (numpy over robots), has its own
 rate (``*_rate`` in Hz, defaults from the outdoor paper's Table 1) and noise
@@ -84,6 +85,9 @@ class Readings:
     # (objects of interest first, then robots), quantized bearing (a list), line-of-sight
     # offsets (k, 2) and true distances (k,). None when the camera took no frame.
     camera_sightings: CameraSightings | None = None
+    # (n,) the bumper is pressed: the robot touches an obstacle, the world's boundary or
+    # another robot at the end of the step (its wheels may then spin in place). None: unknown.
+    bumper: np.ndarray | None = None
 
 
 def _no_detections() -> Detections:
@@ -291,7 +295,22 @@ class SensorSuite:
             camera=camera,
             detections=detections,
             camera_sightings=sightings,
+            bumper=self._bumper(active),
         )
+
+    def _bumper(self, active: np.ndarray) -> np.ndarray:
+        """Which active robots touch something now: a contact switch around the body, read
+        from the physics' contacts (noise-free, as a switch is)."""
+        pressed = np.zeros(len(active), dtype=bool)
+        touching: list[bool] = []
+        mark = lambda _arbiter: touching.append(True)  # noqa: E731
+        for i, body in enumerate(self.world.bodies):
+            body.each_arbiter(mark)
+            if touching:
+                pressed[i] = True
+                touching.clear()
+        pressed &= active
+        return pressed
 
     def _idle_readings(self, n: int) -> dict[str, np.ndarray]:
         """Read-only arrays standing for sensors that did not fire this step (shared)."""

@@ -6,20 +6,36 @@ drives all noise. Robot motion follows Eq. 1 of the outdoor paper: the
 commanded ``(V, w)`` with multiplicative slip noise sets each body's velocity
 for every physics substep, and pymunk resolves collisions with obstacles,
 objects of interest, the world boundary and other robots.
+
+Physics holds every accepted speed: each odometry substep is split into as many
+physics steps as keep a robot's travel per physics step within half its radius
+(:data:`MAX_TRAVEL_PER_RADIUS`), so a robot pushed into a wall, an obstacle or
+another robot never sinks past their middle and out the other side; speeds that
+would need more than :data:`MAX_PHYSICS_STEPS` physics steps per odometry
+substep are refused when the world is built.
 """
 
 from __future__ import annotations
+
+import functools
+import math
 
 import numpy as np
 import pymunk
 import pymunk.batch
 
-from coop_loc_env.config import Obstacle, ScenarioConfig
+from coop_loc_env.config import START_GAP, Obstacle, ScenarioConfig
 from coop_loc_env.raycast import RayScene
 from coop_loc_env.terrain import HeightField
 from estimators.geometry import wrap_angle
 
 ROBOT_COLLISION_TYPE = 1
+#: Most a robot may travel in one physics step, in robot radii. pymunk lets a body
+#: pressed into a surface sink about one step of travel before pushing it out; half
+#: a radius keeps two robots meeting head-on, or a robot and the thinnest wall, apart.
+MAX_TRAVEL_PER_RADIUS = 0.5
+#: Most physics steps per odometry substep (faster robots are refused).
+MAX_PHYSICS_STEPS = 16
 _WALL_RADIUS = 0.05
 _VELOCITIES = pymunk.batch.BodyFields.VELOCITY | pymunk.batch.BodyFields.ANGULAR_VELOCITY
 _POSE_FIELDS = pymunk.batch.BodyFields.POSITION | pymunk.batch.BodyFields.ANGLE
@@ -31,6 +47,25 @@ def _count_contact(arbiter: pymunk.Arbiter, space: pymunk.Space, data: dict) -> 
         index = getattr(shape, "robot_index", None)
         if index is not None:
             data["counts"][index] += 1
+
+
+def physics_steps_for(cfg: ScenarioConfig, max_speed: float) -> int:
+    """Physics steps per odometry substep that hold robots of ``max_speed`` (m/s).
+
+    Raises ``ValueError`` naming the fastest speed the world can hold when more
+    than :data:`MAX_PHYSICS_STEPS` would be needed.
+    """
+    dt = cfg.dt / cfg.odometry_substeps
+    reach = MAX_TRAVEL_PER_RADIUS * cfg.robot_radius
+    steps = max(1, math.ceil(max_speed * dt / reach - 1e-9))
+    if steps > MAX_PHYSICS_STEPS:
+        limit = MAX_PHYSICS_STEPS * reach / dt
+        raise ValueError(
+            f"max_speed {max_speed:g} m/s is faster than the physics can hold: robots of "
+            f"robot_radius {cfg.robot_radius:g} m with odometry substeps of {dt:g} s "
+            f"must keep max_speed <= {limit:g} m/s (raise odometry_rate to go faster)"
+        )
+    return steps
 
 
 class Layout:
@@ -177,7 +212,9 @@ class World:
         specs = [cfg.robot_spec(i) for i in range(n)]
         self.max_speed = np.array([s.max_speed for s in specs])
         self.max_turn_rate = np.array([s.max_turn_rate for s in specs])
+        self.physics_steps = physics_steps_for(cfg, float(self.max_speed.max()))
         self.poses = np.zeros((n, 3))
+        self.in_contact = np.zeros(n, dtype=bool)
         self.space: pymunk.Space | None = None
         self.bodies: list[pymunk.Body] = []
         self.contacts = {"counts": np.zeros(n, dtype=int)}
@@ -189,9 +226,15 @@ class World:
         space = pymunk.Space()
         space.iterations = 10
         # Robots are driven by velocity every substep: correct overlaps quickly and
-        # allow little slop so a robot pushing into a rock stays at its surface.
-        space.collision_bias = pow(1.0 - 0.9, 60)
+        # allow little slop so a robot pushing into a rock stays at its surface. The
+        # bias is the share of an overlap left after one second; with several physics
+        # steps per substep it shrinks so that each step corrects the same share.
+        space.collision_bias = pow(1.0 - 0.9, 60 * self.physics_steps)
         space.collision_slop = 0.005
+        # Contacts that stop touching are dropped at once, not kept for 3 steps: a copy
+        # of the space (which rebuilds the cached contacts imperfectly) then continues
+        # exactly as the original.
+        space.collision_persistence = 1
         static = space.static_body
         w, h = cfg.world_size
         corners = [(0.0, 0.0), (w, 0.0), (w, h), (0.0, h)]
@@ -208,6 +251,7 @@ class World:
                 shape = pymunk.Poly(static, list(o.vertices))
             space.add(shape)
         self.contacts["counts"][:] = 0
+        self.in_contact[:] = False
         space.on_collision(ROBOT_COLLISION_TYPE, None, begin=_count_contact, data=self.contacts)
         self.poses = self._start_poses(rng)
         self.bodies = []
@@ -224,6 +268,47 @@ class World:
         self.space = space
         self._angles = self.poses[:, 2].copy()
         self._make_batch_buffers()
+        self._index_shapes()
+
+    def _index_shapes(self) -> None:
+        """Robot index of each robot shape's C pointer (rebuilt after unpickling)."""
+        self._shape_robot: dict[int, int] = {}
+        self._arbiter_reader = None
+        try:
+            from pymunk._chipmunk import ffi, lib
+        except ImportError:
+            return
+        if not hasattr(self.space, "_get_arbiters"):
+            return
+        for i, body in enumerate(self.bodies):
+            for shape in body.shapes:
+                self._shape_robot[int(ffi.cast("uintptr_t", shape._shape))] = i
+        self._arbiter_reader = (ffi, lib)
+
+    def _touching(self) -> np.ndarray:
+        """Robots touching a shape after the last physics step ``(n,)``."""
+        touching = np.zeros(len(self.bodies), dtype=bool)
+        if self._arbiter_reader is None:  # this pymunk hides its contacts: ask each body
+            for i, body in enumerate(self.bodies):
+                found: list = []
+                body.each_arbiter(lambda arb, out=found: out.append(arb))
+                touching[i] = any(arb.contact_point_set.points for arb in found)
+            return touching
+        ffi, lib = self._arbiter_reader
+        space = self.space
+        arbiters = space._get_arbiters()
+        if not arbiters:
+            return touching
+        stamp = lib.cpSpaceGetTimestamp(space._space)
+        robot = self._shape_robot
+        for arb in arbiters:
+            if arb.stamp != stamp or arb.count == 0:  # not touching in the last step
+                continue
+            for shape in (arb.a, arb.b):
+                i = robot.get(int(ffi.cast("uintptr_t", shape)))
+                if i is not None:
+                    touching[i] = True
+        return touching
 
     def _make_batch_buffers(self) -> None:
         """Buffers for pymunk's batch API (rebuilt after unpickling: they hold C pointers).
@@ -245,14 +330,23 @@ class World:
 
     def __getstate__(self) -> dict:
         state = self.__dict__.copy()
-        for key in ("_velocity_buffer", "_velocity_rows", "_state_batch", "_batch"):
+        for key in ("_velocity_buffer", "_velocity_rows", "_state_batch", "_batch",
+                    "_shape_robot", "_arbiter_reader"):
             state.pop(key, None)
+        # pymunk pickles the bodies and the contacts, but not the bias velocities its
+        # solver left on the bodies to push them out of overlaps on the next substep.
+        state["_bias_velocities"] = [_bias_of(body) for body in self.bodies]
         return state
 
     def __setstate__(self, state: dict) -> None:
+        bias = state.pop("_bias_velocities", None)
         self.__dict__.update(state)
+        if bias is not None:
+            for body, values in zip(self.bodies, bias, strict=True):
+                _set_bias(body, values)
         if self.space is not None:
             self._make_batch_buffers()
+            self._index_shapes()
 
     def _start_poses(self, rng: np.random.Generator) -> np.ndarray:
         cfg = self.cfg
@@ -270,7 +364,7 @@ class World:
                     continue
                 if self.layout.clearance(p[None])[0] < r + 0.2:
                     continue
-                if all(np.hypot(*(p - q[:2])) > 2 * r + 0.3 for q in poses):
+                if all(np.hypot(*(p - q[:2])) > 2 * r + START_GAP for q in poses):
                     break
             else:
                 raise ValueError(
@@ -289,7 +383,7 @@ class World:
         rng: np.random.Generator,
         idle_zeroed: bool = False,
     ) -> np.ndarray:
-        """Advance one env step (``odometry_substeps`` physics substeps).
+        """Advance one env step (``odometry_substeps`` substeps of ``physics_steps`` each).
 
         Args:
             v_cmd, w_cmd: commanded linear and angular velocities ``(n,)``.
@@ -298,11 +392,15 @@ class World:
             idle_zeroed: the caller already zeroed the commands of inactive robots.
 
         Returns:
-            Number of new contacts per robot during the step, ``(n,)``.
+            Number of new contacts per robot during the step, ``(n,)``. Which robots
+            touched something during the step (a new contact, or one held at its
+            end) is left in :attr:`in_contact`.
         """
         cfg = self.cfg
         n_sub = cfg.odometry_substeps
         dt = cfg.dt / n_sub
+        n_phys = self.physics_steps
+        dt_phys = dt / n_phys
         n = len(v_cmd)
         before = self.contacts["counts"].copy()
         slip = rng.standard_normal((n_sub, n, 2))  # 1 + slip_std * noise, in place
@@ -325,16 +423,23 @@ class World:
         vel[..., 2] = wk
         space, batch = self.space, self._batch
         if batch is not None:
-            for k in range(n_sub):
-                batch.set_velocities(k)
-                space.step(dt)
+            if n_phys == 1:
+                for k in range(n_sub):
+                    batch.set_velocities(k)
+                    space.step(dt)
+            else:  # the commanded velocity is set again before every physics step
+                for k in range(n_sub):
+                    for _ in range(n_phys):
+                        batch.set_velocities(k)
+                        space.step(dt_phys)
             batch.set_velocities(n_sub)  # stop the robots
             state = batch.poses()[:n]
         else:
             set_bodies = pymunk.batch.set_space_bodies
             for row in self._velocity_rows[:-1]:
-                set_bodies(space, _VELOCITIES, row)
-                space.step(dt)
+                for _ in range(n_phys):
+                    set_bodies(space, _VELOCITIES, row)
+                    space.step(dt_phys)
             set_bodies(space, _VELOCITIES, self._velocity_rows[-1])  # stop the robots
             self._state_batch.clear()
             pymunk.batch.get_space_bodies(space, _POSE_FIELDS, self._state_batch)
@@ -343,7 +448,57 @@ class World:
         self.poses[:] = state
         self._angles = state[:, 2].copy()  # unwrapped, as pymunk keeps them
         self.poses[:, 2] = wrap_angle(self._angles)
-        return self.contacts["counts"] - before
+        new = self.contacts["counts"] - before
+        self.in_contact = self._touching()
+        if np.count_nonzero(new):
+            self.in_contact |= new > 0
+        return new
+
+
+# Chipmunk's cpBody, read as doubles: position at 8-9, velocity 10-11, angle 14, turn rate
+# 15, then (after force, torque, transform and user data) the bias velocity at 24-26.
+_BODY_BIAS_SLOTS = (24, 25, 26)
+
+
+@functools.cache
+def _bias_layout_ok() -> bool:
+    """Whether this pymunk's cpBody has the layout :data:`_BODY_BIAS_SLOTS` assumes."""
+    try:
+        from pymunk._chipmunk import ffi
+    except ImportError:
+        return False
+    body = pymunk.Body(1.5, 2.5)
+    body.position, body.velocity = (11.0, 12.0), (13.0, 14.0)
+    body.angle, body.angular_velocity = 15.0, 16.0
+    try:
+        raw = ffi.cast("double *", body._body)
+        known = [raw[i] for i in (2, 4, 8, 9, 10, 11, 14, 15)]
+    except (AttributeError, TypeError):
+        return False
+    return known == [1.5, 2.5, 11.0, 12.0, 13.0, 14.0, 15.0, 16.0] and all(
+        raw[i] == 0.0 for i in _BODY_BIAS_SLOTS
+    )
+
+
+def _bias_of(body: pymunk.Body) -> tuple[float, ...] | None:
+    """The bias velocity ``(vx, vy, w)`` the solver left on ``body`` for its next position
+    update (pymunk keeps it in C and does not pickle it); ``None`` if unreadable."""
+    if not _bias_layout_ok():
+        return None
+    from pymunk._chipmunk import ffi
+
+    raw = ffi.cast("double *", body._body)
+    return tuple(raw[i] for i in _BODY_BIAS_SLOTS)
+
+
+def _set_bias(body: pymunk.Body, values: tuple[float, ...] | None) -> None:
+    if values is None or not _bias_layout_ok():
+        return
+    from pymunk._chipmunk import ffi
+
+    raw = ffi.cast("double *", body._body)
+    for i, value in zip(_BODY_BIAS_SLOTS, values, strict=True):
+        raw[i] = value
 
 
 class _BatchCalls:

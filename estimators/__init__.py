@@ -4,7 +4,8 @@ Everything here consumes plain arrays, so it runs on simulated data and on
 real robot logs alike:
 
 - :class:`PoseEKF` — per-robot EKFs in numpy batches (Madhavan et al.), with
-  :class:`TeamEKF` the centralized full-covariance variant used on real logs;
+  :class:`TeamEKF` the centralized full-covariance variant used on real logs,
+  and :class:`GateMonitor`, their recovery from validation-gate lock-out;
 - :class:`ParticleFilter`, :class:`DensityTree`, :class:`DetectionTransfer` —
   multi-robot Monte Carlo localization (Fox et al.);
 - :class:`PoseGraph`, :class:`TeamMLE` — maximum-likelihood team localization
@@ -21,6 +22,7 @@ from estimators.detection_transfer import (
     detection_from_measurement,
 )
 from estimators.ekf import Belief, PoseEKF, chi2_threshold
+from estimators.gating import GateMonitor
 from estimators.geometry import compose_relative, relative_pose, wrap_angle, wrap_angle_in_place
 from estimators.mle_online import TeamMLE
 from estimators.mrclam import load_mrclam
@@ -40,6 +42,7 @@ __all__ = [
     "Belief",
     "DensityTree",
     "DetectionTransfer",
+    "GateMonitor",
     "MCLConfig",
     "OccupancyGrid",
     "ParticleFilter",

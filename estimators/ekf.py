@@ -21,6 +21,17 @@ operations, so a team of 50 robots costs about as much Python as a team of 1.
 
 Covariance updates use the Joseph form followed by symmetrization, which keeps
 them symmetric positive definite in floating point.
+
+A validation gate alone can lock a filter out: once the estimate has drifted
+(wheels spinning against a wall, a long outage), every later fix fails the
+gate and the filter never hears the truth again while its covariance stays
+small. :class:`GateMonitor` counts consecutive rejections per robot and sensor;
+past ``recover_after`` of them the filter concludes that it, not the sensor, is
+wrong, and widens the robot's covariance in the subspace the sensor observes
+until the reading is an ordinary one (:func:`observed_inflation`) before fusing
+it. A
+single outlier (a multipath fix) is still rejected. Relative detections get
+the same treatment through track confirmation (see :meth:`PoseEKF.update_relative`).
 """
 
 from __future__ import annotations
@@ -29,21 +40,13 @@ import functools
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2
 
+from estimators.gating import GateMonitor, chi2_threshold, observed_inflation
 from estimators.geometry import wrap_angle, wrap_angle_in_place
+from estimators.relative_model import _best_ci_weight, _relative_measurement, _rounds
+from estimators.relative_model import relative_measurement as relative_measurement
 
-_CHI2_CACHE: dict[tuple[float, int], float] = {}
-
-
-def chi2_threshold(prob: float, dof: int) -> float:
-    """Chi-square gate threshold: the ``prob`` quantile with ``dof`` degrees of freedom."""
-    if not 0.0 < prob < 1.0:
-        raise ValueError(f"gate probability must be in (0, 1), got {prob!r}")
-    key = (float(prob), int(dof))
-    if key not in _CHI2_CACHE:
-        _CHI2_CACHE[key] = float(chi2.ppf(prob, dof))
-    return _CHI2_CACHE[key]
+__all__ = ["Belief", "GateMonitor", "PoseEKF", "chi2_threshold", "relative_measurement"]
 
 
 @dataclass(frozen=True)
@@ -89,9 +92,27 @@ class PoseEKF:
         mean: initial poses, shape ``(n, 3)``.
         cov: initial covariances, shape ``(n, 3, 3)`` (or ``(3, 3)`` for all).
         gate_prob: default chi-square gate probability (e.g. 0.99).
+        recover_after: consecutive gate rejections of one robot's sensor (or of one
+            observer-target pair's detections, when consistent with each other)
+            after which the filter widens the covariance and fuses the reading
+            (:class:`GateMonitor`); ``None`` never recovers.
+        confirm_distance: a relative detection that would move a robot's position
+            estimate by more than this (m) is fused only once a second detection
+            of the same pair, at most ``confirm_window`` predictions later (env
+            steps), agrees with it (one the gate rejects needs ``recover_after``
+            agreeing ones); ``None``: no confirmation.
+        confirm_window: see ``confirm_distance``.
     """
 
-    def __init__(self, mean: np.ndarray, cov: np.ndarray, gate_prob: float = 0.99) -> None:
+    def __init__(
+        self,
+        mean: np.ndarray,
+        cov: np.ndarray,
+        gate_prob: float = 0.99,
+        recover_after: int | None = 3,
+        confirm_distance: float | None = 1.0,
+        confirm_window: int = 10,
+    ) -> None:
         mean = np.array(mean, dtype=float).reshape(-1, 3)
         cov = np.array(cov, dtype=float)
         if cov.shape == (3, 3):
@@ -105,6 +126,23 @@ class PoseEKF:
         self.mean[:, 2] = wrap_angle(self.mean[:, 2])
         self.cov = _symmetrize(cov)
         self.gate_prob = gate_prob
+        self.monitor = GateMonitor(len(mean), recover_after)
+        if confirm_distance is not None and not (
+            np.isfinite(confirm_distance) and confirm_distance >= 0
+        ):
+            raise ValueError(f"confirm_distance must be >= 0 or None, got {confirm_distance!r}")
+        if isinstance(confirm_window, bool) or not isinstance(confirm_window, int | np.integer) \
+                or confirm_window < 1:
+            raise ValueError(f"confirm_window must be a positive int, got {confirm_window!r}")
+        self.confirm_distance = confirm_distance
+        self.confirm_window = int(confirm_window)
+        # (lower, higher robot index) -> the pair's track of detections waiting for
+        # confirmation: (update_relative call number, prediction count, position offset of
+        # the higher one as seen by the lower one (+ relative orientation), its covariance,
+        # number of agreeing detections in the track).
+        self._pending: dict[tuple[int, int], tuple] = {}
+        self._relative_calls = 0
+        self._ticks = 0  # predictions so far: the clock of the confirmation window
 
     @property
     def n(self) -> int:
@@ -114,6 +152,14 @@ class PoseEKF:
     def belief(self, i: int) -> Belief:
         """Robot ``i``'s current belief (copies)."""
         return Belief(self.mean[i].copy(), self.cov[i].copy())
+
+    def inflate(self, idx: np.ndarray, q: np.ndarray) -> None:
+        """Add process noise ``q`` (``(k, 3, 3)`` or one ``(3, 3)``, symmetric PSD) to the
+        covariances of robots ``idx``: motion the odometry could not measure."""
+        idx = np.asarray(idx, dtype=int)
+        q = np.asarray(q, dtype=float)
+        _check_finite("q", q)
+        self.cov[idx] += _symmetrize(q)
 
     # ------------------------------------------------------------------ predict
     def predict(
@@ -130,6 +176,7 @@ class PoseEKF:
         ``v``, ``w``, ``var_v``, ``var_w`` are per robot (or scalars); ``idx``
         selects which robots to predict (default all).
         """
+        self._ticks += 1
         sel = slice(None) if idx is None else np.asarray(idx)
         k = len(self.mean[sel])
         as_row = lambda x: np.broadcast_to(np.asarray(x, dtype=float), (k,))[None]  # noqa: E731
@@ -158,6 +205,7 @@ class PoseEKF:
         """:meth:`predict_sequence` (its one implementation) of float ``v``, ``w`` ``(T, n)``
         with the variances stacked in a fresh C-ordered ``q`` ``(2, T, n)``: ``var_v`` then
         ``var_w`` (overwritten)."""
+        self._ticks += 1
         _propagate(self.mean, self.cov, v, w, dt, q)
 
     # ------------------------------------------------------------------ updates
@@ -170,6 +218,7 @@ class PoseEKF:
         r: np.ndarray,
         angle_dims: tuple[int, ...] = (),
         gate_prob: float | None = None,
+        channel: str | None = None,
     ) -> np.ndarray:
         """Gated EKF update of robots ``idx`` (distinct) with measurements ``z``.
 
@@ -180,9 +229,11 @@ class PoseEKF:
             angle_dims: measurement components that are angles (wrapped).
             gate_prob: chi-square gate probability (default ``self.gate_prob``);
                 ``1.0`` disables gating.
+            channel: the sensor's name for the lock-out recovery (consecutive
+                rejections are counted per robot and channel); ``None``: no recovery.
 
         Returns:
-            Boolean mask ``(k,)`` of accepted measurements.
+            Boolean mask ``(k,)`` of accepted measurements (recoveries included).
         """
         idx, sel, z = self._checked(idx, z)
         if not len(idx):
@@ -191,7 +242,7 @@ class PoseEKF:
         for d in angle_dims:
             nu[:, d] = wrap_angle(nu[:, d])
         jac, r = np.asarray(jac, dtype=float), np.asarray(r, dtype=float)
-        return self._update(idx, sel, nu, jac, r, gate_prob)
+        return self._update(idx, sel, nu, jac, r, gate_prob, channel, tuple(angle_dims))
 
     def _checked(
         self, idx: np.ndarray, z: np.ndarray
@@ -214,6 +265,8 @@ class PoseEKF:
         jac: np.ndarray,
         r: np.ndarray,
         gate_prob: float | None,
+        channel: str | None = None,
+        angles: tuple[int, ...] = (),
     ) -> np.ndarray:
         """:meth:`update` of robots ``idx`` (``sel``: ``idx`` or ``slice(None)`` for all of
         them in order) from innovations ``nu (k, m)``; ``jac`` is ``(k, m, 3)`` or one
@@ -227,6 +280,25 @@ class PoseEKF:
         d2 = np.einsum("ki,kij,kj->k", nu, s_inv, nu)
         ok = self._gate(d2, nu.shape[1], gate_prob)
         n_ok = np.count_nonzero(ok)
+        if channel is not None and self.monitor.pending(channel, n_ok < len(ok)):
+            recover = self.monitor.record(channel, idx, ok, nu, s, angles)
+            recover &= np.isfinite(d2)  # (a singular S gives no scale to widen by)
+            if n_ok < len(ok) and recover.any():
+                # Locked out: widen the covariance in the subspace the sensor sees until the
+                # reading is an ordinary one (normalized innovation = its dof), then fuse it.
+                rows = np.nonzero(recover)[0]
+                sel_rows = idx[rows]
+                jr = jac if jac.ndim == 2 else jac[rows]
+                self.cov[sel_rows] += observed_inflation(
+                    self.cov[sel_rows], jr, d2[rows] / nu.shape[1]
+                )
+                ok = ok | recover
+                n_ok = np.count_nonzero(ok)
+                p = self.cov[sel]
+                ph_t = p @ jac.mT
+                s = jac @ ph_t
+                s += r
+                s_inv = 1.0 / s if s.shape[-1] == 1 else np.linalg.inv(s)
         if not n_ok:
             return ok
         if n_ok < len(ok):  # keep the accepted rows (all accepted: use them as they are)
@@ -258,23 +330,28 @@ class PoseEKF:
     def update_position(
         self, idx: np.ndarray, z: np.ndarray, r: np.ndarray, gate_prob: float | None = None
     ) -> np.ndarray:
-        """DGPS update: ``z = (x, y)``, ``H = [[1,0,0],[0,1,0]]``, noise ``r (k, 2, 2)``."""
+        """DGPS update: ``z = (x, y)``, ``H = [[1,0,0],[0,1,0]]``, noise ``r (k, 2, 2)``.
+
+        Gated, with the lock-out recovery of channel ``"position"``."""
         idx, sel, z = self._checked(idx, z)
         if not len(idx):
             return np.zeros(0, dtype=bool)
         nu = z - self.mean[sel, :2]
-        return self._update(idx, sel, nu, _H_POSITION, np.asarray(r, dtype=float), gate_prob)
+        r = np.asarray(r, dtype=float)
+        return self._update(idx, sel, nu, _H_POSITION, r, gate_prob, "position")
 
     def update_heading(
         self, idx: np.ndarray, z: np.ndarray, var: np.ndarray, gate_prob: float | None = None
     ) -> np.ndarray:
-        """Compass update: ``z = phi``, ``H = [0, 0, 1]``, noise variance ``var (k,)``."""
+        """Compass update: ``z = phi``, ``H = [0, 0, 1]``, noise variance ``var (k,)``.
+
+        Gated, with the lock-out recovery of channel ``"heading"``."""
         idx, sel, z = self._checked(idx, z)
         if not len(idx):
             return np.zeros(0, dtype=bool)
         nu = wrap_angle(z.reshape(-1, 1) - self.mean[sel, 2:3])
         r = np.asarray(var, dtype=float).reshape(-1, 1, 1)
-        return self._update(idx, sel, nu, _H_HEADING, r, gate_prob)
+        return self._update(idx, sel, nu, _H_HEADING, r, gate_prob, "heading", (0,))
 
     def update_relative(
         self,
@@ -298,7 +375,11 @@ class PoseEKF:
             r: measurement noise ``(k, 3, 3)``.
             dims: which of the three components to use (e.g. ``(0, 1)`` for
                 range and bearing only).
-            gate_prob: chi-square gate probability.
+            gate_prob: chi-square gate probability. The gate uses the innovation
+                covariance of the two marginals as they are (not the CI-inflated one).
+                Detections that fail it, or would move a robot by more than
+                ``confirm_distance``, wait for confirmation (:meth:`_confirm`); a
+                confirmed detection that fails the gate triggers a recovery.
             fusion: ``"naive"`` stacks the two marginals as if independent (the
                 paper's form; repeated meetings then double count and the
                 covariances become overconfident); ``"ci"`` (default) inflates
@@ -325,6 +406,7 @@ class PoseEKF:
         if (idx_a == idx_b).any():
             raise ValueError("a robot cannot observe itself in a relative update")
         accepted = np.zeros(len(idx_a), dtype=bool)
+        self._relative_calls += 1
         priority = np.argsort(-self.cov[idx_b].trace(axis1=1, axis2=2), kind="stable")
         limit = max_rounds if max_rounds is None or max_rounds >= 0 else None
         for rows in _rounds(idx_a[priority], idx_b[priority], self.n, limit)[:max_rounds]:
@@ -334,11 +416,14 @@ class PoseEKF:
             )
         return accepted
 
-    def _joint_update(self, ia, ib, z, r, model, dims, gate_prob, fusion) -> np.ndarray:
+    def _joint_update(
+        self, ia, ib, z, r, model, dims, gate_prob, fusion, confirm: bool = True
+    ) -> np.ndarray:
         """One round of :meth:`update_relative` (each robot in at most one pair)."""
         k = len(ia)
         iab = np.concatenate((ia, ib))
         xa, xb = self.mean[iab].reshape(2, k, 3)
+        z_full, r_full = z, r
         h, jac = _relative_measurement(xa, xb, model)  # jac (k, 3, 6): [H_a, H_b]
         first_angle = 2 if model == "cartesian" else 1
         if tuple(dims) == (0, 1, 2):
@@ -350,6 +435,16 @@ class PoseEKF:
             angles = [j for j, d in enumerate(dims) if d >= first_angle]
         pab = self.cov[iab].reshape(2, k, 3, 3)
         pa, pb = pab
+        nu = z - h
+        nu[:, angles] = wrap_angle(nu[:, angles])
+        # Gate on the innovation covariance of the marginals as they are. The CI inflation
+        # below bounds the unknown correlation for the fusion, but it also widens S (by up
+        # to 1 / w), which would let detections through that the beliefs call implausible.
+        ha, hb = jac[:, :, :3], jac[:, :, 3:]
+        s0 = ha @ pa @ ha.mT + hb @ pb @ hb.mT
+        s0 += r
+        d2 = np.einsum("ki,kij,kj->k", nu, np.linalg.inv(s0), nu)
+        ok = self._gate(d2, nu.shape[1], gate_prob)
         if fusion == "ci":
             w = _best_ci_weight(pab, jac, r)[:, None, None]
             pa_w, pb_w = pa / w, pb / (1 - w)
@@ -358,40 +453,152 @@ class PoseEKF:
         p = np.zeros((k, 6, 6))
         p[:, :3, :3] = pa_w
         p[:, 3:, 3:] = pb_w
-        nu = z - h
-        nu[:, angles] = wrap_angle(nu[:, angles])
         ph_t = p @ jac.mT
         s = jac @ ph_t
         s += r
-        s_inv = np.linalg.inv(s)
-        d2 = np.einsum("ki,kij,kj->k", nu, s_inv, nu)
-        ok = self._gate(d2, nu.shape[1], gate_prob)
-        n_ok = np.count_nonzero(ok)
-        if not n_ok:
-            return ok
-        if n_ok < len(ok):
-            ph_t, s_inv, nu, jac, p, r = ph_t[ok], s_inv[ok], nu[ok], jac[ok], p[ok], r[ok]
-            ia, ib, pa, pb = ia[ok], ib[ok], pa[ok], pb[ok]
-        gain = ph_t @ s_inv
+        gain = ph_t @ np.linalg.inv(s)
         dx = np.einsum("kij,kj->ki", gain, nu)
         i_kh = _EYE6 - gain @ jac
         p_new = i_kh @ p @ i_kh.mT
         p_new += gain @ r @ gain.mT
         p_new += p_new.mT  # symmetrize in place (numpy buffers the overlapping transpose)
         p_new *= 0.5
-        for sl, rob, prior in ((slice(0, 3), ia, pa), (slice(3, 6), ib, pb)):
-            post = p_new[:, sl, sl]
-            step = dx[:, sl]
-            if fusion == "ci":  # keep the prior where the update would not shrink it
-                keep = post.trace(axis1=1, axis2=2) < prior.trace(axis1=1, axis2=2)
-                if np.count_nonzero(keep) < len(keep):
-                    rob, post, step = rob[keep], post[keep], step[keep]
-            mean = self.mean[rob]
-            mean += step
+        sides = ((slice(0, 3), ia, pa), (slice(3, 6), ib, pb))
+        if fusion == "ci":  # keep a robot's prior where the update would not shrink it
+            moves = [p_new[:, sl, sl].trace(axis1=1, axis2=2) < prior.trace(axis1=1, axis2=2)
+                     for sl, _, prior in sides]
+        else:
+            moves = [np.ones(k, dtype=bool)] * 2
+        recover = np.zeros(k, dtype=bool)
+        if confirm and self.confirm_distance is not None and {0, 1} <= set(dims):
+            shift = np.maximum(*(
+                np.hypot(dx[:, sl][:, 0], dx[:, sl][:, 1]) * mv
+                for (sl, _, _), mv in zip(sides, moves, strict=True)
+            ))
+            ok, recover = self._confirm(
+                ia, ib, z_full, r_full, model, ok, shift > self.confirm_distance, 2 in dims
+            )
+        for (sl, rob, _), mv in zip(sides, moves, strict=True):
+            take = ok & mv
+            if not take.any():
+                continue
+            mean = self.mean[rob[take]]
+            mean += dx[take, sl]
             wrap_angle_in_place(mean[:, 2])
-            self.mean[rob] = mean
-            self.cov[rob] = post
+            self.mean[rob[take]] = mean
+            self.cov[rob[take]] = p_new[take, sl, sl]
+        if recover.any():
+            ok[recover] = self._recover_relative(
+                ia[recover], ib[recover], z_full[recover], r_full[recover], model, dims,
+                fusion, ok[recover],
+            )
         return ok
+
+    def _relative_offsets(
+        self, ia: np.ndarray, ib: np.ndarray, z: np.ndarray, r: np.ndarray, model: str
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Where detections ``z (k, 3)`` put the targets minus where they are believed to be,
+        ``(k, 2)``, with the covariance of the measurement noise in it ``(k, 2, 2)``. (The
+        estimates' own errors are left out: they change little between two detections,
+        so they cancel when two offsets are compared.)"""
+        xa, xb = self.mean[ia], self.mean[ib]
+        if model == "cartesian":
+            return xa[:, :2] - z[:, :2] - xb[:, :2], r[:, :2, :2].copy()
+        ang = xa[:, 2] + z[:, 1]
+        c, sn = np.cos(ang), np.sin(ang)
+        rng = z[:, 0]
+        offset = xa[:, :2] + rng[:, None] * np.stack([c, sn], axis=1) - xb[:, :2]
+        jac = np.empty((len(ia), 2, 2))  # d(point) / d(range, bearing)
+        jac[:, 0, 0], jac[:, 0, 1] = c, -rng * sn
+        jac[:, 1, 0], jac[:, 1, 1] = sn, rng * c
+        return offset, jac @ r[:, :2, :2] @ jac.mT
+
+    def _confirm(
+        self, ia, ib, z, r, model, ok: np.ndarray, big: np.ndarray, with_orientation: bool
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Track confirmation of relative detections.
+
+        A detection that fails the gate, or would move a robot by more than
+        ``confirm_distance``, joins the pair's track (either robot observing):
+        it agrees with the track's last detection, from an earlier call and at
+        most ``confirm_window`` predictions old, when both put the target at the
+        same offset from its estimate and (``with_orientation``) see the same
+        relative orientation (chi-square test at the gate probability, with the
+        two readings' noise plus :data:`_CONFIRM_SLACK` for the motion in
+        between); otherwise it starts a new track. A detection is fused once its
+        track holds 2 agreeing detections, or ``recover_after`` (default 3) when
+        the gate rejected it, as it then overrules the belief. A false positive
+        names a random place, so a track of them is rare. Returns the mask of
+        detections accepted as they are and the mask of confirmed ones (for
+        :meth:`_recover_relative`).
+        """
+        need = np.nonzero(big | ~ok)[0]
+        accepted = ok & ~big
+        recover = np.zeros(len(ok), dtype=bool)
+        if not len(need):
+            return accepted, recover
+        call, tick = self._relative_calls, self._ticks
+        offset, cov = self._relative_offsets(ia[need], ib[need], z[need], r[need], model)
+        if with_orientation:
+            vec = np.concatenate([offset, z[need, 2:3]], axis=1)
+            full = np.zeros((len(need), 3, 3))
+            full[:, :2, :2] = cov
+            full[:, 2, 2] = r[need, 2, 2]
+            cov, slack = full, _CONFIRM_SLACK_3
+        else:
+            vec, slack = offset, _CONFIRM_SLACK_2
+        dof = vec.shape[1]
+        threshold = chi2_threshold(self.gate_prob, dof) if self.gate_prob < 1.0 else np.inf
+        lock_out = self.monitor.recover_after or 2
+        for row, v, c in zip(need.tolist(), vec, cov, strict=True):
+            # One track per pair, whoever observes: seen from the target, the offset and
+            # the relative orientation flip.
+            a, b = int(ia[row]), int(ib[row])
+            key = (a, b) if a < b else (b, a)
+            if a > b:
+                v = -v
+            count = 1
+            prev = self._pending.pop(key, None)
+            if prev is not None and prev[0] < call and tick - prev[1] <= self.confirm_window \
+                    and len(prev[2]) == dof:
+                diff = v - prev[2]
+                if dof == 3:
+                    diff[2] = (diff[2] + np.pi) % (2 * np.pi) - np.pi
+                if diff @ np.linalg.solve(c + prev[3] + slack, diff) <= threshold:
+                    count = prev[4] + 1
+            if count >= (2 if ok[row] else lock_out):
+                recover[row] = True
+            else:
+                self._pending[key] = (call, tick, v, c, count)
+        return accepted, recover
+
+    def _recover_relative(self, ia, ib, z, r, model, dims, fusion, passed) -> np.ndarray:
+        """Fuse confirmed detections. The more uncertain robot of each pair first moves to
+        where the detections put it (by the offset ``o`` they agree on), so that the
+        update is linearized near the truth rather than metres away; where the gate had
+        rejected the detection (the robot was locked out) its position covariance also
+        widens by ``o o^T``. Then the detection is fused ungated."""
+        offset, _ = self._relative_offsets(ia, ib, z, r, model)
+        trace_a = self.cov[ia, 0, 0] + self.cov[ia, 1, 1]
+        trace_b = self.cov[ib, 0, 0] + self.cov[ib, 1, 1]
+        target_lost = trace_b >= trace_a
+        lost = np.where(target_lost, ib, ia)
+        self.mean[lost, :2] += np.where(target_lost[:, None], offset, -offset)
+        widen = ~passed
+        self.cov[lost[widen], :2, :2] += offset[widen, :, None] * offset[widen, None, :]
+        self.monitor.recoveries += int(np.count_nonzero(widen))
+        return self._joint_update(ia, ib, z, r, model, dims, 1.0, fusion, confirm=False)
+
+
+# Std (m) of how much the offset between a robot's estimate and where a detection puts it
+# may change between two confirming detections (odometry drift over the window).
+_CONFIRM_SLACK = 0.3
+# ... and of the relative orientation two detections measure (rad): both robots turn.
+_CONFIRM_SLACK_HEADING = 0.1
+_CONFIRM_SLACK_2 = np.eye(2) * _CONFIRM_SLACK**2
+_CONFIRM_SLACK_3 = np.diag([_CONFIRM_SLACK**2] * 2 + [_CONFIRM_SLACK_HEADING**2])
+for _slack in (_CONFIRM_SLACK_2, _CONFIRM_SLACK_3):
+    _slack.flags.writeable = False
 
 
 def _propagate(
@@ -472,151 +679,3 @@ def _signed(dt: float) -> np.ndarray:
     out = np.array([dt, -dt])[:, None, None]
     out.flags.writeable = False
     return out
-
-
-def relative_measurement(
-    xa: np.ndarray, xb: np.ndarray, model: str = "rbo"
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Predicted relative measurement of ``xb`` from ``xa`` and its Jacobians.
-
-    Returns ``(h, H_a, H_b)`` with shapes ``(k, 3)``, ``(k, 3, 3)``, ``(k, 3, 3)``.
-    For ``model="rbo"`` the range is floored at 1 mm so the bearing Jacobian
-    stays finite when two estimates coincide.
-    """
-    if model not in ("rbo", "cartesian"):
-        raise ValueError(f"unknown relative measurement model {model!r}")
-    xa = np.asarray(xa, dtype=float).reshape(-1, 3)
-    xb = np.asarray(xb, dtype=float).reshape(-1, 3)
-    if xa.shape != xb.shape:
-        raise ValueError(f"xa and xb must have the same shape, got {xa.shape} and {xb.shape}")
-    h, jac = _relative_measurement(xa, xb, model)
-    return h, jac[:, :, :3].copy(), jac[:, :, 3:].copy()
-
-
-# Constant entries of the stacked Jacobians [H_a, H_b] (3, 6) of the two models.
-_JAC_CONST = {
-    "cartesian": np.hstack([np.eye(3), -np.eye(3)]),
-    "rbo": np.array([[0.0] * 6, [0, 0, -1, 0, 0, 0], [0, 0, -1, 0, 0, 1]], dtype=float),
-}
-for _jac in _JAC_CONST.values():
-    _jac.flags.writeable = False
-_FLIP = np.array([1.0, -1.0])
-
-
-def _relative_measurement(
-    xa: np.ndarray, xb: np.ndarray, model: str
-) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`relative_measurement` of ``(k, 3)`` float poses with the Jacobians side by
-    side: ``(h (k, 3), [H_a, H_b] (k, 3, 6))``."""
-    k = len(xa)
-    jac = np.empty((k, 3, 6))
-    jac[:] = _JAC_CONST[model]
-    if model == "cartesian":
-        h = xa - xb
-        wrap_angle_in_place(h[:, 2])
-        return h, jac
-    d = xb[:, :2] - xa[:, :2]  # (dx, dy)
-    sq = d * d
-    q = sq[:, 0] + sq[:, 1]
-    np.maximum(q, 1e-6, out=q)
-    h = np.empty((k, 3))
-    rng = np.sqrt(q, out=h[:, 0])
-    np.arctan2(d[:, 1], d[:, 0], out=h[:, 1])
-    h[:, 2] = xb[:, 2]
-    h[:, 1:] -= xa[:, 2:3]
-    wrap_angle_in_place(h[:, 1:])
-    # Range row: (-dx, -dy, 0, dx, dy, 0) / range; bearing row: (dy, -dx, -1, -dy, dx, 0) / q.
-    ur = d / rng[:, None]
-    jac[:, 0, 3:5] = ur
-    np.negative(ur, out=jac[:, 0, :2])
-    bearing = jac[:, 1, :2]
-    np.multiply(d[:, ::-1] / q[:, None], _FLIP, out=bearing)
-    np.negative(bearing, out=jac[:, 1, 3:5])
-    return h, jac
-
-
-_CI_WEIGHTS = np.linspace(0.05, 0.95, 10)
-_CI_WEIGHTS.flags.writeable = False
-# The weights of robot a (w) and robot b (1 - w), shaped to divide (2, 1, k, m, m) blocks.
-_CI_SCALES = np.stack([_CI_WEIGHTS, 1 - _CI_WEIGHTS])[:, :, None, None, None]
-_CI_SCALES.flags.writeable = False
-
-
-def _best_ci_weight(pab: np.ndarray, jac: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """Covariance-intersection weight per pair (grid search over ``_CI_WEIGHTS``).
-
-    ``pab (2, k, 3, 3)``: the priors ``P_a``, ``P_b``; ``jac (k, m, 6)``: ``[H_a, H_b]``;
-    ``r (k, m, m)``.
-
-    Minimizes the summed trace of the two robots' covariances after the update,
-    counting a robot whose inflated posterior would exceed its prior at its prior
-    (the update leaves such a robot unchanged).
-
-    With ``P_a / w``, ``P_b / (1 - w)`` on the diagonal, ``U_a = P_a H_a^T``,
-    ``U_b = P_b H_b^T`` and ``S(w) = H_a U_a / w + H_b U_b / (1 - w) + R``, robot
-    ``a``'s posterior trace is ``tr P_a / w - tr(S(w)^-1 U_a^T U_a) / w^2`` (and
-    likewise for ``b`` with ``1 - w``): only ``m x m`` matrices per weight.
-    """
-    k, m = jac.shape[:2]
-    jab = jac.reshape(k, m, 2, 3).transpose(2, 0, 1, 3)  # (2, k, m, 3): H_a, H_b
-    u = pab @ jab.mT  # (2, k, 3, m)
-    s = (jab @ u)[:, None] / _CI_SCALES  # (2, weights, k, m, m)
-    s = s[0] + s[1]
-    s += r
-    gram = u.mT @ u  # (2, k, m, m), symmetric
-    if m == 3 and k >= _COFACTOR_MIN_PAIRS:
-        # tr(S^-1 G) = sum(C * G) / det S with C the cofactors of S (G symmetric): a
-        # few whole-array operations instead of LAPACK's per-matrix cost.
-        cof, det = _cofactors3(s)
-        reduction = np.einsum("wkij,gkij->gwk", cof, gram) / det
-    else:
-        reduction = np.einsum("wkij,gkij->gwk", np.linalg.inv(s), gram)
-    prior = pab.trace(axis1=2, axis2=3)[:, None]  # (2, 1, k)
-    scale = _CI_SCALES[..., 0, 0]  # (2, weights, 1): w and 1 - w
-    post = prior / scale - reduction / (scale * scale)
-    np.minimum(post, prior, out=post)
-    return _CI_WEIGHTS[np.argmin(post[0] + post[1], axis=0)]
-
-
-# From this many pairs on, _best_ci_weight's 10 k 3x3 systems go through cofactors
-# (cheaper than np.linalg.inv from about 40 matrices on).
-_COFACTOR_MIN_PAIRS = 4
-_NEXT = np.array([1, 2, 0])
-_AFTER_NEXT = np.array([2, 0, 1])
-
-
-def _cofactors3(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Cofactor matrices and determinants of a stack of 3x3 matrices ``s (..., 3, 3)``.
-
-    Row ``i`` of the cofactors is ``row_{i+1} x row_{i+2}`` (indices mod 3), so
-    ``S^-1 = C^T / det S`` with ``det S = row_0 . C_0``.
-    """
-    a, b = s[..., _NEXT, :], s[..., _AFTER_NEXT, :]
-    cof = a[..., _NEXT] * b[..., _AFTER_NEXT]
-    cof -= a[..., _AFTER_NEXT] * b[..., _NEXT]
-    det = np.einsum("...j,...j->...", s[..., 0, :], cof[..., 0, :])
-    return cof, det
-
-
-def _rounds(
-    idx_a: np.ndarray, idx_b: np.ndarray, n: int, max_rounds: int | None = None
-) -> list[np.ndarray]:
-    """Split pairs into rounds in which every robot index appears at most once (greedy, in
-    order); only the first ``max_rounds`` rounds are formed (``None``: all)."""
-    a_list, b_list = idx_a.tolist(), idx_b.tolist()
-    remaining = list(range(len(a_list)))
-    rounds = []
-    while remaining and (max_rounds is None or len(rounds) < max_rounds):
-        used = [False] * n
-        take = []
-        rest = []
-        for row in remaining:
-            a, b = a_list[row], b_list[row]
-            if used[a] or used[b]:
-                rest.append(row)
-            else:
-                used[a] = used[b] = True
-                take.append(row)
-        rounds.append(np.asarray(take, dtype=int))
-        remaining = rest
-    return rounds

@@ -8,10 +8,19 @@ from __future__ import annotations
 
 import numpy as np
 
+#: The largest float below pi: the top of the wrapped range.
+PI_BELOW = float(np.nextafter(np.pi, 0.0))
+
 
 def wrap_angle(angle: np.ndarray | float) -> np.ndarray | float:
-    """Wrap angles to ``[-pi, pi)``."""
-    return (np.asarray(angle) + np.pi) % (2.0 * np.pi) - np.pi
+    """Wrap angles to ``[-pi, pi)``.
+
+    An angle just below ``-pi`` (or just below an odd multiple of ``pi``) is
+    congruent to an angle just below ``pi``; the shifted remainder can round up
+    to ``2 pi`` there, so the result is capped at the largest float below ``pi``.
+    """
+    wrapped = (np.asarray(angle) + np.pi) % (2.0 * np.pi) - np.pi
+    return np.minimum(wrapped, PI_BELOW)
 
 
 def wrap_angle_in_place(angle: np.ndarray) -> None:
@@ -19,6 +28,7 @@ def wrap_angle_in_place(angle: np.ndarray) -> None:
     angle += np.pi
     angle %= 2.0 * np.pi
     angle -= np.pi
+    np.minimum(angle, PI_BELOW, out=angle)
 
 
 def relative_pose(pose_a: np.ndarray, pose_b: np.ndarray) -> np.ndarray:

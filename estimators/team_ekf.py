@@ -16,7 +16,11 @@ with range-bearing instead of a Cartesian relative pose).
 * :meth:`TeamEKF.update_robot`: range-bearing from robot ``i`` to robot ``j``,
   one joint update of both poses and everything correlated with them.
 * Every update passes a chi-square validation gate (``scipy.stats.chi2``);
-  the covariance update is the Joseph form followed by symmetrization.
+  the covariance update is the Joseph form followed by symmetrization. A robot
+  whose landmark readings fail the gate ``recover_after`` times in a row is
+  taken to be lost, not the landmarks wrong: its pose covariance is scaled up
+  until the reading is an ordinary one, and the reading is fused
+  (:class:`~estimators.gating.GateMonitor`).
 
 Independent per-robot EKFs are the same class with ``cooperative=False``:
 robot-to-robot updates are then skipped and the covariance stays block
@@ -26,11 +30,13 @@ diagonal.
 from __future__ import annotations
 
 import math
+from collections.abc import Hashable
 from dataclasses import dataclass
 
 import numpy as np
 
-from estimators.ekf import Belief, chi2_threshold
+from estimators.ekf import Belief
+from estimators.gating import GateMonitor, chi2_threshold
 from estimators.geometry import wrap_angle
 
 __all__ = ["MotionNoise", "OdometryTrack", "TeamEKF"]
@@ -195,6 +201,8 @@ class TeamEKF:
         sensor_offset: ``(n, 2)`` position of each robot's range-bearing sensor
             in its body frame (default: at the pose's origin). Targets (landmarks,
             other robots' poses) are points.
+        recover_after: consecutive gate rejections of a robot's landmark readings
+            before the lock-out recovery (``None``: never).
     """
 
     def __init__(
@@ -206,6 +214,7 @@ class TeamEKF:
         gate_prob: float = 0.99,
         cooperative: bool = True,
         sensor_offset: np.ndarray | None = None,
+        recover_after: int | None = 3,
     ) -> None:
         n = len(tracks)
         mean = np.array(mean, dtype=float)
@@ -239,6 +248,7 @@ class TeamEKF:
         self.sensor_offset = off
         self.accepted = np.zeros(n, dtype=int)
         self.rejected = np.zeros(n, dtype=int)
+        self.monitor = GateMonitor(n, recover_after)
 
     @property
     def n(self) -> int:
@@ -274,10 +284,18 @@ class TeamEKF:
         return Belief(self.x[a : a + 3].copy(), self.P[a : a + 3, a : a + 3].copy())
 
     def _apply(
-        self, idx: np.ndarray, h: np.ndarray, nu: np.ndarray, r: np.ndarray, who: int
+        self,
+        idx: np.ndarray,
+        h: np.ndarray,
+        nu: np.ndarray,
+        r: np.ndarray,
+        who: int,
+        channel: Hashable | None = None,
     ) -> bool:
         """Gated Joseph-form update with the Jacobian ``h`` over state indices ``idx``.
 
+        ``channel`` names the sensor for the lock-out recovery of robot ``who``,
+        whose pose must be the first three of ``idx`` (``None``: no recovery).
         With ``B = H P`` (nonzero columns of ``H`` only) and ``S = H P H^T + R``,
         the Joseph form ``(I - K H) P (I - K H)^T + K R K^T`` expands to
         ``P - K B - B^T K^T + K S K^T``: rank-2 terms, no ``3n x 3n`` products.
@@ -290,7 +308,19 @@ class TeamEKF:
             return False
         s_inv = np.array([[s[1, 1], -s[0, 1]], [-s[1, 0], s[0, 0]]]) / det
         d2 = float(nu @ s_inv @ nu)
-        if not np.isfinite(d2) or d2 > self.gate:
+        passed = bool(np.isfinite(d2) and d2 <= self.gate)
+        if channel is not None and self.monitor.record_one(channel, who, passed) and not passed:
+            # One landmark's range and bearing leave a direction of the pose unseen: widen
+            # the whole pose (not only the seen part), or the next landmark would be locked
+            # out of a pose fitted to this one.
+            a = np.ix_(idx[:3], idx[:3])
+            self.P[a] *= max(d2 / 2.0, 1.0)
+            b = h @ self.P[idx, :]
+            s = b[:, idx] @ h.T + r
+            det = s[0, 0] * s[1, 1] - s[0, 1] * s[1, 0]
+            s_inv = np.array([[s[1, 1], -s[0, 1]], [-s[1, 0], s[0, 0]]]) / det
+            passed = True
+        if not passed:
             self.rejected[who] += 1
             return False
         k = b.T @ s_inv  # (3n, 2) = P H^T S^-1
@@ -347,7 +377,7 @@ class TeamEKF:
             self.rejected[i] += 1
             return False
         nu, h_i, _ = res
-        return self._apply(np.arange(3 * i, 3 * i + 3), h_i, nu, r, i)
+        return self._apply(np.arange(3 * i, 3 * i + 3), h_i, nu, r, i, "landmark")
 
     def update_robot(
         self, i: int, j: int, z: np.ndarray, r: np.ndarray, t: float | None = None

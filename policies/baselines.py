@@ -49,6 +49,21 @@ class RandomPolicy:
         }
 
 
+class StandStillPolicy:
+    """Every robot stands still (zero action): the reference for how low the error gets
+    without moving."""
+
+    name = "still"
+
+    def reset(self, env, seed: int | None = None) -> None:
+        """Bind to ``env``."""
+        self.env = env
+
+    def act(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """A zero action per live agent."""
+        return {a: np.zeros(2, dtype=np.float32) for a in self.env.agents}
+
+
 def wander(view: RobotView, rng: np.random.Generator, speed: float = 0.6) -> np.ndarray:
     """Drive forward, turning toward the freer side when the front is blocked."""
     front = view.min_range(-0.7, 0.7)

@@ -2,8 +2,8 @@
 
 Used by ``scripts/evaluate.py --compare fsm,random,PATH.zip``. Every policy
 runs the same seeded episodes (episode ``k`` seeded ``seed + k``); policies
-are the specs of :func:`policies.runner.make_policy` plus ``wander``
-(:class:`policies.fox.WanderPolicy`) and ``still`` (:class:`StandStillPolicy`).
+are the specs of :func:`policies.runner.make_policy` (a registered name, e.g.
+``wander:0.8``, or a saved model).
 Figures per episode are those of :mod:`policies.runner` plus
 ``time_to_localize_s``: per robot, the first time its spread falls below
 1.5 m (MCL: ``info["particle_spread"]``, the weighted mean particle distance
@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
+from policies.baselines import StandStillPolicy  # noqa: F401 (re-exported)
 from policies.runner import FIGURES, episode_figures, make_policy, run_episode
 
 COMPARE_FIGURES = FIGURES + ("time_to_localize_s", "localized_fraction")
@@ -55,37 +56,8 @@ def parse_policy_list(text: str) -> list[str]:
     return specs
 
 
-class StandStillPolicy:
-    """Every robot stands still (zero action): the reference for how low the error gets
-    without moving."""
-
-    name = "still"
-
-    def reset(self, env, seed: int | None = None) -> None:
-        """Bind to ``env``."""
-        self.env = env
-
-    def act(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        """A zero action per live agent."""
-        return {a: np.zeros(2, dtype=np.float32) for a in self.env.agents}
-
-
 def resolve_policy(spec: str):
-    """:func:`policies.runner.make_policy`, plus ``"wander"`` / ``"wander:SPEED"``
-    (``policies.fox.WanderPolicy``, default speed 0.6) and ``"still"``
-    (:class:`StandStillPolicy`)."""
-    if spec == "still":
-        return StandStillPolicy()
-    if spec == "wander" or str(spec).startswith("wander:"):
-        from policies.fox import WanderPolicy
-
-        _, _, arg = str(spec).partition(":")
-        if not arg:
-            return WanderPolicy()
-        try:
-            return WanderPolicy(float(arg))
-        except ValueError as err:
-            raise ValueError(f"policy {spec!r}: wander:SPEED needs a speed in (0, 1]") from err
+    """:func:`policies.runner.make_policy` (kept under this name for existing callers)."""
     return make_policy(spec)
 
 
@@ -225,6 +197,15 @@ def _run(scenario: str, policy, n_episodes: int, seed: int, overrides: dict[str,
             bar.close()
         env.close()
     return out
+
+
+def localized_from_the_start(report: dict[str, Any], dt: float) -> bool:
+    """Whether every robot of every episode of every policy was localized (spread below
+    the threshold) at the first step: time to localize then says nothing about the policies."""
+    return all(
+        rec["localized_fraction"] == 1.0 and rec["time_to_localize_s"] <= dt * (1 + 1e-9)
+        for recs in report["episodes"].values() for rec in recs
+    )
 
 
 def paired_difference(report: dict[str, Any], a: str, b: str,

@@ -217,8 +217,8 @@ def run_dispersal(
     how far the team has spread), plus ``detections`` per step.
     """
     overrides.setdefault("estimator", "mle")
+    n_steps = _steps(duration_s, coop_loc_env.make_config("dispersal", **overrides))  # fail early
     env = coop_loc_env.parallel_env("dispersal", **overrides)
-    n_steps = _steps(duration_s, env.config)
     rec = _run(env, DispersalPolicy(), n_steps, seed, progress)
     env.close()
     e = rec["errors"]
@@ -247,8 +247,8 @@ def run_circuit(
     after it, once the closing observation is optimized in).
     """
     overrides.setdefault("estimator", "mle")
+    n_steps = _steps(duration_s, coop_loc_env.make_config("circuit", **overrides))  # fail early
     env = coop_loc_env.parallel_env("circuit", **overrides)
-    n_steps = _steps(duration_s, env.config)
     rec = _run(env, CircuitPolicy(), n_steps, seed, progress)
     env.close()
     t, e = rec["times_s"], rec["errors"]
@@ -283,9 +283,10 @@ def run_circuit(
 def _steps(duration_s: float, cfg) -> int:
     n_steps = int(round(duration_s / cfg.dt))
     if not 1 <= n_steps <= cfg.max_cycles:
+        hint = f" (raise it: --set max_cycles={n_steps})" if n_steps > cfg.max_cycles else ""
         raise ValueError(
             f"duration_s={duration_s!r} needs {n_steps} steps; allowed 1..max_cycles="
-            f"{cfg.max_cycles}"
+            f"{cfg.max_cycles}{hint}"
         )
     return n_steps
 

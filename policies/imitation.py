@@ -34,7 +34,7 @@ __all__ = ["behaviour_clone", "collect_demonstrations", "make_teacher", "discoun
 
 def make_teacher(spec: str):
     """A teacher policy: ``wander`` or ``wander:SPEED`` (:class:`policies.fox.WanderPolicy`),
-    or any spec of :func:`policies.compare.resolve_policy` (``fsm``, ``random``, ``seek``)."""
+    or any spec of :func:`policies.runner.make_policy` (a registered policy name)."""
     name, _, arg = str(spec).partition(":")
     if name == "wander":
         from policies.fox import WanderPolicy

@@ -17,6 +17,11 @@ from typing import Any
 
 import numpy as np
 
+INFERENCE_THREADS = 1
+"""Torch threads for acting: a forward pass of one team observation is too small to gain
+from more (on a shared 2-core machine, 14.0-27.3 ms per predict with torch's default of 2
+threads vs 0.96-1.08 ms with 1: ``python scripts/_bench_inference.py``)."""
+
 
 class LearnedPolicy:
     """An SB3 model (in memory) shared by all agents.
@@ -25,11 +30,18 @@ class LearnedPolicy:
         model: a stable-baselines3 algorithm instance (``PPO``, ``SAC``, ...).
         name: label used in tables and plots.
         deterministic: use the mean action (``True`` for evaluation).
+        threads: torch's (process-wide) intra-op thread count, set here;
+            ``None`` leaves it as it is.
     """
 
-    def __init__(self, model: Any, name: str = "learned", deterministic: bool = True) -> None:
+    def __init__(self, model: Any, name: str = "learned", deterministic: bool = True,
+                 threads: int | None = INFERENCE_THREADS) -> None:
         if not hasattr(model, "predict") or not hasattr(model, "observation_space"):
             raise ValueError(f"model must be a stable-baselines3 model, got {type(model)!r}")
+        if threads is not None:
+            import torch
+
+            torch.set_num_threads(threads)
         self.model = model
         self.name = name
         self.deterministic = deterministic

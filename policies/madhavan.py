@@ -77,12 +77,16 @@ def run_dgps_outage(seed: int = 0, duration_s: float = 50.0, **overrides: Any) -
         cooperative updates ``coop_update_times_s`` and the per-step series
         ``time_s``, ``std_m`` ``(T, 2)``, ``error_m`` ``(T, 2)``, ``gps_fix`` ``(T, 2)``.
     """
+    if "max_cycles" not in overrides:  # the episode lasts as long as asked
+        dt = coop_loc_env.make_config("dgps_outage", **overrides).dt
+        overrides["max_cycles"] = max(1, int(round(duration_s / dt)))
     env = coop_loc_env.parallel_env("dgps_outage", **overrides)
     cfg = env.config
     n_steps = int(round(duration_s / cfg.dt))
     if n_steps > cfg.max_cycles:
         raise ValueError(
-            f"duration_s={duration_s} needs {n_steps} steps but max_cycles={cfg.max_cycles}"
+            f"duration_s={duration_s} needs {n_steps} steps but max_cycles={cfg.max_cycles}: "
+            f"leave max_cycles out, or set it to at least {n_steps}"
         )
     env.reset(seed=seed)
     v = LANE_SPEED / cfg.max_speed

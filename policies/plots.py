@@ -18,7 +18,8 @@ def _figure(width: float, height: float):
 
 
 def plot_errors(episodes: list[dict[str, Any]], path: str | Path, title: str = "") -> Path:
-    """Localization error vs time, one line per robot (first episode solid, others faint)."""
+    """Localization error vs time, one line per robot (first episode solid, the others faint,
+    both named in the legend)."""
     fig = _figure(8, 4)
     ax = fig.add_subplot(1, 1, 1)
     colors = [f"C{i}" for i in range(10)]
@@ -27,7 +28,13 @@ def plot_errors(episodes: list[dict[str, Any]], path: str | Path, title: str = "
         err = ep["series"]["position_error_m"]
         for i in range(err.shape[1]):
             ax.plot(t, err[:, i], color=colors[i % 10], lw=1.2 if k == 0 else 0.6,
-                    alpha=1.0 if k == 0 else 0.35, label=f"robot_{i}" if k == 0 else None)
+                    alpha=1.0 if k == 0 else 0.35,
+                    label=f"robot_{i} (seed {ep['seed']})" if k == 0 else None)
+    if len(episodes) > 1:  # name the faint lines once
+        seeds = [ep["seed"] for ep in episodes[1:]]
+        ax.plot([], [], color="0.5", lw=0.6, alpha=0.5,
+                label=f"other episodes (seed{'s' if len(seeds) > 1 else ''} "
+                      f"{', '.join(map(str, seeds))}), same colours")
     ax.set_xlabel("time (s)")
     ax.set_ylabel("position error (m)")
     ax.set_title(title or "localization error per robot")

@@ -1,7 +1,9 @@
 """Run policies on scenarios and summarize what happened (used by ``scripts/evaluate.py``).
 
-* :func:`make_policy` turns ``"fsm"``, ``"random"``, ``"seek"`` or the path of
-  a saved stable-baselines3 model (``.zip``) into a policy object;
+* :func:`make_policy` turns a registered policy name (:func:`policy_names`:
+  ``fsm``, ``random``, ``seek``, ``still``, ``wander``; :func:`register_policy`
+  adds one) or the path of a saved stable-baselines3 model (``.zip``) into a
+  policy object;
 * :func:`run_episodes` runs it for N seeded episodes and returns one record
   per episode (scalar figures plus time series and the final maps for plots);
 * :func:`summarize` reduces the records to mean and standard deviation.
@@ -18,34 +20,84 @@ from __future__ import annotations
 
 import ast
 import json
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 import coop_loc_env
-from policies.baselines import Policy, RandomPolicy, SeekTeammatePolicy
+from policies.baselines import Policy, RandomPolicy, SeekTeammatePolicy, StandStillPolicy
 from policies.fsm import FSMPolicy
 from policies.learned import SB3Policy, detect_sb3_algo  # noqa: F401 (re-exported)
 
 FIGURES = ("localization_error_m", "coverage", "map_rmse_m", "collisions", "tip_overs")
-POLICY_NAMES = ("fsm", "random", "seek")
+
+PolicyFactory = Callable[[str], Policy]
+"""Builds a policy from the argument after ``NAME:`` in a spec (``""`` when there is none)."""
+_POLICIES: dict[str, tuple[PolicyFactory, str]] = {}
+
+
+def register_policy(name: str, factory: PolicyFactory, description: str) -> None:
+    """Register ``factory`` as policy ``name`` for :func:`make_policy` (and ``evaluate.py``)."""
+    if name in _POLICIES or ":" in name:
+        raise ValueError(f"policy name {name!r} is taken or contains ':'")
+    _POLICIES[name] = (factory, description)
+
+
+def policy_names() -> list[str]:
+    """The registered policy names, in registration order."""
+    return list(_POLICIES)
+
+
+def policy_help() -> str:
+    """One line per registered policy: ``NAME  description``."""
+    width = max(len(n) for n in _POLICIES)
+    return "\n".join(f"  {n:<{width}}  {d}" for n, (_, d) in _POLICIES.items())
 
 
 def make_policy(spec: str) -> Policy:
-    """A policy from a name (``fsm``, ``random``, ``seek``) or a saved SB3 ``.zip`` path."""
-    if spec == "fsm":
-        return FSMPolicy()
-    if spec == "random":
-        return RandomPolicy()
-    if spec == "seek":
-        return SeekTeammatePolicy()
+    """A policy from a registered name (``NAME`` or ``NAME:ARG``, see :func:`policy_names`)
+    or the path of a saved stable-baselines3 model (``.zip``)."""
+    name, _, arg = str(spec).partition(":")
+    if name in _POLICIES:
+        return _POLICIES[name][0](arg)
     if str(spec).endswith(".zip") or Path(spec).is_file():
         return SB3Policy(spec)
     raise ValueError(
-        f"unknown policy {spec!r}: use one of {POLICY_NAMES} or the path of a saved "
+        f"unknown policy {spec!r}: use one of {policy_names()} or the path of a saved "
         f"stable-baselines3 model (.zip)"
     )
+
+
+def _no_argument(cls: Callable[[], Policy], name: str) -> PolicyFactory:
+    def factory(arg: str) -> Policy:
+        if arg:
+            raise ValueError(f"policy {name!r} takes no argument, got {name}:{arg}")
+        return cls()
+
+    return factory
+
+
+def _wander(arg: str) -> Policy:
+    from policies.fox import WanderPolicy
+
+    if not arg:
+        return WanderPolicy()
+    try:
+        return WanderPolicy(float(arg))
+    except ValueError as err:
+        raise ValueError(f"policy 'wander:{arg}': wander:SPEED needs a speed in (0, 1]") from err
+
+
+register_policy("fsm", _no_argument(FSMPolicy, "fsm"),
+                "terrain-traversal state machine (Madhavan et al.)")
+register_policy("random", _no_argument(RandomPolicy, "random"), "uniform random actions")
+register_policy("seek", _no_argument(SeekTeammatePolicy, "seek"),
+                "drive toward a teammate when uncertain")
+register_policy("still", _no_argument(StandStillPolicy, "still"), "every robot stands still")
+register_policy("wander", _wander, "Fox et al.'s wander behaviour; wander:SPEED sets the speed")
+POLICY_NAMES = tuple(_POLICIES)  # the built-in names
 
 
 def parse_overrides(pairs: list[str] | None) -> dict[str, Any]:

@@ -169,6 +169,17 @@ class TrainConfig:
         return out
 
 
+def trained_timesteps(cfg: TrainConfig) -> int:
+    """How many agent steps ``cfg`` trains: SB3 steps all ``n_envs * n_robots`` agent slots
+    at once, and PPO learns in whole rollouts of ``n_steps`` steps of every slot, so
+    ``timesteps`` rounds up to a multiple of that."""
+    import coop_loc_env
+
+    slots = cfg.n_envs * coop_loc_env.make_config(cfg.scenario, **cfg.env_overrides()).n_robots
+    chunk = slots * (cfg.n_steps if cfg.algo.upper() == "PPO" else 1)
+    return -(-cfg.timesteps // chunk) * chunk
+
+
 def make_vec_env(cfg: TrainConfig):
     """The training ``VecEnv``: slots per agent, reward-normalized when asked."""
     from stable_baselines3.common.vec_env import VecNormalize

@@ -1,4 +1,4 @@
-"""Benchmark of the team-MLE estimator (issue 4): batch solve and online per-step cost.
+"""Benchmark of the team-MLE estimator: batch solve and online per-step cost.
 
 ``bench_mle()`` returns a flat ``dict[str, float]`` (``scripts/benchmark.py``
 prints it); run this file to print it standalone::

@@ -12,7 +12,7 @@ Measured on two scenarios with random actions, after a warm-up of
   laser scans; robots start crowded in one room, and under random actions they
   stay crowded: every robot sees several teammates, the worst case for the MLE),
   with the EKF on the same scenario for reference;
-* ``outdoor_terrain`` spread over the whole field (the lead's env benchmark
+* ``outdoor_terrain`` spread over the whole field (the env benchmark's
   setting) with ``estimator="mle"``.
 
 Figures are CPU time of this process (``time.process_time``).

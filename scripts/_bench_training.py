@@ -1,4 +1,4 @@
-"""Benchmark of PPO training throughput (issue 7): env steps per second with 1 and 2 processes.
+"""Benchmark of PPO training throughput: env steps per second with 1 and 2 processes.
 
 ``bench_training()`` returns a flat ``dict[str, float]`` (``scripts/benchmark.py``
 prints it); run this file to print it standalone::

@@ -12,14 +12,15 @@ import argparse
 import sys
 from pathlib import Path
 
-from policies.runner import parse_overrides, record_frames
+from policies.runner import parse_overrides, policy_names, record_frames
 
 
 def main(argv: list[str] | None = None) -> int:
     """Render the episode; returns the exit status."""
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--scenario", default="outdoor_terrain", help="registered scenario name")
-    p.add_argument("--policy", default="fsm", help="fsm | random | seek | PATH.zip (SB3 model)")
+    p.add_argument("--policy", default="fsm",
+                   help=f"{' | '.join(policy_names())} | PATH.zip (SB3 model)")
     p.add_argument("--seed", type=int, default=0, help="episode seed")
     p.add_argument("--max-cycles", type=int, default=None, help="steps (override)")
     p.add_argument("--every", type=int, default=5, help="keep one frame every N steps")

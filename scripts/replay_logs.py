@@ -125,8 +125,17 @@ def _plot(result, metrics: dict, path: Path, landmarks: dict | None = None) -> N
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point; returns the process exit status."""
+    """Entry point; returns the process exit status (2, with one line on stderr, on bad input:
+    a missing folder or file, a malformed line, a bad parameter file)."""
     args = parse_args(argv)
+    try:
+        return _run(args)
+    except (OSError, ValueError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+
+
+def _run(args: argparse.Namespace) -> int:
     dataset = load_mrclam(args.dataset_dir)
     if dataset.unknown_barcodes:
         print(f"skipped unknown barcodes (barcode: count): {dataset.unknown_barcodes}")
@@ -149,6 +158,13 @@ def main(argv: list[str] | None = None) -> int:
         print(f"wrote {args.params}")
         return 0
     params = load_noise_parameters(args.params)
+    available = dataset.end_time() - dataset.latest_odometry_start() - args.start_offset
+    if args.duration > available > 0:
+        print(
+            f"note: {args.dataset_dir} holds {available:.0f} s of odometry from the start; "
+            f"replaying {available:.0f} s, not the {args.duration:g} s of --duration"
+        )
+        args.duration = available
     bar = None
     progress = None
     if not args.no_progress:

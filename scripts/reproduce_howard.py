@@ -55,7 +55,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--dispersal-duration", type=float, default=120.0, help="seconds")
     p.add_argument("--circuit-duration", type=float, default=175.0, help="seconds")
     p.add_argument("--json", type=Path, default=None, help="write the curves and figures here")
-    p.add_argument("--plot", type=Path, default=Path("outputs/howard.png"),
+    p.add_argument("--plot", default="outputs/howard.png",
                    help="where to save the plot ('' to skip)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
@@ -117,8 +117,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.json is not None:
         write_json(out, args.json)
         print(f"wrote {args.json}")
-    if str(args.plot):
-        print(f"wrote {plot_howard(results.get('dispersal'), results.get('circuit'), args.plot)}")
+    if args.plot:
+        plot = Path(args.plot)
+        print(f"wrote {plot_howard(results.get('dispersal'), results.get('circuit'), plot)}")
     return 0
 
 

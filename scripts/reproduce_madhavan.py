@@ -29,7 +29,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=0, help="episode seed")
     p.add_argument("--duration", type=float, default=50.0, help="seconds to drive")
     p.add_argument("--json", type=Path, default=None, help="write the three figures here")
-    p.add_argument("--plot", type=Path, default=Path("outputs/madhavan_fig4b.png"),
+    p.add_argument("--plot", default="outputs/madhavan_fig4b.png",
                    help="where to save the plot ('' to skip)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="config override of the dgps_outage scenario, repeatable")
@@ -48,8 +48,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.json is not None:
         write_json({k: result[k] for k in KEYS}, args.json)
         print(f"wrote {args.json}")
-    if str(args.plot):
-        print(f"wrote {plot_dgps_outage(result, args.plot)}")
+    if args.plot:
+        print(f"wrote {plot_dgps_outage(result, Path(args.plot))}")
     return 0
 
 

@@ -21,8 +21,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from policies.runner import parse_overrides
-from policies.training import ALGOS, TrainConfig, train
+from policies.runner import parse_overrides, policy_names
+from policies.training import ALGOS, TrainConfig, train, trained_timesteps
 from policies.vec_env import REWARD_MODES
 
 
@@ -58,7 +58,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--eval-freq", type=int, default=d.eval_freq,
                    help="agent steps between evaluations against the baseline (0 = off)")
     p.add_argument("--eval-episodes", type=int, default=d.eval_episodes)
-    p.add_argument("--eval-baseline", default=d.eval_baseline, help="fsm | random | seek")
+    p.add_argument("--eval-baseline", default=d.eval_baseline, help=" | ".join(policy_names()))
     p.add_argument("--checkpoint-freq", type=int, default=d.checkpoint_freq,
                    help="agent steps between checkpoints (0 = off)")
     p.add_argument("--resume", default=None, help="checkpoint .zip or run DIR to continue from")
@@ -125,6 +125,11 @@ def main(argv: list[str] | None = None) -> int:
         import coop_loc_env
 
         coop_loc_env.make_config(cfg.scenario, **cfg.env_overrides())
+        steps = trained_timesteps(cfg)
+        if steps != cfg.timesteps:
+            print(f"note: training {steps} agent steps, not {cfg.timesteps}: the agent slots "
+                  f"(--n-envs x robots) step together, and PPO learns in whole rollouts of "
+                  f"--n-steps steps per slot")
         summary = train(cfg)
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)

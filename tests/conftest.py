@@ -32,3 +32,72 @@ def script_main():
         return module.main
 
     return load
+
+
+# Tests that take more than ~3 s each (``pytest --durations=0`` on the 2-core development
+# machine under load), marked ``slow`` here in one place: ``pytest -m "not slow"`` is the
+# quick check, the full suite runs them all. An entry without ``[...]`` covers every
+# parameter of the test.
+SLOW_TESTS = frozenset({
+    "test_camera_pipeline.py::test_teams_without_cameras_read_nothing",
+    "test_compare.py::test_evaluate_compare_prints_one_table_and_saves_plot_and_json",
+    "test_compare.py::test_still_policy_covers_less_than_random",
+    "test_density_tree.py::test_monte_carlo_integral_of_pdf_over_the_domain_is_one",
+    "test_ekf.py::test_filter_is_consistent_with_gps_over_a_long_run",
+    "test_env_api.py::test_aec_api[dispersal]",
+    "test_env_api.py::test_aec_api[hexagon]",
+    "test_env_api.py::test_aec_api[symmetric_hallway]",
+    "test_env_api.py::test_aec_seed[circuit]",
+    "test_env_api.py::test_aec_seed[dispersal]",
+    "test_env_api.py::test_aec_seed[hexagon]",
+    "test_env_api.py::test_aec_seed[symmetric_hallway]",
+    "test_env_api.py::test_parallel_api[dispersal]",
+    "test_env_api.py::test_parallel_api[hexagon]",
+    "test_env_api.py::test_parallel_api[symmetric_hallway]",
+    "test_env_api.py::test_parallel_seed[dispersal]",
+    "test_env_api.py::test_parallel_seed[hexagon]",
+    "test_env_api.py::test_parallel_seed[symmetric_hallway]",
+    "test_env_api.py::test_render",
+    "test_env_behaviour.py::test_full_episode_is_deterministic[dispersal]",
+    "test_env_behaviour.py::test_full_episode_is_deterministic[hexagon]",
+    "test_env_behaviour.py::test_full_episode_is_deterministic[symmetric_hallway]",
+    "test_evaluate.py::test_evaluate_writes_valid_json_and_plots",
+    "test_evaluate.py::test_render_episode_saves_gif",
+    "test_evaluate.py::test_saved_sb3_model_is_a_policy",
+    "test_examples.py::test_train_example",
+    "test_fox.py::test_reproduce_fox_script_writes_json",
+    "test_fox.py::test_wander_reads_each_robots_own_scan",
+    "test_fsm.py::test_fsm_long_run_visits_every_state_safely",
+    "test_howard.py::test_circuit_error_drops_at_each_sighting_and_at_loop_closure",
+    "test_howard.py::test_dispersal_error_lowest_while_crowded",
+    "test_howard.py::test_script_writes_json",
+    "test_imitation.py::test_cloning_fits_the_teacher_and_the_returns",
+    "test_madhavan.py::test_script_writes_json",
+    "test_mcl_env.py::test_cooperative_updates_switch_transfers",
+    "test_mcl_env.py::test_episode_is_deterministic_with_mcl[dispersal]",
+    "test_mcl_env.py::test_parallel_api_with_mcl[dispersal]",
+    "test_mle_env.py::test_episode_is_deterministic_with_mle[dispersal]",
+    "test_mle_env.py::test_episode_is_deterministic_with_mle[hexagon]",
+    "test_mle_env.py::test_episode_is_deterministic_with_mle[symmetric_hallway]",
+    "test_mle_env.py::test_parallel_api_with_mle[dispersal]",
+    "test_mle_env.py::test_prior_anchors_the_global_frame",
+    "test_mle_online.py::test_covariance_is_consistent_with_errors",
+    "test_mle_online.py::test_gate_rejects_false_detections",
+    "test_mle_online.py::test_observations_beat_odometry_alone",
+    "test_mle_online.py::test_priors_alone_fix_the_frame_without_anchor",
+    "test_mle_online.py::test_sliding_window_stays_close_to_full_batch",
+    "test_mle_online.py::test_window_bounds_graph_size_on_long_runs",
+    "test_mrclam.py::test_cli_writes_the_documented_json",
+    "test_mrclam.py::test_mle_runs_on_excerpt_and_beats_dead_reckoning",
+    "test_particle_filter.py::test_beam_model_tracks_with_wide_cones[180]",
+    "test_sb3_adapter.py::test_two_processes_match_one_process",
+    "test_training.py::test_tiny_training_saves_a_model_that_evaluate_loads",
+})
+
+
+def pytest_collection_modifyitems(config, items):
+    """Mark the tests of :data:`SLOW_TESTS` ``slow``."""
+    for item in items:
+        nodeid = item.nodeid.removeprefix("tests/")
+        if nodeid in SLOW_TESTS or nodeid.split("[")[0] in SLOW_TESTS:
+            item.add_marker(pytest.mark.slow)

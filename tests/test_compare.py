@@ -67,7 +67,9 @@ def test_evaluate_compare_prints_one_table_and_saves_plot_and_json(tmp_path, cap
     text = capsys.readouterr().out
     assert "mean [95 % CI] over 3 episodes (seeds 4..6)" in text
     assert text.count("\nfsm ") == 1 and text.count("\nrandom ") == 1
-    assert "paired difference in time to localize (s) vs fsm" in text
+    # DGPS localizes every robot from the first step: time to localize says nothing here
+    assert "time to localize left out" in text and "time to localize (s)" not in text
+    assert "paired difference in team loc. error (m) vs fsm" in text
     data = json.loads(out.read_text())
     assert data["policies"] == ["fsm", "random"]
     partial = json.loads((tmp_path / "cmp.partial.json").read_text())  # saved after fsm
@@ -112,3 +114,14 @@ def test_still_policy_covers_less_than_random():
     assert format_compare_table(merged) == format_compare_table(data)
     with pytest.raises(ValueError, match="more than one report"):
         merge_reports([parts[0], parts[0]])
+
+
+def test_localized_from_the_start():
+    from policies.compare import localized_from_the_start
+
+    at_start = {"time_to_localize_s": 0.5, "localized_fraction": 1.0}
+    later = {"time_to_localize_s": 3.0, "localized_fraction": 1.0}
+    assert localized_from_the_start({"episodes": {"a": [at_start], "b": [at_start]}}, dt=0.5)
+    assert not localized_from_the_start({"episodes": {"a": [at_start], "b": [later]}}, dt=0.5)
+    never = {"time_to_localize_s": 0.5, "localized_fraction": 0.5}
+    assert not localized_from_the_start({"episodes": {"a": [never]}}, dt=0.5)

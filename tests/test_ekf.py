@@ -281,7 +281,7 @@ def _reference_ci_weight(pa, pb, jac, r):
 @pytest.mark.parametrize("dims", [(0, 1, 2), (0, 1)])
 @pytest.mark.parametrize("k", [2, 40])  # LAPACK inverses, cofactors (from 4 pairs on)
 def test_ci_weight_matches_the_direct_grid_search(model, dims, k):
-    from estimators.ekf import _best_ci_weight, _relative_measurement
+    from estimators.relative_model import _best_ci_weight, _relative_measurement
 
     rng = np.random.default_rng(11)
     a = rng.standard_normal((2, k, 3, 3)) * rng.uniform(0.05, 3.0, (2, k, 1, 1))
@@ -327,7 +327,7 @@ def test_relative_measurement_matches_its_formulas():
 
 
 def test_rounds_limit_keeps_the_first_rounds():
-    from estimators.ekf import _rounds
+    from estimators.relative_model import _rounds
 
     rng = np.random.default_rng(2)
     a = rng.integers(0, 12, 80)
@@ -365,7 +365,7 @@ def test_relative_update_with_partial_dims_and_rounds(fusion):
 
 
 def test_cofactors_give_the_inverse_and_determinant():
-    from estimators.ekf import _cofactors3
+    from estimators.relative_model import _cofactors3
 
     rng = np.random.default_rng(4)
     a = rng.standard_normal((5, 7, 3, 3))

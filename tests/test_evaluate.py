@@ -113,3 +113,21 @@ def test_render_episode_saves_gif(tmp_path, script_main):
     assert frames[0].ndim == 3 and frames[0].shape[2] in (3, 4)
     assert not np.array_equal(frames[0], frames[-1])
     assert main(["--every", "0", "--no-progress"]) == 2
+
+
+def test_one_policy_registry_for_policy_and_compare(capsys, script_main):
+    from policies.runner import policy_names
+
+    assert {"fsm", "random", "seek", "still", "wander"} <= set(policy_names())
+    main = script_main("evaluate")
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    help_text = capsys.readouterr().out
+    for name in policy_names():
+        assert f"\n  {name} " in help_text
+    for name in ("still", "wander", "wander:0.8"):  # --compare took these; --policy did not
+        assert main(["--policy", name, "--episodes", "1", "--max-cycles", "3",
+                     "--set", "n_robots=2", "--no-progress"]) == 0
+    assert make_policy("wander:0.8").speed == 0.8
+    with pytest.raises(ValueError, match="takes no argument"):
+        make_policy("fsm:1")

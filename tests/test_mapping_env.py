@@ -19,22 +19,24 @@ def _drive(env, steps, action=(0.6, 0.15)):
     return infos_seq
 
 
-def test_coverage_monotone_and_reward_term_counts_new_cells():
+def test_coverage_monotone_and_reward_term_counts_truly_covered_cells():
     env = coop_loc_env.parallel_env(n_robots=3, max_cycles=80, reward_coverage_weight=0.25)
     _, infos = env.reset(seed=3)
     prev = infos["robot_0"]["coverage"]
     assert 0.0 < prev < 0.01  # each robot maps the ground it starts on
-    total_new = 0
+    total_new = total_covered = 0
     for infos in _drive(env, 80):
         cov = infos["robot_0"]["coverage"]
         assert cov >= prev
         prev = cov
         for info in infos.values():
             assert info["coverage"] == cov  # a team figure
-            assert info["reward_terms"]["coverage"] == pytest.approx(0.25 * info["new_cells"])
+            assert info["reward_terms"]["coverage"] == pytest.approx(0.25 * info["covered_cells"])
             total_new += info["new_cells"]
+            total_covered += info["covered_cells"]
             assert np.isfinite(info["map_rmse"])
     assert total_new > 50  # driving ~4.8 m each with a 0.5 m footprint maps many cells
+    assert total_covered > 50  # and truly covers about as many
     assert prev > 0.01
     assert env.terrain_map.n_mapped >= total_new
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import json
 from pathlib import Path
@@ -95,8 +96,16 @@ def test_learned_policy_checks_observation_shape(tmp_path):
                       batch_size=32, n_epochs=1, overrides={"n_robots": 2, "max_cycles": 10},
                       eval_freq=0, checkpoint_freq=0, progress_bar=False)
     train(cfg)
+    import torch
+
+    torch.set_num_threads(2)
     model = make_policy(str(tmp_path / "m" / "final_model.zip")).model
+    assert torch.get_num_threads() == 1  # acting on one team observation: one thread
+    torch.set_num_threads(2)
+    LearnedPolicy(model, threads=None)
+    assert torch.get_num_threads() == 2
     policy = LearnedPolicy(model)
+    assert torch.get_num_threads() == 1
     env = coop_loc_env.parallel_env("outdoor_terrain", n_robots=2, max_detections_obs=1)
     env.reset(seed=0)
     with pytest.raises(ValueError, match="expects observations of shape"):
@@ -118,3 +127,17 @@ def test_train_rejects_bad_input(tmp_path, capsys):
     assert "n_procs" in capsys.readouterr().err
     with pytest.raises(ValueError, match="max_wall_s"):
         TrainConfig(out="x", max_wall_s=-1).validate()
+
+
+def test_train_says_when_timesteps_round_up_to_whole_rollouts(tmp_path, capsys):
+    from policies.training import trained_timesteps
+
+    cfg = TrainConfig(out=str(tmp_path / "x"), scenario="outdoor_terrain", timesteps=200,
+                      n_envs=2, n_steps=32, overrides={"n_robots": 2})
+    assert trained_timesteps(cfg) == 256  # rollouts of 2 copies x 2 robots x 32 steps
+    assert trained_timesteps(dataclasses.replace(cfg, timesteps=256)) == 256
+    out = tmp_path / "run"
+    assert _script("train")(TINY + ["--timesteps", "200", "--out", str(out), "--eval-freq", "0",
+                                    "--checkpoint-freq", "0"]) == 0
+    assert "note: training 256 agent steps, not 200" in capsys.readouterr().out
+    assert json.loads((out / "train_summary.json").read_text())["timesteps"] == 256

@@ -39,6 +39,14 @@ def list_scenarios() -> list[str]:
     return sorted(_REGISTRY)
 
 
+def describe_scenario(scenario: str) -> str:
+    """One line on ``scenario``: what it sets up (the first line of its docstring)."""
+    if not isinstance(scenario, str) or scenario not in _REGISTRY:
+        raise ValueError(f"unknown scenario {scenario!r}; known scenarios: {list_scenarios()}")
+    doc = (_REGISTRY[scenario].__doc__ or "").strip()
+    return doc.splitlines()[0] if doc else scenario
+
+
 def make_config(scenario: str, **overrides: Any) -> ScenarioConfig:
     """The config of ``scenario`` with ``overrides`` applied and validated."""
     if not isinstance(scenario, str) or scenario not in _REGISTRY:
