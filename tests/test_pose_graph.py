@@ -197,3 +197,30 @@ def test_optimize_rejects_non_finite_estimates():
     g.poses[b, 0] = np.nan
     with pytest.raises(ValueError, match="not finite"):
         optimize(g)
+
+
+def test_factor_selection_subgraph_and_remove():
+    team = random_team_graph(3, 4, np.random.default_rng(7))
+    g = team.graph
+    g.add_pose_prior(int(team.node[1, 0]), g.poses[team.node[1, 0]] + 0.1, [0.5, 0.5, 0.2])
+    everything = g.factors_touching(np.ones(g.n_nodes, bool))
+    assert everything.between.all() and everything.observation.all() and all(everything.priors)
+    whole = g.subgraph(np.arange(g.n_nodes), everything)
+    assert whole.cost() == pytest.approx(g.cost(), rel=1e-12)
+
+    gone = np.zeros(g.n_nodes, bool)
+    gone[team.node[:, 0]] = True  # every robot's first pose
+    hit = g.factors_touching(gone)
+    assert hit.between.sum() == 3 and hit.priors == [True]
+    touched = np.unique(np.concatenate(g.selection_nodes(hit)))
+    part = g.subgraph(touched, hit)
+    assert part.n_nodes == len(touched) and part.n_between == 3
+    assert part.n_observations == int(hit.observation.sum())
+    cost_before = g.cost()
+    g.remove(hit, np.flatnonzero(gone))
+    assert not g.active[gone].any() and g.active[~gone].all()
+    assert g.n_between == len(hit.between) - 3 and not g.priors
+    # The removed factors' cost moved to the sub-graph; nothing else changed.
+    assert g.cost() + part.cost() == pytest.approx(cost_before, rel=1e-12)
+    with pytest.raises(ValueError, match="is not an active node"):
+        g.check_nodes([team.node[0, 1], team.node[0, 0]])
