@@ -20,10 +20,15 @@ weighted particle set and offers
   (:meth:`ParticleFilter.belief_features`, layout in
   :func:`belief_feature_names`).
 
-One file on purpose: every method works on the same private state layout
-(float32 poses relative to the centre of map cell (0, 0), lazily wrapped
-headings, reused work buffers), which splitting would expose. Per-map tables
-live in :mod:`estimators.beam_table`, team-level batching in
+One class in one file on purpose (about 800 lines): every method of
+:class:`ParticleFilter` works on the same private state layout (float32 poses
+relative to the centre of map cell (0, 0), lazily wrapped headings, reused work
+buffers), which splitting the class would expose. What does not touch that state
+lives beside it: parameters in :mod:`estimators.particle_config`, the
+likelihood-field table and kernel in :mod:`estimators.likelihood_field`,
+resampling helpers in :mod:`estimators.particle_sampling`, the belief embedding in
+:mod:`estimators.particle_features` (their public names are importable from here
+too), per-map beam tables in :mod:`estimators.beam_table`, team-level batching in
 :mod:`estimators.mcl_batch`, compiled loops in :mod:`estimators._kernels`.
 
 Numerics use numpy/scipy, plus the few numba loops there. All randomness comes from the
@@ -34,10 +39,8 @@ equal seeds and fed equal data produce identical particles.
 from __future__ import annotations
 
 import math
-from functools import lru_cache
 
 import numpy as np
-from scipy.special import ndtri
 
 from estimators._kernels import first_occurrences, kld_bins
 from estimators.beam_table import (
@@ -53,6 +56,12 @@ from estimators.likelihood_field import LF_POWER, LFField, build_lf_field, lf_lo
 from estimators.occupancy import OccupancyGrid
 from estimators.particle_config import MCLConfig, ParticleBelief, ParticleMotionNoise
 from estimators.particle_features import belief_feature_names, belief_features, check_feature_args
+from estimators.particle_sampling import (
+    kld_need,
+    kld_sample_bound,
+    low_variance_from_cumulative,
+    low_variance_indices,
+)
 
 __all__ = [
     "MCLConfig",
@@ -65,64 +74,6 @@ __all__ = [
     "low_variance_indices",
 ]
 
-
-def low_variance_indices(weights: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
-    """Low-variance (systematic) resampling: ``n`` sorted indices drawn in proportion to weights.
-
-    One uniform offset ``u``, ``n`` equally spaced pointers ``(u + j) / n`` of the
-    cumulative weight; particle ``i`` is copied once per pointer that falls in
-    its cumulative interval. O(n + len(weights)) via ``np.repeat``.
-    ``weights`` must be non-negative with a positive finite sum.
-    """
-    weights = np.asarray(weights, dtype=float)
-    if weights.ndim != 1 or weights.size == 0:
-        raise ValueError(f"weights must be a non-empty 1D array, got shape {weights.shape}")
-    if n < 0:
-        raise ValueError(f"n must be >= 0, got {n}")
-    cum = np.add.accumulate(weights)
-    total = cum[-1]
-    if not np.isfinite(total) or total <= 0 or weights.min() < 0:
-        raise ValueError(
-            f"weights must be non-negative with a positive finite sum, got sum={total}"
-        )
-    return _lvi(cum, n, rng)
-
-
-def _lvi(cum: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
-    """Core of :func:`low_variance_indices` from the cumulative weights (no checks)."""
-    total = cum[-1]
-    u = rng.random()
-    # number of pointers strictly below each cumulative weight (rounding may push
-    # it past n, which no pointer sees)
-    below = cum * (n / total)
-    below -= u
-    np.ceil(below, out=below)  # >= 0 since u < 1
-    below_i = below.astype(np.intp)
-    below_i[-1] = n
-    # pointer j goes to the number of particles whose interval ends at or before it
-    return np.add.accumulate(np.bincount(below_i, minlength=n + 1)[:n])
-
-
-def kld_sample_bound(k: np.ndarray, epsilon: float, delta: float) -> np.ndarray:
-    """Samples needed for KLD-sampling with ``k`` occupied bins (Fox 2003, Wilson-Hilferty).
-
-    ``n = (k-1)/(2 eps) * (1 - 2/(9(k-1)) + sqrt(2/(9(k-1))) z_{1-delta})^3``;
-    1 for ``k <= 1``.
-    """
-    k = np.asarray(k, dtype=float)
-    z = ndtri(1.0 - delta)
-    km1 = np.maximum(k - 1.0, 1.0)
-    a = 2.0 / (9.0 * km1)
-    n = km1 / (2.0 * epsilon) * (1.0 - a + np.sqrt(a) * z) ** 3
-    return np.where(k <= 1, 1.0, np.ceil(n))
-
-
-@lru_cache(maxsize=32)
-def _kld_need(epsilon: float, delta: float, n_min: int, n_max: int) -> np.ndarray:
-    """``max(kld_sample_bound(k), n_min)`` for ``k = 0 .. n_max`` (read-only, cached)."""
-    need = np.maximum(kld_sample_bound(np.arange(n_max + 1), epsilon, delta), n_min)
-    need.flags.writeable = False
-    return need
 
 def compose_odometry(v: np.ndarray, w: np.ndarray, dt: float) -> np.ndarray:
     """Relative motion ``(dx, dy, dheading)`` of a sequence of unicycle odometry readings.
@@ -733,7 +684,7 @@ class ParticleFilter:
         else:
             n = self._weights.size
             n_inj = int(rng.binomial(n, p_inj)) if p_inj > 0 else 0
-            idx = _lvi(self._cumulative_weights(), n - n_inj, rng)
+            idx = low_variance_from_cumulative(self._cumulative_weights(), n - n_inj, rng)
             state = self._state.take(idx, axis=1)
         if n_inj:
             state = np.concatenate([state, self._uniform_poses(n_inj)], axis=1)
@@ -775,7 +726,7 @@ class ParticleFilter:
         """
         cfg = self.config
         n_max = cfg.n_max
-        idx = _lvi(self._cumulative_weights(), n_max, self.rng)
+        idx = low_variance_from_cumulative(self._cumulative_weights(), n_max, self.rng)
         idx = idx[self.rng.permutation(n_max)]
         if self._unwrapped_steps:
             self._wrap_headings()
@@ -791,7 +742,7 @@ class ParticleFilter:
             is_new = np.zeros(n_max, dtype=bool)
             is_new[first] = True
         k = np.cumsum(is_new)  # bins occupied by the first i + 1 particles
-        need = _kld_need(cfg.kld_epsilon, cfg.kld_delta, cfg.n_min, n_max)[k]
+        need = kld_need(cfg.kld_epsilon, cfg.kld_delta, cfg.n_min, n_max)[k]
         enough = np.flatnonzero(np.arange(1, n_max + 1) >= need)
         n = int(enough[0]) + 1 if enough.size else n_max
         n = int(np.clip(n, cfg.n_min, n_max))
