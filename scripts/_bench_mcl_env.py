@@ -10,7 +10,7 @@ actions) for
 * ``hexagon`` with 2 sonar and 2 laser robots in global localization,
 
 each with a fixed particle count (``adaptive`` off) as well, so the figure is
-for exactly 1000 particles per robot. The lead's ``scripts/benchmark.py``
+for exactly 1000 particles per robot. ``scripts/benchmark.py``
 imports it; ``python scripts/_bench_mcl_env.py`` prints it.
 """
 
