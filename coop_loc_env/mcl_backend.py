@@ -83,8 +83,8 @@ from estimators.mcl_batch import (
 from estimators.occupancy import OccupancyGrid
 from estimators.particle_filter import (
     MCLConfig,
-    MotionNoise,
     ParticleFilter,
+    ParticleMotionNoise,
     belief_feature_names,
     low_variance_indices,
 )
@@ -260,7 +260,7 @@ class MCLBackend:
         self._cone = 0.5 * np.deg2rad(cfg.sonar_fov_deg) / cfg.sonar_beams
         n = cfg.n_particles
         # Motion-noise floors are per prediction (one per env step): scale them with dt.
-        motion = MotionNoise(min_xy=0.02 * cfg.dt / 0.1, min_heading=0.01 * cfg.dt / 0.1)
+        motion = ParticleMotionNoise(min_xy=0.02 * cfg.dt / 0.1, min_heading=0.01 * cfg.dt / 0.1)
         self._laser_beam = laser_model(cfg) == "beam"
         self.mcl_config = {}
         for t in self._grids:

@@ -154,11 +154,6 @@ class OccupancyGrid:
         ox, oy = self.origin
         return ox, oy, ox + nx * self.resolution, oy + ny * self.resolution
 
-    @cached_property
-    def free_area(self) -> float:
-        """Area of the free cells in square metres."""
-        return float((~self.occupied).sum()) * self.resolution**2
-
     def world_to_cell(self, xy: np.ndarray) -> np.ndarray:
         """Integer cell indices ``(..., 2)`` as ``(ix, iy)`` of world points ``(..., 2)``.
 

@@ -20,10 +20,15 @@ weighted particle set and offers
   (:meth:`ParticleFilter.belief_features`, layout in
   :func:`belief_feature_names`).
 
-One file on purpose: every method works on the same private state layout
-(float32 poses relative to the centre of map cell (0, 0), lazily wrapped
-headings, reused work buffers), which splitting would expose. Per-map tables
-live in :mod:`estimators.beam_table`, team-level batching in
+One class in one file on purpose (about 800 lines): every method of
+:class:`ParticleFilter` works on the same private state layout (float32 poses
+relative to the centre of map cell (0, 0), lazily wrapped headings, reused work
+buffers), which splitting the class would expose. What does not touch that state
+lives beside it: parameters in :mod:`estimators.particle_config`, the
+likelihood-field table and kernel in :mod:`estimators.likelihood_field`,
+resampling helpers in :mod:`estimators.particle_sampling`, the belief embedding in
+:mod:`estimators.particle_features` (their public names are importable from here
+too), per-map beam tables in :mod:`estimators.beam_table`, team-level batching in
 :mod:`estimators.mcl_batch`, compiled loops in :mod:`estimators._kernels`.
 
 Numerics use numpy/scipy, plus the few numba loops there. All randomness comes from the
@@ -34,12 +39,8 @@ equal seeds and fed equal data produce identical particles.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from functools import lru_cache
-from typing import NamedTuple
 
 import numpy as np
-from scipy.special import ndtri
 
 from estimators._kernels import first_occurrences, kld_bins
 from estimators.beam_table import (
@@ -50,270 +51,29 @@ from estimators.beam_table import (
     range_table,
     scan_loglik,
 )
-from estimators.geometry import wrap_angle
+from estimators.geometry import wrap_angle, wrap_angle_in_place
+from estimators.likelihood_field import LF_POWER, LFField, build_lf_field, lf_loglik
 from estimators.occupancy import OccupancyGrid
+from estimators.particle_config import MCLConfig, ParticleBelief, ParticleMotionNoise
+from estimators.particle_features import belief_feature_names, belief_features, check_feature_args
+from estimators.particle_sampling import (
+    kld_need,
+    kld_sample_bound,
+    low_variance_from_cumulative,
+    low_variance_indices,
+)
 
 __all__ = [
     "MCLConfig",
-    "MotionNoise",
     "ParticleBelief",
     "ParticleFilter",
+    "ParticleMotionNoise",
     "belief_feature_names",
     "compose_odometry",
     "kld_sample_bound",
     "low_variance_indices",
 ]
 
-_LOG_SQRT_2PI = 0.5 * np.log(2.0 * np.pi)
-# For float32 0 <= x < 2**23, x + _MAGIC rounds x to an integer k (ties to even) and
-# has the bits _MAGIC_BITS + k. The likelihood table's width w has w + 1 divisible by
-# 256, which makes _MAGIC_BITS * (w + 1) vanish modulo 2**32 (_MAGIC_BITS = 75 * 2**24).
-_MAGIC = np.float32(2**23)
-_MAGIC_BITS = int(np.array(_MAGIC).view(np.int32))
-assert _MAGIC_BITS * 256 % 2**32 == 0
-# The likelihood-field table holds log-likelihoods divided by this: a scan's sum then
-# stays within float32 exp's range for common scans (powered back in float64).
-_LF_POWER = 4
-
-
-class _LFField(NamedTuple):
-    table: np.ndarray  # flat float32: [log-likelihood grid | penalty grid]
-    pad: int  # border cells around the map
-    nxp: int  # padded grid width
-    nyp: int  # padded grid height
-    offset: int  # start of the penalty grid in ``table``
-    lo: np.ndarray  # (2, 1) float32: lowest allowed particle position (state coordinates)
-    hi: np.ndarray  # (2, 1) float32: highest allowed particle position (state coordinates)
-    inv_res: float  # 1 / resolution
-    reach: float  # ranges are clipped to this (no endpoint can leave the table)
-    magic: np.float32  # 2**23 + pad: rounds cell coordinates, adds the pad (see _MAGIC)
-    lmax: float  # the log-likelihood grid holds (exponent * log(p) - lmax) / _LF_POWER
-    span: float  # lmax minus the least exponent * log(p)
-
-
-@dataclass(frozen=True)
-class MotionNoise:
-    """Odometry noise, as standard deviations proportional to the motion.
-
-    For a motion decomposed into ``rot1`` (turn towards the new position),
-    ``trans`` and ``rot2`` (final turn)::
-
-        std(rot1)  = rot_rot * |rot1| + rot_trans * |trans| + min_heading
-        std(trans) = trans_trans * |trans| + trans_rot * (|rot1| + |rot2|) + min_xy
-        std(rot2)  = rot_rot * |rot2| + rot_trans * |trans| + min_heading
-
-    ``min_xy`` (m) and ``min_heading`` (rad) are per-prediction floors
-    ("roughening"): they keep particle diversity while the robot stands still
-    and let a set that collapsed slightly off the truth drift back to it.
-    They are per call, so scale them with the prediction rate.
-    """
-
-    rot_rot: float = 0.05
-    rot_trans: float = 0.02
-    trans_trans: float = 0.05
-    trans_rot: float = 0.01
-    min_xy: float = 0.02
-    min_heading: float = 0.01
-
-    def __post_init__(self) -> None:
-        for name in ("rot_rot", "rot_trans", "trans_trans", "trans_rot", "min_xy", "min_heading"):
-            val = getattr(self, name)
-            if not np.isfinite(val) or val < 0:
-                raise ValueError(f"MotionNoise.{name} must be finite and >= 0, got {val}")
-
-
-@dataclass(frozen=True)
-class MCLConfig:
-    """Parameters of :class:`ParticleFilter` (defaults suit a 2D laser robot).
-
-    Likelihood field: each beam endpoint scores
-    ``lf_z_hit * N(d; 0, lf_sigma) + lf_z_rand / max_range`` where ``d`` is the
-    distance from the endpoint to the nearest obstacle (clipped at
-    ``lf_max_dist``); max-range readings are skipped.
-
-    Beam model: ``beam_z_hit`` Gaussian around the ray-cast range (std
-    ``beam_sigma``, truncated to ``[0, max_range]``), ``beam_z_short``
-    exponential short readings (rate ``beam_lambda_short``), ``beam_z_max``
-    point mass at max range, ``beam_z_rand`` uniform. A beam with a cone
-    (``cone_half_width`` > 0) expects the nearest of ``beam_rays_per_cone``
-    rays spread over the cone. ``beam_lookup_bins`` > 0 replaces ray casting
-    by lookups in a :class:`~estimators.beam_table.RangeTable` (that many
-    heading bins; ranges from the cell centre corrected to first order for
-    the particle's exact position and heading) and the model's terms by a
-    :class:`~estimators.beam_table.BeamLUT` over ranges quantized to
-    ``max_range / 511``: both built once per map and shared, then an update
-    costs two gathers per particle and beam instead of a ray cast.
-
-    ``likelihood_exponent`` multiplies every scan log-likelihood (< 1 tempers
-    the overconfidence of treating beams as independent). Particles whose
-    position is occupied or outside the map get ``occupied_loglik`` added.
-
-    Resampling happens in :meth:`ParticleFilter.resample_if_needed` when the
-    effective sample size drops below ``resample_ess_fraction * N`` or the
-    augmented-MCL injection probability is positive. Augmented MCL tracks the
-    per-beam geometric-mean likelihood with rates ``alpha_slow`` < ``alpha_fast``
-    and injects uniform particles with probability
-    ``max(random_fraction, min(max_inject_fraction, 1 - w_fast / w_slow))``.
-    The constant ``random_fraction`` is Fox et al.'s "small number of uniformly
-    distributed samples after each estimation step": it is what lets global
-    localization escape a wrong mode that a too-early collapse locked in (the
-    slow/fast averages cannot notice a consistently mediocre match).
-
-    KLD sampling (``adaptive=True``) chooses the particle count between
-    ``n_min`` and ``n_max`` so that, with probability ``1 - kld_delta``, the
-    K-L divergence between the sample-based and the true posterior stays below
-    ``kld_epsilon``, using histogram bins of size ``kld_bin`` (m, m, rad).
-    """
-
-    n_particles: int = 1000
-    motion: MotionNoise = field(default_factory=MotionNoise)
-    lf_sigma: float = 0.2
-    lf_z_hit: float = 0.9
-    lf_z_rand: float = 0.1
-    lf_max_dist: float = 2.0
-    beam_sigma: float = 0.3
-    beam_z_hit: float = 0.7
-    beam_z_short: float = 0.1
-    beam_z_max: float = 0.1
-    beam_z_rand: float = 0.1
-    beam_lambda_short: float = 0.5
-    beam_rays_per_cone: int = 3
-    beam_lookup_bins: int = 0
-    likelihood_exponent: float = 1.0
-    occupied_loglik: float = -10.0
-    resample_ess_fraction: float = 0.5
-    augmented: bool = True
-    alpha_slow: float = 0.01
-    alpha_fast: float = 0.2
-    max_inject_fraction: float = 0.3
-    random_fraction: float = 0.03
-    adaptive: bool = False
-    n_min: int = 100
-    n_max: int = 5000
-    kld_epsilon: float = 0.05
-    kld_delta: float = 0.01
-    kld_bin: tuple[float, float, float] = (0.5, 0.5, float(np.deg2rad(10.0)))
-
-    def __post_init__(self) -> None:
-        positive = (
-            "lf_sigma", "lf_max_dist", "beam_sigma", "beam_lambda_short",
-            "likelihood_exponent", "kld_epsilon",
-        )
-        for name in positive:
-            val = getattr(self, name)
-            if not np.isfinite(val) or val <= 0:
-                raise ValueError(f"MCLConfig.{name} must be finite and > 0, got {val}")
-        nonneg = (
-            "lf_z_hit", "lf_z_rand", "beam_z_hit", "beam_z_short", "beam_z_max",
-            "beam_z_rand", "alpha_slow", "alpha_fast",
-        )
-        for name in nonneg:
-            val = getattr(self, name)
-            if not np.isfinite(val) or val < 0:
-                raise ValueError(f"MCLConfig.{name} must be finite and >= 0, got {val}")
-        if self.lf_z_rand <= 0:
-            raise ValueError(f"MCLConfig.lf_z_rand must be > 0 (keeps weights finite), "
-                             f"got {self.lf_z_rand}")
-        if self.beam_z_rand <= 0:
-            raise ValueError(f"MCLConfig.beam_z_rand must be > 0 (keeps weights finite), "
-                             f"got {self.beam_z_rand}")
-        for name in ("max_inject_fraction", "random_fraction", "resample_ess_fraction"):
-            val = getattr(self, name)
-            if not 0.0 <= val <= 1.0:
-                raise ValueError(f"MCLConfig.{name} must be in [0, 1], got {val}")
-        if not 0.0 < self.kld_delta < 1.0:
-            raise ValueError(f"MCLConfig.kld_delta must be in (0, 1), got {self.kld_delta}")
-        if not np.isfinite(self.occupied_loglik) or self.occupied_loglik > 0:
-            raise ValueError(f"MCLConfig.occupied_loglik must be finite and <= 0, "
-                             f"got {self.occupied_loglik}")
-        if self.n_particles < 1:
-            raise ValueError(f"MCLConfig.n_particles must be >= 1, got {self.n_particles}")
-        if not 1 <= self.n_min <= self.n_max:
-            raise ValueError(f"MCLConfig needs 1 <= n_min <= n_max, got n_min={self.n_min}, "
-                             f"n_max={self.n_max}")
-        if self.beam_lookup_bins != 0 and self.beam_lookup_bins < 4:
-            raise ValueError(f"MCLConfig.beam_lookup_bins must be 0 (off) or >= 4, "
-                             f"got {self.beam_lookup_bins}")
-        if self.beam_rays_per_cone < 1:
-            raise ValueError(f"MCLConfig.beam_rays_per_cone must be >= 1, "
-                             f"got {self.beam_rays_per_cone}")
-        if len(self.kld_bin) != 3 or not all(np.isfinite(b) and b > 0 for b in self.kld_bin):
-            raise ValueError(f"MCLConfig.kld_bin must be three positive sizes, got {self.kld_bin}")
-
-
-@dataclass(frozen=True)
-class ParticleBelief:
-    """Summary of a particle belief.
-
-    ``mean`` is ``(x, y, heading)`` with the circular mean heading; ``cov`` is
-    the weighted ``3x3`` covariance with heading deviations wrapped around the
-    mean; ``particles`` ``(N, 3)`` and ``weights`` ``(N,)`` (summing to 1) are
-    copies of the filter's state.
-    """
-
-    mean: np.ndarray
-    cov: np.ndarray
-    particles: np.ndarray
-    weights: np.ndarray
-
-
-def low_variance_indices(weights: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
-    """Low-variance (systematic) resampling: ``n`` sorted indices drawn in proportion to weights.
-
-    One uniform offset ``u``, ``n`` equally spaced pointers ``(u + j) / n`` of the
-    cumulative weight; particle ``i`` is copied once per pointer that falls in
-    its cumulative interval. O(n + len(weights)) via ``np.repeat``.
-    ``weights`` must be non-negative with a positive finite sum.
-    """
-    weights = np.asarray(weights, dtype=float)
-    if weights.ndim != 1 or weights.size == 0:
-        raise ValueError(f"weights must be a non-empty 1D array, got shape {weights.shape}")
-    if n < 0:
-        raise ValueError(f"n must be >= 0, got {n}")
-    cum = np.add.accumulate(weights)
-    total = cum[-1]
-    if not np.isfinite(total) or total <= 0 or weights.min() < 0:
-        raise ValueError(
-            f"weights must be non-negative with a positive finite sum, got sum={total}"
-        )
-    return _lvi(cum, n, rng)
-
-
-def _lvi(cum: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
-    """Core of :func:`low_variance_indices` from the cumulative weights (no checks)."""
-    total = cum[-1]
-    u = rng.random()
-    # number of pointers strictly below each cumulative weight (rounding may push
-    # it past n, which no pointer sees)
-    below = cum * (n / total)
-    below -= u
-    np.ceil(below, out=below)  # >= 0 since u < 1
-    below_i = below.astype(np.intp)
-    below_i[-1] = n
-    # pointer j goes to the number of particles whose interval ends at or before it
-    return np.add.accumulate(np.bincount(below_i, minlength=n + 1)[:n])
-
-
-def kld_sample_bound(k: np.ndarray, epsilon: float, delta: float) -> np.ndarray:
-    """Samples needed for KLD-sampling with ``k`` occupied bins (Fox 2003, Wilson-Hilferty).
-
-    ``n = (k-1)/(2 eps) * (1 - 2/(9(k-1)) + sqrt(2/(9(k-1))) z_{1-delta})^3``;
-    1 for ``k <= 1``.
-    """
-    k = np.asarray(k, dtype=float)
-    z = ndtri(1.0 - delta)
-    km1 = np.maximum(k - 1.0, 1.0)
-    a = 2.0 / (9.0 * km1)
-    n = km1 / (2.0 * epsilon) * (1.0 - a + np.sqrt(a) * z) ** 3
-    return np.where(k <= 1, 1.0, np.ceil(n))
-
-
-@lru_cache(maxsize=32)
-def _kld_need(epsilon: float, delta: float, n_min: int, n_max: int) -> np.ndarray:
-    """``max(kld_sample_bound(k), n_min)`` for ``k = 0 .. n_max`` (read-only, cached)."""
-    need = np.maximum(kld_sample_bound(np.arange(n_max + 1), epsilon, delta), n_min)
-    need.flags.writeable = False
-    return need
 
 def compose_odometry(v: np.ndarray, w: np.ndarray, dt: float) -> np.ndarray:
     """Relative motion ``(dx, dy, dheading)`` of a sequence of unicycle odometry readings.
@@ -337,49 +97,6 @@ def compose_odometry(v: np.ndarray, w: np.ndarray, dt: float) -> np.ndarray:
     ly = np.where(turning, v / safe_w * (1.0 - np.cos(dth)), 0.0)
     c, s = np.cos(start), np.sin(start)
     return np.array([np.sum(c * lx - s * ly), np.sum(s * lx + c * ly), float(np.sum(dth))])
-
-
-def belief_feature_names(hist_cells: int = 5, heading_bins: int = 8) -> list[str]:
-    """Names of the entries of :meth:`ParticleFilter.belief_features`, in order.
-
-    Layout (``K = hist_cells``, ``H = heading_bins``; lengths in brackets)::
-
-        x_norm, y_norm                      [2]  weighted mean mapped to [-1, 1] over the
-                                                  map's bounds
-        cos_heading, sin_heading            [2]  cos, sin of the circular-mean heading
-        log10_std_x, log10_std_y            [2]  log10 of the weighted std (m), clipped
-                                                  to [-3, 2]
-        log10_std_heading                   [1]  log10 of the circular std (rad), same clip
-        rho_xy, rho_xheading, rho_yheading  [3]  weighted correlations
-        heading_resultant                   [1]  mean resultant length in [0, 1]
-        ess_fraction                        [1]  effective sample size / N
-        hist_entropy                        [1]  entropy of the histogram below / log(K*K+1)
-        count_fraction                      [1]  N / n_max (1 when not adaptive)
-        hist_r{i}_c{j}                      [K*K] particle mass in an egocentric K x K
-                                                  grid centred on the mean pose, rows
-                                                  along the mean heading (forward,
-                                                  i = 0 is farthest behind), columns
-                                                  to the left (j = 0 is rightmost)
-        hist_outside                        [1]  mass outside that grid
-        heading_hist_{h}                    [H]  mass of (heading - mean heading) in H
-                                                  equal bins starting at -pi
-
-    Total length ``14 + K*K + 1 + H``; the histogram entries plus
-    ``hist_outside`` sum to 1, as do the heading bins. The first ten entries
-    have the same meaning and scaling as the env's Gaussian-belief features.
-    """
-    if hist_cells < 1 or heading_bins < 1:
-        raise ValueError(f"hist_cells and heading_bins must be >= 1, got {hist_cells}, "
-                         f"{heading_bins}")
-    names = [
-        "x_norm", "y_norm", "cos_heading", "sin_heading", "log10_std_x", "log10_std_y",
-        "log10_std_heading", "rho_xy", "rho_xheading", "rho_yheading", "heading_resultant",
-        "ess_fraction", "hist_entropy", "count_fraction",
-    ]
-    names += [f"hist_r{i}_c{j}" for i in range(hist_cells) for j in range(hist_cells)]
-    names.append("hist_outside")
-    names += [f"heading_hist_{h}" for h in range(heading_bins)]
-    return names
 
 
 class ParticleFilter:
@@ -423,7 +140,7 @@ class ParticleFilter:
         self.w_slow = 0.0
         self.w_fast = 0.0
         self._unwrapped_steps = 0
-        self._lf_cache: dict[float, _LFField] = {}
+        self._lf_cache: dict[float, LFField] = {}
         self._beam_tabs: dict[tuple[float, float], tuple[RangeTable, BeamLUT]] = {}
         self._mats: dict[bytes, tuple] = {}  # reusable beam matrices by beam angles
         self._lfb: dict[tuple[int, int], tuple] = {}  # likelihood-field work arrays
@@ -588,7 +305,7 @@ class ParticleFilter:
         """Move particles by a relative motion ``(dx, dy, dheading)`` in the previous robot frame.
 
         Decomposed into rot1 / trans / rot2 (reverse driving gives a negative
-        translation, not a half-turn) and perturbed per :class:`MotionNoise`.
+        translation, not a half-turn) and perturbed per :class:`ParticleMotionNoise`.
         """
         try:
             dx, dy, dth = map(float, delta)
@@ -608,7 +325,7 @@ class ParticleFilter:
         else:  # reversing: negative translation, not a half-turn
             rot1 = math.atan2(-dy, -dx)
             trans = -trans
-        rot2 = (dth - rot1 + math.pi) % (2.0 * math.pi) - math.pi
+        rot2 = float(wrap_angle(dth - rot1))
         at = abs(trans)
         self.odometer += at
         mn = self.config.motion
@@ -648,8 +365,7 @@ class ParticleFilter:
         return self._mb
 
     def _wrap_headings(self) -> None:
-        st = self._state
-        st[2] = (st[2] + np.pi) % (2.0 * np.pi) - np.pi
+        wrap_angle_in_place(self._state[2])
         self._unwrapped_steps = 0
 
     # ---------------------------------------------------------- perception
@@ -688,18 +404,9 @@ class ParticleFilter:
                 self._angles_ok = key
         return ranges, angles, max_range, hi
 
-    def _lf_field(self, max_range: float) -> _LFField:
-        """Tables gathered by the likelihood-field update for ``max_range`` (cached).
-
-        One flat ``float32`` array holds two grids of the same padded geometry
-        (a border of ``pad`` cells, ``pad >= reach / resolution``, so every
-        beam endpoint of a particle inside the map lands inside the grid):
-        first the tempered per-beam log-likelihood
-        ``exponent * log(z_hit N(d) + z_rand / max_range)`` less its maximum
-        ``lmax`` (so a scan's sum is at most 0), then the position log-penalty
-        (0 in free map cells, ``occupied_loglik`` in occupied or outside cells),
-        both divided by ``_LF_POWER``.
-        """
+    def _lf_field(self, max_range: float) -> LFField:
+        """The likelihood-field tables for ``max_range`` (:func:`build_lf_field`; cached here
+        and shared through the grid by every filter with the same map and model)."""
         key = float(max_range)
         lf = self._lf_cache.get(key)
         if lf is not None:
@@ -709,39 +416,7 @@ class ParticleFilter:
         shared_key = ("lf_table", key, cfg.lf_sigma, cfg.lf_z_hit, cfg.lf_z_rand, cfg.lf_max_dist,
                       cfg.likelihood_exponent, cfg.occupied_loglik)
 
-        def build() -> _LFField:
-            res = self.grid.resolution
-            xmin, ymin, xmax, ymax = self.grid.bounds
-            # Beyond the map's diagonal plus lf_max_dist every endpoint scores the
-            # floor value, so longer ranges are clipped to ``reach`` (bounds the pad).
-            reach = min(max_range, math.hypot(xmax - xmin, ymax - ymin) + cfg.lf_max_dist)
-            pad = int(np.ceil(reach / res)) + 2
-            dist = np.minimum(self.grid.distance_field(pad), cfg.lf_max_dist)
-            lik = cfg.lf_z_hit * np.exp(-0.5 * (dist / cfg.lf_sigma) ** 2 - _LOG_SQRT_2PI) / (
-                cfg.lf_sigma
-            ) + cfg.lf_z_rand / max_range
-            loglik = cfg.likelihood_exponent * np.log(lik)
-            lmax = float(loglik.max())
-            span = lmax - float(loglik.min())
-            loglik = (loglik - lmax) / _LF_POWER
-            inside = np.pad(~self.grid.occupied, pad, constant_values=False)
-            # Widen to w with w + 1 divisible by 256 (see _MAGIC); the extra columns on
-            # the right are never gathered.
-            nyp, nxp = dist.shape
-            extra = (nxp // 256 + 1) * 256 - 1 - nxp
-            loglik = np.pad(loglik, ((0, 0), (0, extra)), mode="edge")
-            inside = np.pad(inside, ((0, 0), (0, extra)), constant_values=False)
-            nxp += extra
-            penalty = np.where(inside, 0.0, cfg.occupied_loglik / _LF_POWER)
-            table = np.concatenate([loglik.ravel(), penalty.ravel()]).astype(np.float32)
-            # the centres of the cells next to the map, in state coordinates
-            ny, nx = self.grid.shape
-            lo = np.full((2, 1), -res, dtype=np.float32)
-            hi = (np.array([[nx], [ny]]) * res).astype(np.float32)
-            return _LFField(table, pad, nxp, nyp, nxp * nyp, lo, hi, 1.0 / res, reach,
-                            np.float32(_MAGIC + pad), lmax, span)
-
-        lf = self.grid.memo(shared_key, build)
+        lf = self.grid.memo(shared_key, lambda: build_lf_field(self.grid, cfg, key))
         self._lf_cache[key] = lf
         return lf
 
@@ -771,91 +446,14 @@ class ParticleFilter:
             ranges, angles = ranges[keep], angles[keep]
         if max_range > lf.reach:
             ranges = np.minimum(ranges, lf.reach)
+        loglik = lf_loglik(lf, self._state, ranges, angles, self._mats, self._lfb)
         nb = ranges.size
-        st = self._state
-        n = st.shape[1]
-        # E = M @ [cos; sin; x; y] gives endpoint cell coordinates: rows ex then ey;
-        # rows nb and 2 nb + 1 are the particle itself (they gather the penalty).
-        mat, unit, mat_r = self._beam_matrix(angles, lf)
-        np.multiply(unit, ranges, out=mat_r, casting="unsafe")
-        a4, cos_h, sin_h, xy, ecell, bits_x, flat, gath, ones, loglik = self._lf_buffers(nb, n)
-        np.cos(st[2], out=cos_h)
-        np.sin(st[2], out=sin_h)
-        # Particle positions (metres from the centre of map cell (0, 0)), clamped to
-        # one cell around the map so that no endpoint leaves the table (clamped
-        # particles sit outside the map and get the penalty anyway).
-        np.maximum(st[:2], lf.lo, out=xy)
-        np.minimum(xy, lf.hi, out=xy)
-        np.matmul(mat, a4, out=ecell)
-        # Rounded, these are map cells. Round in place: adding 2**23 + pad leaves the
-        # padded cell coordinate in the float32 mantissa, so the int32 view holds
-        # _MAGIC_BITS + padded cell; in (_MAGIC_BITS + iy) * nxp + _MAGIC_BITS + ix
-        # the constant wraps to 0 in int32.
-        ecell += lf.magic
-        flat *= lf.nxp  # the y rows
-        flat += bits_x
-        flat[nb] += lf.offset  # the particle's own cell: the penalty grid
-        lf.table.take(flat, out=gath, mode="clip")  # in range by construction; the x
-        # rows are spent, so the values go there
-        loglik = np.matmul(ones, gath, out=loglik)  # sum over the beams and the penalty
-        # The scan's log-likelihood is _LF_POWER * loglik + nb * lmax, with loglik
+        # The scan's log-likelihood is LF_POWER * loglik + nb * lmax, with loglik
         # between -bound and 0.
         cfg = self.config
-        bound = (nb * lf.span - cfg.occupied_loglik) / _LF_POWER
+        bound = (nb * lf.span - cfg.occupied_loglik) / LF_POWER
         return self._apply_loglik(loglik, nb * cfg.likelihood_exponent, nb * lf.lmax, bound,
-                                  _LF_POWER)
-
-    def _beam_matrix(
-        self, angles: np.ndarray, lf: _LFField
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Reusable endpoint matrix of beams at robot-frame ``angles`` for table ``lf``.
-
-        Returns ``(mat, unit, mat_r)``: ``mat`` ``(2 nb + 2, 4)`` float32
-        (Fortran order) with its constant columns set (``1 / resolution`` on the
-        position columns); ``unit`` ``(2, 2, nb)`` float32 the rotation entries
-        in cells per metre of range (columns ``[cos, sin]`` and ``[-sin, cos]``
-        of the x and y rows); ``mat_r`` the view of ``mat``'s range-dependent
-        entries that ``unit * ranges`` fills (the particle rows keep zeros
-        there). Cached by the angles' bytes (scanners repeat their beam angles).
-        """
-        key = (angles.tobytes(), lf.inv_res)
-        bufs = self._mats.get(key)
-        if bufs is None:
-            nb = angles.size
-            mat = np.zeros((2 * nb + 2, 4), dtype=np.float32, order="F")
-            mat[: nb + 1, 2] = lf.inv_res
-            mat[nb + 1:, 3] = lf.inv_res
-            c, s = np.cos(angles) * lf.inv_res, np.sin(angles) * lf.inv_res
-            unit = np.array([[c, s], [-s, c]], dtype=np.float32)
-            mat_r = mat[:, :2].T.reshape(2, 2, nb + 1)[:, :, :nb]
-            if len(self._mats) > 64:  # bound the cache (varying max-range dropouts)
-                self._mats.clear()
-            bufs = self._mats[key] = (mat, unit, mat_r)
-        return bufs
-
-    def _lf_buffers(self, nb: int, n: int) -> tuple[np.ndarray, ...]:
-        """Reusable work arrays of the likelihood-field update for ``nb`` beams, ``n`` particles.
-
-        ``(a4, cos_h, sin_h, xy, ecell, bits_x, flat, gath, ones, loglik)``:
-        ``a4`` the ``(4, n)`` float32 ``[cos; sin; x; y]`` and views of its
-        rows; ``ecell`` the ``(2 nb + 2, n)`` float32
-        endpoint cell coordinates, its int32 view split into the ``x`` and
-        ``y`` rows, and the float32 ``x`` rows that receive the gathered values;
-        ``nb + 1`` ones and an ``(n,)`` float32 array for their sum.
-        """
-        key = (nb, n)
-        bufs = self._lfb.get(key)
-        if bufs is None:
-            if len(self._lfb) > 8:  # adaptive particle counts vary: keep a few
-                self._lfb.clear()
-            a4 = np.empty((4, n), dtype=np.float32)
-            ecell = np.empty((2 * nb + 2, n), dtype=np.float32)
-            bits = ecell.view(np.int32)
-            bufs = self._lfb[key] = (
-                a4, a4[0], a4[1], a4[2:], ecell, bits[: nb + 1], bits[nb + 1:],
-                ecell[: nb + 1], np.ones(nb + 1, dtype=np.float32), np.empty(n, dtype=np.float32),
-            )
-        return bufs
+                                  LF_POWER)
 
     def expected_ranges(
         self, angles: np.ndarray, max_range: float, cone_half_width: float = 0.0
@@ -1086,7 +684,7 @@ class ParticleFilter:
         else:
             n = self._weights.size
             n_inj = int(rng.binomial(n, p_inj)) if p_inj > 0 else 0
-            idx = _lvi(self._cumulative_weights(), n - n_inj, rng)
+            idx = low_variance_from_cumulative(self._cumulative_weights(), n - n_inj, rng)
             state = self._state.take(idx, axis=1)
         if n_inj:
             state = np.concatenate([state, self._uniform_poses(n_inj)], axis=1)
@@ -1128,7 +726,7 @@ class ParticleFilter:
         """
         cfg = self.config
         n_max = cfg.n_max
-        idx = _lvi(self._cumulative_weights(), n_max, self.rng)
+        idx = low_variance_from_cumulative(self._cumulative_weights(), n_max, self.rng)
         idx = idx[self.rng.permutation(n_max)]
         if self._unwrapped_steps:
             self._wrap_headings()
@@ -1144,7 +742,7 @@ class ParticleFilter:
             is_new = np.zeros(n_max, dtype=bool)
             is_new[first] = True
         k = np.cumsum(is_new)  # bins occupied by the first i + 1 particles
-        need = _kld_need(cfg.kld_epsilon, cfg.kld_delta, cfg.n_min, n_max)[k]
+        need = kld_need(cfg.kld_epsilon, cfg.kld_delta, cfg.n_min, n_max)[k]
         enough = np.flatnonzero(np.arange(1, n_max + 1) >= need)
         n = int(enough[0]) + 1 if enough.size else n_max
         n = int(np.clip(n, cfg.n_min, n_max))
@@ -1193,6 +791,7 @@ class ParticleFilter:
         dist = np.hypot(st[0] - p[0], st[1] - p[1])
         return float(np.dot(self._weights, dist))
 
+
     def belief_features(
         self,
         hist_cells: int = 5,
@@ -1203,51 +802,14 @@ class ParticleFilter:
 
         The egocentric histogram is a ``hist_cells x hist_cells`` grid of
         ``cell_size`` m cells centred on the mean pose and aligned with the mean
-        heading. The length does not depend on the particle count.
+        heading. The length does not depend on the particle count
+        (:func:`estimators.particle_features.belief_features`).
         """
-        names = belief_feature_names(hist_cells, heading_bins)
-        if not np.isfinite(cell_size) or cell_size <= 0:
-            raise ValueError(f"cell_size must be positive, got {cell_size}")
-        w = self._weights
+        check_feature_args(hist_cells, cell_size, heading_bins)
         st = self._world()
         mean = self.mean_pose()
-        resultant = float(np.hypot(np.dot(w, np.cos(st[2])), np.dot(w, np.sin(st[2]))))
-        d = st - mean[:, None]
-        d[2] = wrap_angle(d[2])
-        cov = (d * w) @ d.T
-        std = np.sqrt(np.maximum(np.diag(cov), 0.0))
-        denom = np.outer(std, std)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            corr = np.where(denom > 0, cov / np.where(denom > 0, denom, 1.0), 0.0)
-        # float32 headings can give a resultant a hair above 1: clamp, or the log turns
-        # positive and the square root NaN.
-        circ_std = np.sqrt(-2.0 * np.log(min(max(resultant, 1e-300), 1.0)))
-        # egocentric histogram
-        c, s = np.cos(mean[2]), np.sin(mean[2])
-        fwd = c * d[0] + s * d[1]
-        left = -s * d[0] + c * d[1]
-        half = hist_cells * cell_size / 2.0
-        row = np.floor((fwd + half) / cell_size).astype(np.intp)
-        col = np.floor((half - left) / cell_size).astype(np.intp)
-        inside = (row >= 0) & (row < hist_cells) & (col >= 0) & (col < hist_cells)
-        hist = np.bincount(
-            row[inside] * hist_cells + col[inside], weights=w[inside],
-            minlength=hist_cells * hist_cells,
-        )
-        outside = max(0.0, 1.0 - float(hist.sum()))
-        mass = np.append(hist, outside)
-        nz = mass[mass > 0]
-        entropy = float(-(nz * np.log(nz)).sum() / np.log(mass.size)) if mass.size > 1 else 0.0
-        hb = np.floor((d[2] + np.pi) / (2 * np.pi) * heading_bins).astype(np.intp)
-        hhist = np.bincount(np.clip(hb, 0, heading_bins - 1), weights=w, minlength=heading_bins)
-        count_frac = self.n_particles / self.config.n_max if self.config.adaptive else 1.0
-        xmin, ymin, xmax, ymax = self.grid.bounds
-        log_std = np.clip(np.log10(np.maximum([std[0], std[1], circ_std], 1e-12)), -3.0, 2.0)
-        feats = np.concatenate([
-            [(mean[0] - xmin) / (xmax - xmin) * 2 - 1, (mean[1] - ymin) / (ymax - ymin) * 2 - 1,
-             c, s, *log_std, *np.clip([corr[0, 1], corr[0, 2], corr[1, 2]], -1.0, 1.0), resultant,
-             self.ess / self.n_particles, entropy, min(count_frac, 1.0)],
-            hist, [outside], hhist,
-        ]).astype(np.float32)
-        assert feats.size == len(names)
-        return feats
+        cfg = self.config
+        count_fraction = self.n_particles / cfg.n_max if cfg.adaptive else 1.0
+        return belief_features(self._weights, st, mean, self.ess / self.n_particles,
+                               count_fraction, self.grid.bounds, hist_cells, cell_size,
+                               heading_bins)

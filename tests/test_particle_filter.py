@@ -10,8 +10,8 @@ from estimators.geometry import wrap_angle
 from estimators.occupancy import OccupancyGrid
 from estimators.particle_filter import (
     MCLConfig,
-    MotionNoise,
     ParticleFilter,
+    ParticleMotionNoise,
     belief_feature_names,
     compose_odometry,
     kld_sample_bound,
@@ -196,7 +196,7 @@ def test_kld_bound_matches_chi_square_quantile():
 # ------------------------------------------------------------------ motion model
 def test_noise_free_motion_follows_the_arc_and_reverses():
     g = room()
-    cfg = MCLConfig(n_particles=5, motion=MotionNoise(0, 0, 0, 0, 0, 0))
+    cfg = MCLConfig(n_particles=5, motion=ParticleMotionNoise(0, 0, 0, 0, 0, 0))
     pf = ParticleFilter(g, np.random.default_rng(0), cfg)
     start = np.array([[2.0, 3.0, 0.5]] * 5)
     pf.set_particles(start)
@@ -213,7 +213,7 @@ def test_noise_free_motion_follows_the_arc_and_reverses():
 
 def test_composed_odometry_equals_sequential_predictions():
     g = room()
-    noise_free = MCLConfig(n_particles=3, motion=MotionNoise(0, 0, 0, 0, 0, 0))
+    noise_free = MCLConfig(n_particles=3, motion=ParticleMotionNoise(0, 0, 0, 0, 0, 0))
     a = ParticleFilter(g, np.random.default_rng(0), noise_free)
     b = ParticleFilter(g, np.random.default_rng(0), noise_free)
     start = np.array([[2.0, 3.0, 0.5], [5.0, 1.0, -2.0], [7.0, 4.0, 3.0]])
@@ -230,7 +230,7 @@ def test_composed_odometry_equals_sequential_predictions():
 
 def test_motion_noise_grows_with_translation_and_rotation():
     g = room()
-    noise = MotionNoise(min_xy=0.0, min_heading=0.0)
+    noise = ParticleMotionNoise(min_xy=0.0, min_heading=0.0)
     pf = ParticleFilter(g, np.random.default_rng(3), MCLConfig(n_particles=4000, motion=noise))
 
     def spread_after(delta):
