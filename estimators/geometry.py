@@ -40,10 +40,10 @@ def relative_pose(pose_a: np.ndarray, pose_b: np.ndarray) -> np.ndarray:
     pose_a = np.asarray(pose_a, dtype=float)
     pose_b = np.asarray(pose_b, dtype=float)
     d = pose_b[..., :2] - pose_a[..., :2]
-    rng = np.hypot(d[..., 0], d[..., 1])
+    range_ = np.hypot(d[..., 0], d[..., 1])
     bearing = wrap_angle(np.arctan2(d[..., 1], d[..., 0]) - pose_a[..., 2])
     orientation = wrap_angle(pose_b[..., 2] - pose_a[..., 2])
-    return np.stack([rng, bearing, orientation], axis=-1)
+    return np.stack([range_, bearing, orientation], axis=-1)
 
 
 def compose_relative(pose_a: np.ndarray, rbo: np.ndarray) -> np.ndarray:

@@ -131,12 +131,13 @@ def wall(seed: int = 3, blocked_s: float = 60.0, free_s: float = 40.0) -> dict:
 
 def kidnapped_log(dataset: str, offset=(3.0, -2.0), duration: float = 600.0) -> dict:
     """MR.CLAM replay with robot 1's start moved by ``offset``, recovery on and off."""
-    import estimators.log_replay as replay_mod
+    import estimators.replay.runner as replay_mod
     from estimators.mrclam import load_mrclam
+    from estimators.replay import load_noise_parameters
     from estimators.team_ekf import TeamEKF
 
     data = load_mrclam(dataset)
-    params = replay_mod.load_noise_parameters()
+    params = load_noise_parameters()
     out = {}
 
     class Kidnapped(TeamEKF):
