@@ -19,6 +19,8 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+from coop_loc_env.extras import validate_extras, validate_mcl_values
+
 ESTIMATORS = ("ekf", "mcl", "mle")
 DETECTION_MODELS = ("fox", "howard", "laser", "camera", "scan_min")
 OBSTACLE_KINDS = ("tree", "rock", "wall", "ooi", "building")
@@ -226,7 +228,8 @@ class ScenarioConfig:
     # --- infos: False leaves out the ``reward_terms`` dict, so that every info value is a
     # number or a fixed-shape array (TorchRL, BenchMARL); ``reward_<term>`` keys are always there
     reward_terms_dict: bool = True
-    # --- free-form extras for scenario-specific modules
+    # --- estimator options read by one backend; every key is declared (and checked) in
+    # coop_loc_env.extras.EXTRAS_SCHEMA
     extras: dict[str, Any] = field(default_factory=dict)
 
     # ------------------------------------------------------------------ helpers
@@ -371,6 +374,8 @@ class ScenarioConfig:
                     f"got {self.start_region!r}"
                 )
         self._check_team_size()
+        validate_extras(self.extras)
+        validate_mcl_values(self.extras, self.n_particles)
         if self.start_poses is not None:
             if len(self.start_poses) < self.n_robots:
                 raise ValueError(
