@@ -42,3 +42,13 @@ def test_every_shipped_scenario_and_profile_uses_declared_extras_only():
     for name in PAPER_OVERRIDES:
         coop_loc_env.make_config(name, **with_profile(name, "paper"))
     ScenarioConfig(extras={"mcl_resolution": None, "mle_window": None}).validate()
+
+
+@pytest.mark.parametrize(
+    "key, value",
+    [("dt", 0.0), ("slip_std", -0.1), ("detection_prob", 1.5), ("ekf_process_noise_scale", 0.0),
+     ("reward_uncertainty_weight", float("nan"))],
+)
+def test_field_bounds_declared_beside_the_fields_are_checked(key, value):
+    with pytest.raises(ValueError, match=f"{key} must be"):
+        ScenarioConfig().replace(**{key: value})
