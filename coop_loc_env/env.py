@@ -100,7 +100,7 @@ class CoopLocParallelEnv(ParallelEnv):
         belief_size = max(b.feature_size for b in self.backends)
         belief_names = GAUSSIAN_FEATURE_NAMES if belief_size == len(GAUSSIAN_FEATURE_NAMES) else ()
         for b in self.backends:
-            if b.feature_size == belief_size and hasattr(b, "feature_names"):
+            if b.feature_size == belief_size and b.feature_names:
                 belief_names = tuple(b.feature_names)
         self.observations = ObservationBuilder(cfg, belief_size, belief_names)
         self._one_backend = len(self.backends) == 1 and np.array_equal(
@@ -516,9 +516,8 @@ class CoopLocParallelEnv(ParallelEnv):
         """
         extra: dict[int, dict] = {}
         for backend in self.backends:
-            if hasattr(backend, "extra_info"):
-                for i, entries in backend.extra_info(self.world.poses).items():
-                    extra.setdefault(int(i), {}).update(entries)
+            for i, entries in backend.extra_info(self.world.poses).items():
+                extra.setdefault(int(i), {}).update(entries)
         if not extra:
             return extra
         keys: dict[str, None] = {}

@@ -64,7 +64,7 @@ from dataclasses import replace
 import numpy as np
 
 from coop_loc_env.config import ScenarioConfig
-from coop_loc_env.estimation import noisy_start, register_backend
+from coop_loc_env.estimation import EstimatorBackend, noisy_start
 from coop_loc_env.extras import check_extra
 from coop_loc_env.sensors import Readings
 from coop_loc_env.world import World
@@ -215,7 +215,7 @@ def known_map(world: World, sensor: str, resolution: float) -> OccupancyGrid:
     return grid
 
 
-class MCLBackend:
+class MCLBackend(EstimatorBackend):
     """Per-robot particle filters with detection-based belief transfer for ``robots``.
 
     Args:
@@ -527,5 +527,3 @@ class MCLBackend:
             for i, g in enumerate(self.robots)
         }
 
-
-register_backend("mcl", MCLBackend)

@@ -55,9 +55,9 @@ import numpy as np
 from coop_loc_env.config import ScenarioConfig
 from coop_loc_env.estimation import (
     GAUSSIAN_FEATURE_NAMES,
+    EstimatorBackend,
     gaussian_features,
     noisy_start,
-    register_backend,
     team_odometry,
 )
 from coop_loc_env.extras import check_extra
@@ -144,7 +144,7 @@ def relative_error_infos(
     }
 
 
-class MLEBackend:
+class MLEBackend(EstimatorBackend):
     """Centralized sliding-window MLE (Howard et al.) for the robots in ``robots``.
 
     See the module docstring for the frame, the features and the infos.
@@ -232,5 +232,3 @@ class MLEBackend:
         """Eq. 15 relative errors per robot (uses the truth: logging only)."""
         return relative_error_infos(self.mean(), true_poses[self.robots], self.robots)
 
-
-register_backend("mle", MLEBackend)
