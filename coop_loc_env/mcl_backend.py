@@ -66,7 +66,7 @@ import numpy as np
 from coop_loc_env.config import ScenarioConfig
 from coop_loc_env.estimation import EstimatorBackend, noisy_start
 from coop_loc_env.extras import check_extra
-from coop_loc_env.sensors import Readings
+from coop_loc_env.sensors import Readings, beam_angles
 from coop_loc_env.world import World
 from estimators.detection_transfer import (
     DetectionTransfer,
@@ -104,15 +104,6 @@ CONFLICT_MIN_S = 2.0  # s: two conflicts this far apart at least ...
 CONFLICT_WINDOW_S = 60.0  # s: ... and at most confirm each other
 _GRID_CACHE: OrderedDict[tuple, OccupancyGrid] = OrderedDict()
 _GRID_CACHE_SIZE = 16
-
-
-def beam_angles(cfg: ScenarioConfig, sonar: bool) -> np.ndarray:
-    """Robot-frame beam angles of a laser or sonar (same as ``SensorSuite._beams``)."""
-    count = cfg.sonar_beams if sonar else cfg.laser_beams
-    fov = np.deg2rad(cfg.sonar_fov_deg if sonar else cfg.laser_fov_deg)
-    if fov >= 2 * np.pi - 1e-9:
-        return -np.pi + (np.arange(count) + 0.5) * 2 * np.pi / count
-    return np.linspace(-fov / 2, fov / 2, count)
 
 
 def map_resolution(cfg: ScenarioConfig) -> float:
