@@ -19,6 +19,8 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+from coop_loc_env.extras import validate_extras, validate_mcl_values
+
 ESTIMATORS = ("ekf", "mcl", "mle")
 DETECTION_MODELS = ("fox", "howard", "laser", "camera", "scan_min")
 OBSTACLE_KINDS = ("tree", "rock", "wall", "ooi", "building")
@@ -29,6 +31,29 @@ RANGE_SENSOR_TYPES = ("laser", "sonar")
 MAX_ROBOTS = 1000
 #: Gap (m) the random start placement keeps between two robots' edges (see ``World``).
 START_GAP = 0.3
+
+
+#: The checks a field's ``metadata["bound"]`` asks for (see :func:`_number`).
+_BOUNDS: dict[str, dict[str, Any]] = {
+    "positive": {"lower": 0.0, "strict": True},
+    "non_negative": {"lower": 0.0, "strict": False},
+    "probability": {"lower": 0.0, "strict": False, "upper": 1.0},
+}
+
+
+def _positive(default: float) -> Any:
+    """A float field that :meth:`ScenarioConfig.validate` requires finite and > 0."""
+    return field(default=default, metadata={"bound": "positive"})
+
+
+def _non_negative(default: float) -> Any:
+    """A float field that :meth:`ScenarioConfig.validate` requires finite and >= 0."""
+    return field(default=default, metadata={"bound": "non_negative"})
+
+
+def _probability(default: float) -> Any:
+    """A float field that :meth:`ScenarioConfig.validate` requires in [0, 1]."""
+    return field(default=default, metadata={"bound": "probability"})
 
 
 @dataclass(frozen=True)
@@ -118,7 +143,7 @@ class ScenarioConfig:
     team: tuple[RobotSpec, ...] = (RobotSpec(),)
     estimator: str = "ekf"
     max_cycles: int = 500
-    dt: float = 0.1
+    dt: float = _positive(0.1)
     privileged_obs: bool = False
     # --- world and layout (layout_seed fixes the map across episodes)
     world_size: tuple[float, float] = (40.0, 40.0)
@@ -127,73 +152,76 @@ class ScenarioConfig:
     n_random_trees: int = 0
     n_random_rocks: int = 0
     n_random_ooi: int = 0
-    tree_radius: float = 0.4
-    canopy_radius: float = 3.0
-    rock_radius: float = 0.8
+    tree_radius: float = _positive(0.4)
+    canopy_radius: float = _non_negative(3.0)
+    rock_radius: float = _positive(0.8)
     start_region: tuple[float, float, float, float] | None = None
     start_poses: tuple[tuple[float, float, float], ...] | None = None
     # --- terrain
-    terrain_amplitude: float = 1.5
-    terrain_length_scale: float = 6.0
+    terrain_amplitude: float = _non_negative(1.5)
+    terrain_length_scale: float = _positive(6.0)
     terrain_hills: int = 8
-    terrain_resolution: float = 0.5
+    terrain_resolution: float = _positive(0.5)
     steep_patches: int = 2
-    steep_patch_radius: float = 2.0
-    tip_over_slope_deg: float = 30.0
+    steep_patch_radius: float = _positive(2.0)
+    tip_over_slope_deg: float = _positive(30.0)
     tip_over_terminates: bool = True
     # --- robot motion
-    max_speed: float = 1.0
-    max_turn_rate: float = 1.0
-    robot_radius: float = 0.35
-    slip_std: float = 0.03
+    max_speed: float = _positive(1.0)
+    max_turn_rate: float = _positive(1.0)
+    robot_radius: float = _positive(0.35)
+    slip_std: float = _non_negative(0.03)
     # --- odometry (Table 1: ~50 Hz)
-    odometry_rate: float = 50.0
-    odom_v_std: float = 0.05
-    odom_w_std: float = 0.05
+    odometry_rate: float = _positive(50.0)
+    odom_v_std: float = _non_negative(0.05)
+    odom_w_std: float = _non_negative(0.05)
     # --- DGPS (~1 Hz); variance = gps_std**2 * gps_reference_satellites / NOS
-    gps_rate: float = 1.0
-    gps_std: float = 0.3
+    gps_rate: float = _positive(1.0)
+    gps_std: float = _non_negative(0.3)
     gps_reference_satellites: int = 8
     gps_open_sky_satellites: tuple[int, int] = (7, 12)
     gps_canopy_satellites: tuple[int, int] = (0, 3)
-    gps_multipath_prob: float = 0.02
-    gps_multipath_std: float = 5.0
+    gps_multipath_prob: float = _probability(0.02)
+    gps_multipath_std: float = _non_negative(5.0)
     gps_base_altitude: float = 0.0
-    gps_altitude_std: float = 0.5
+    gps_altitude_std: float = _non_negative(0.5)
     # --- compass and inclinometer (~1 Hz)
-    compass_rate: float = 1.0
-    compass_std: float = 0.05
-    inclinometer_rate: float = 1.0
-    inclinometer_std: float = 0.01
+    compass_rate: float = _positive(1.0)
+    compass_std: float = _non_negative(0.05)
+    inclinometer_rate: float = _positive(1.0)
+    inclinometer_std: float = _non_negative(0.01)
     # --- range finder (~10 Hz)
-    laser_rate: float = 10.0
+    laser_rate: float = _positive(10.0)
     laser_beams: int = 30
-    laser_fov_deg: float = 180.0
-    laser_max_range: float = 15.0
-    laser_range_std: float = 0.03
+    laser_fov_deg: float = _positive(180.0)
+    laser_max_range: float = _positive(15.0)
+    laser_range_std: float = _non_negative(0.03)
     sonar_beams: int = 8
-    sonar_fov_deg: float = 360.0
-    sonar_max_range: float = 6.0
-    sonar_range_std: float = 0.15
+    sonar_fov_deg: float = _positive(360.0)
+    sonar_max_range: float = _positive(6.0)
+    sonar_range_std: float = _non_negative(0.15)
     # --- camera (~10 Hz): 160 px over 37 deg -> 0.231 deg/px
-    camera_rate: float = 10.0
-    camera_fov_deg: float = 37.0
+    camera_rate: float = _positive(10.0)
+    camera_fov_deg: float = _positive(37.0)
     camera_width_px: int = 160
-    camera_max_range: float = 20.0
-    camera_range_std: float = 1.0  # range std of a fresh track (depth from motion refines it)
-    camera_flow_std_px: float = 0.5  # optical-flow bearing noise for depth from motion (pixels)
-    camera_looming_gain: float = 0.3  # weight of motion along the line of sight in the baseline
+    camera_max_range: float = _positive(20.0)
+    # range std of a fresh track (depth from motion refines it)
+    camera_range_std: float = _non_negative(1.0)
+    # optical-flow bearing noise for depth from motion (pixels)
+    camera_flow_std_px: float = _non_negative(0.5)
+    # weight of motion along the line of sight in the baseline
+    camera_looming_gain: float = _non_negative(0.3)
     # --- robot detector (identity + range, bearing, orientation)
-    detector_rate: float = 2.0
-    detector_range: float = 8.0
-    detector_fov_deg: float = 360.0
+    detector_rate: float = _positive(2.0)
+    detector_range: float = _positive(8.0)
+    detector_fov_deg: float = _positive(360.0)
     detection_model: str = "fox"
-    detection_prob: float = 0.933
-    false_positive_prob: float = 0.035
-    detection_range_std: float = 0.3
-    detection_bearing_std: float = 0.04
-    detection_orientation_std: float = 0.1
-    detection_range_fraction: float = 0.05
+    detection_prob: float = _probability(0.933)
+    false_positive_prob: float = _probability(0.035)
+    detection_range_std: float = _non_negative(0.3)
+    detection_bearing_std: float = _non_negative(0.04)
+    detection_orientation_std: float = _non_negative(0.1)
+    detection_range_fraction: float = _non_negative(0.05)
     # False: range and bearing only (the orientation reads 0 with a huge variance)
     detection_orientation: bool = True
     cooperative_updates: bool = True
@@ -201,9 +229,9 @@ class ScenarioConfig:
     cooperative_rounds_per_step: int = 1
     # --- estimators
     gate_prob: float = 0.99
-    ekf_process_noise_scale: float = 1.0
-    init_pos_std: float = 0.5
-    init_heading_std: float = 0.1
+    ekf_process_noise_scale: float = _positive(1.0)
+    init_pos_std: float = _non_negative(0.5)
+    init_heading_std: float = _non_negative(0.1)
     n_particles: int = 1000  # MCL: maximum particles per robot (KLD-sampling adapts below it)
     global_localization: bool = False  # MCL: start particles uniform over free space
     # --- observations
@@ -212,21 +240,23 @@ class ScenarioConfig:
     map_patch_obs: int = 0  # egocentric terrain-map patch edge in cells (0 = off)
     teammate_obs: bool = False  # nearest GPS / no-GPS teammates' shared estimates in the obs
     # --- team terrain map (coop_loc_env.mapping)
-    map_resolution: float = 0.5
-    map_footprint_radius: float = 0.5
+    map_resolution: float = _positive(0.5)
+    map_footprint_radius: float = _non_negative(0.5)
     map_fusion_weights: str = "paper"  # "paper" (satellite-count weights) or "kalman"
     # --- reward weights
-    reward_localization_weight: float = 1.0
-    reward_heading_weight: float = 0.0
-    reward_coverage_weight: float = 0.0
-    reward_team_weight: float = 0.0  # times minus the team's mean position error
-    reward_uncertainty_weight: float = 0.0  # times minus the change of own 0.5 log det P_xy
-    collision_penalty: float = 0.1
-    tip_over_penalty: float = 10.0
+    reward_localization_weight: float = _non_negative(1.0)
+    reward_heading_weight: float = _non_negative(0.0)
+    reward_coverage_weight: float = _non_negative(0.0)
+    reward_team_weight: float = _non_negative(0.0)  # times minus the team's mean position error
+    # times minus the change of own 0.5 log det P_xy
+    reward_uncertainty_weight: float = _non_negative(0.0)
+    collision_penalty: float = _non_negative(0.1)
+    tip_over_penalty: float = _non_negative(10.0)
     # --- infos: False leaves out the ``reward_terms`` dict, so that every info value is a
     # number or a fixed-shape array (TorchRL, BenchMARL); ``reward_<term>`` keys are always there
     reward_terms_dict: bool = True
-    # --- free-form extras for scenario-specific modules
+    # --- estimator options read by one backend; every key is declared (and checked) in
+    # coop_loc_env.extras.EXTRAS_SCHEMA
     extras: dict[str, Any] = field(default_factory=dict)
 
     # ------------------------------------------------------------------ helpers
@@ -306,33 +336,11 @@ class ScenarioConfig:
             raise ValueError(
                 f"cooperative_fusion must be 'ci' or 'naive', got {self.cooperative_fusion!r}"
             )
-        positive = (
-            "dt", "max_speed", "max_turn_rate", "robot_radius", "odometry_rate", "gps_rate",
-            "compass_rate", "inclinometer_rate", "laser_rate", "camera_rate", "detector_rate",
-            "laser_max_range", "sonar_max_range", "camera_max_range", "detector_range",
-            "laser_fov_deg", "sonar_fov_deg", "camera_fov_deg", "detector_fov_deg",
-            "terrain_length_scale", "terrain_resolution", "tip_over_slope_deg", "tree_radius",
-            "rock_radius", "steep_patch_radius", "map_resolution",
-        )
-        for key in positive:
-            _number(self, key, lower=0.0, strict=True)
-        non_negative = (
-            "slip_std", "odom_v_std", "odom_w_std", "gps_std", "gps_multipath_std",
-            "gps_altitude_std", "compass_std", "inclinometer_std", "laser_range_std",
-            "sonar_range_std", "camera_range_std", "detection_range_std",
-            "detection_bearing_std", "detection_orientation_std", "detection_range_fraction",
-            "init_pos_std", "init_heading_std", "terrain_amplitude", "canopy_radius",
-            "reward_localization_weight", "reward_heading_weight", "reward_coverage_weight",
-            "reward_team_weight", "reward_uncertainty_weight",
-            "collision_penalty", "tip_over_penalty", "camera_flow_std_px", "camera_looming_gain",
-            "map_footprint_radius",
-        )
-        for key in non_negative:
-            _number(self, key, lower=0.0, strict=False)
-        for key in ("gps_multipath_prob", "detection_prob", "false_positive_prob"):
-            _number(self, key, lower=0.0, strict=False, upper=1.0)
+        for f in dataclasses.fields(self):  # the bounds declared beside the fields
+            bound = f.metadata.get("bound")
+            if bound is not None:
+                _number(self, f.name, **_BOUNDS[bound])
         _number(self, "gate_prob", lower=0.0, strict=True, upper=1.0)
-        _number(self, "ekf_process_noise_scale", lower=0.0, strict=True)
         if self.tip_over_slope_deg >= 90:
             raise ValueError(f"tip_over_slope_deg must be < 90, got {self.tip_over_slope_deg!r}")
         if self.estimator not in ESTIMATORS:
@@ -371,6 +379,8 @@ class ScenarioConfig:
                     f"got {self.start_region!r}"
                 )
         self._check_team_size()
+        validate_extras(self.extras)
+        validate_mcl_values(self.extras, self.n_particles)
         if self.start_poses is not None:
             if len(self.start_poses) < self.n_robots:
                 raise ValueError(

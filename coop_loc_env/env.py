@@ -100,7 +100,7 @@ class CoopLocParallelEnv(ParallelEnv):
         belief_size = max(b.feature_size for b in self.backends)
         belief_names = GAUSSIAN_FEATURE_NAMES if belief_size == len(GAUSSIAN_FEATURE_NAMES) else ()
         for b in self.backends:
-            if b.feature_size == belief_size and hasattr(b, "feature_names"):
+            if b.feature_size == belief_size and b.feature_names:
                 belief_names = tuple(b.feature_names)
         self.observations = ObservationBuilder(cfg, belief_size, belief_names)
         self._one_backend = len(self.backends) == 1 and np.array_equal(
@@ -421,16 +421,8 @@ class CoopLocParallelEnv(ParallelEnv):
         extra = self._extra_infos()
         coverage = self.mapper.coverage()
         map_rmse = self.mapper.map_rmse()
-        # Reward terms in Python floats (the same IEEE arithmetic as numpy, per robot).
-        w_loc, w_head = cfg.reward_localization_weight, cfg.reward_heading_weight
-        w_cov = cfg.reward_coverage_weight
-        # Shaping on belief uncertainty: minus the change of 0.5 log det P_xy since last step.
-        half_logdet = _half_logdet_xy(cov)
-        shaping = (-cfg.reward_uncertainty_weight * (half_logdet - self._half_logdet)).tolist()
-        self._half_logdet = half_logdet
-        team_term = -cfg.reward_team_weight * float(err_xy[self._active].mean()) if (
-            self._active.any()) else 0.0
-        pen_hit, pen_tip = -cfg.collision_penalty, -cfg.tip_over_penalty
+        terms = self._reward_terms(err_xy, err_th, in_contact, tipped, cov)
+        totals = _sum_terms(terms)
         terms_dict = cfg.reward_terms_dict
         n = cfg.n_robots
         if readings is not None:
@@ -440,8 +432,8 @@ class CoopLocParallelEnv(ParallelEnv):
         touching = [False] * n if in_contact is None else in_contact.tolist()
         columns = zip(
             self.possible_agents, err_xy.tolist(), err_th.tolist(), fix, sats,
-            new_contacts.tolist(), touching, tipped.tolist(), self._tipped.tolist(),
-            self._new_cells.tolist(), self._covered_cells.tolist(), shaping, strict=True,
+            new_contacts.tolist(), touching, self._tipped.tolist(),
+            self._new_cells.tolist(), self._covered_cells.tolist(), strict=True,
         )
         if agents is not None and len(agents) < n:  # only the live agents' entries
             every = list(columns)
@@ -449,22 +441,17 @@ class CoopLocParallelEnv(ParallelEnv):
         else:
             columns = enumerate(columns)
         infos, rewards = {}, {}
-        for i, (agent, exy, eth, gps, nsat, hits, touch, tip, tipped_over, cells,
-                covered, unc) in columns:
-            loc, cover = -w_loc * exy - w_head * eth, w_cov * float(covered)
-            hit, tip_term = pen_hit * float(touch), pen_tip * tip
-            # what sum() of the terms gives
-            rewards[agent] = 0.0 + loc + cover + hit + tip_term + team_term + unc
-            terms = {"localization": loc, "coverage": cover, "collision": hit,
-                     "tip_over": tip_term, "team_localization": team_term,
-                     "uncertainty": unc}
+        for i, (agent, exy, eth, gps, nsat, hits, touch, tipped_over, cells,
+                covered) in columns:
+            rewards[agent] = totals[i]
+            own_terms = {name: values[i] for name, values in terms.items()}
             info = {
                 "true_pose": poses[i],
                 "est_pose": est[i],
                 "pose_cov": cov[i],
                 "position_error": exy,
                 "heading_error": eth,
-                **{f"reward_{name}": value for name, value in terms.items()},
+                **{f"reward_{name}": value for name, value in own_terms.items()},
                 "gps_fix": bool(gps),
                 "satellites": int(nsat),
                 "collisions": int(hits),
@@ -477,9 +464,48 @@ class CoopLocParallelEnv(ParallelEnv):
                 **extra.get(i, {}),
             }
             if terms_dict:
-                info["reward_terms"] = terms
+                info["reward_terms"] = own_terms
             infos[agent] = info
         return infos, rewards
+
+    def _reward_terms(
+        self,
+        err_xy: np.ndarray,
+        err_th: np.ndarray,
+        in_contact: np.ndarray | None,
+        tipped: np.ndarray,
+        cov: np.ndarray,
+    ) -> dict[str, list[float]]:
+        """Every robot's reward terms, each already weighted by the config's weight.
+
+        Returns ``{term name: one Python float per robot}``, in the order the
+        reward sums them (:func:`_sum_terms`); infos report them as
+        ``reward_<term>`` and ``reward_terms``. A new term is one more entry here
+        (with its weight in :class:`~coop_loc_env.config.ScenarioConfig`).
+        Advances the uncertainty shaping's reference (call once per step).
+        """
+        cfg = self.config
+        n = cfg.n_robots
+        w_loc, w_head = cfg.reward_localization_weight, cfg.reward_heading_weight
+        w_cov = cfg.reward_coverage_weight
+        # Shaping on belief uncertainty: minus the change of 0.5 log det P_xy since last step.
+        half_logdet = _half_logdet_xy(cov)
+        shaping = (-cfg.reward_uncertainty_weight * (half_logdet - self._half_logdet)).tolist()
+        self._half_logdet = half_logdet
+        team_term = -cfg.reward_team_weight * float(err_xy[self._active].mean()) if (
+            self._active.any()) else 0.0
+        pen_hit, pen_tip = -cfg.collision_penalty, -cfg.tip_over_penalty
+        touching = [False] * n if in_contact is None else in_contact.tolist()
+        # Python floats (the same IEEE arithmetic as numpy, per robot).
+        return {
+            "localization": [-w_loc * exy - w_head * eth
+                             for exy, eth in zip(err_xy.tolist(), err_th.tolist(), strict=True)],
+            "coverage": [w_cov * float(c) for c in self._covered_cells.tolist()],
+            "collision": [pen_hit * float(t) for t in touching],
+            "tip_over": [pen_tip * t for t in tipped.tolist()],
+            "team_localization": [team_term] * n,
+            "uncertainty": shaping,
+        }
 
     def _extra_infos(self) -> dict[int, dict]:
         """The estimators' extra info entries per robot, every robot with the same keys.
@@ -490,9 +516,8 @@ class CoopLocParallelEnv(ParallelEnv):
         """
         extra: dict[int, dict] = {}
         for backend in self.backends:
-            if hasattr(backend, "extra_info"):
-                for i, entries in backend.extra_info(self.world.poses).items():
-                    extra.setdefault(int(i), {}).update(entries)
+            for i, entries in backend.extra_info(self.world.poses).items():
+                extra.setdefault(int(i), {}).update(entries)
         if not extra:
             return extra
         keys: dict[str, None] = {}
@@ -540,6 +565,15 @@ class CoopLocParallelEnv(ParallelEnv):
         state = self.__dict__.copy()
         state["_renderer"] = None
         return state
+
+
+def _sum_terms(terms: dict[str, list[float]]) -> list[float]:
+    """Each robot's reward: its terms added left to right from 0.0 (not ``sum()``, whose
+    compensated float summation could differ in the last bit)."""
+    totals = [0.0] * len(next(iter(terms.values())))
+    for values in terms.values():
+        totals = [total + v for total, v in zip(totals, values, strict=True)]
+    return totals
 
 
 def _half_logdet_xy(cov: np.ndarray) -> np.ndarray:

@@ -11,7 +11,8 @@ the initial belief is drawn around them (``init_pos_std``,
 from __future__ import annotations
 
 import functools
-from typing import Protocol
+import importlib
+from typing import Any
 
 import numpy as np
 
@@ -21,25 +22,47 @@ from coop_loc_env.world import World
 from estimators.ekf import PoseEKF
 
 
-class EstimatorBackend(Protocol):
-    """What the env needs from an estimator backend."""
+class EstimatorBackend:
+    """Base class of estimator backends: everything the env calls on one.
+
+    A backend owns the robots in :attr:`robots` (global indices) and is built as
+    ``cls(cfg, robots, world)``. Subclasses implement :meth:`reset`, :meth:`step`,
+    :meth:`mean`, :meth:`cov` and :meth:`features` and set :attr:`feature_size`;
+    :attr:`feature_names` and :meth:`extra_info` have no-op defaults. Make one
+    available as ``ScenarioConfig.estimator`` / ``RobotSpec.estimator`` with
+    :func:`register_backend`.
+    """
 
     robots: np.ndarray  # global indices of the robots this backend estimates
     feature_size: int
+    #: Names of the :meth:`features` columns; empty: unnamed (the env then names
+    #: ``feature_size == 10`` beliefs with :data:`GAUSSIAN_FEATURE_NAMES`).
+    feature_names: tuple[str, ...] = ()
 
-    def reset(self, true_poses: np.ndarray, rng: np.random.Generator) -> None: ...
+    def reset(self, true_poses: np.ndarray, rng: np.random.Generator) -> None:
+        """Start the beliefs around ``true_poses`` (the only time the truth is read)."""
+        raise NotImplementedError
 
-    def step(self, readings: Readings, active: np.ndarray) -> dict[str, int]: ...
+    def step(self, readings: Readings, active: np.ndarray) -> dict[str, int]:
+        """Fuse one step of readings; returns counts of accepted/rejected updates."""
+        raise NotImplementedError
 
-    def mean(self) -> np.ndarray: ...
+    def mean(self) -> np.ndarray:
+        """Estimated poses ``(k, 3)``."""
+        raise NotImplementedError
 
-    def cov(self) -> np.ndarray: ...
+    def cov(self) -> np.ndarray:
+        """Pose covariances ``(k, 3, 3)``."""
+        raise NotImplementedError
 
-    def features(self) -> np.ndarray: ...
+    def features(self) -> np.ndarray:
+        """Belief features of this backend's robots, ``(k, feature_size)``."""
+        raise NotImplementedError
 
     def extra_info(self, true_poses: np.ndarray) -> dict[int, dict]:
-        """Optional extra info entries per global robot index (may use the truth: logging only)."""
-        ...
+        """Extra info entries per global robot index (may use the truth: logging only);
+        none by default."""
+        return {}
 
 
 # Per feature column: the bounds it is clipped to (log10 stds, correlations; the
@@ -197,7 +220,7 @@ def contact_variance(distance: np.ndarray, steps_in_contact: np.ndarray) -> np.n
     return (2 * k - 1) * distance * distance
 
 
-class EKFBackend:
+class EKFBackend(EstimatorBackend):
     """Per-robot EKFs (Madhavan et al.) for the robots in ``robots``.
 
     Each step: predict at the odometry rate, gated DGPS and compass updates,
@@ -312,12 +335,41 @@ class EKFBackend:
         return gaussian_features(self.ekf.mean, self.ekf.cov, self.cfg.world_size)
 
 
-BACKENDS: dict[str, type] = {"ekf": EKFBackend}
+#: Estimator name -> backend class, or ``"module:Class"`` imported on first use (the
+#: built-in MCL and pose-graph MLE backends import this module, so they are listed by
+#: path; a backend defined elsewhere registers its class with :func:`register_backend`).
+BACKENDS: dict[str, type | str] = {}
 
 
-def register_backend(name: str, cls: type) -> None:
-    """Register an estimator backend class under ``name`` (e.g. ``"mcl"``)."""
+def register_backend(name: str, cls: type | str | None = None) -> Any:
+    """Make a backend class available as estimator ``name``.
+
+    ``cls`` is an :class:`EstimatorBackend` subclass or a ``"module:Class"`` path
+    imported when a team first uses ``name``. Without ``cls``, a class decorator::
+
+        @register_backend("ukf")
+        class UKFBackend(EstimatorBackend): ...
+    """
+    if cls is None:
+        def decorator(klass: type) -> type:
+            BACKENDS[name] = klass
+            return klass
+        return decorator
     BACKENDS[name] = cls
+    return cls
+
+
+def backend_class(name: str) -> type:
+    """The backend class registered as ``name`` (``ValueError`` if there is none)."""
+    if name not in BACKENDS:
+        raise ValueError(
+            f"estimator {name!r} is not available; available: {', '.join(sorted(BACKENDS))}"
+        )
+    cls = BACKENDS[name]
+    if isinstance(cls, str):
+        module, _, attr = cls.partition(":")
+        cls = BACKENDS[name] = getattr(importlib.import_module(module), attr)
+    return cls
 
 
 def make_backends(cfg: ScenarioConfig, world: World) -> list[EstimatorBackend]:
@@ -329,15 +381,10 @@ def make_backends(cfg: ScenarioConfig, world: World) -> list[EstimatorBackend]:
     by_type: dict[str, list[int]] = {}
     for i in range(cfg.n_robots):
         by_type.setdefault(cfg.robot_spec(i).estimator, []).append(i)
-    backends = []
-    for name, robots in by_type.items():
-        if name not in BACKENDS:
-            raise ValueError(
-                f"estimator {name!r} is not available; available: {', '.join(sorted(BACKENDS))}"
-            )
-        backends.append(BACKENDS[name](cfg, np.array(robots), world))
-    return backends
+    return [backend_class(name)(cfg, np.array(robots), world)
+            for name, robots in by_type.items()]
 
 
-import coop_loc_env.mcl_backend  # noqa: E402, F401  (registers "mcl")
-import coop_loc_env.mle_backend  # noqa: E402, F401  (registers "mle")
+register_backend("ekf", EKFBackend)
+register_backend("mcl", "coop_loc_env.mcl_backend:MCLBackend")
+register_backend("mle", "coop_loc_env.mle_backend:MLEBackend")

@@ -64,8 +64,9 @@ from dataclasses import replace
 import numpy as np
 
 from coop_loc_env.config import ScenarioConfig
-from coop_loc_env.estimation import noisy_start, register_backend
-from coop_loc_env.sensors import Readings
+from coop_loc_env.estimation import EstimatorBackend, noisy_start
+from coop_loc_env.extras import check_extra
+from coop_loc_env.sensors import Readings, beam_angles
 from coop_loc_env.world import World
 from estimators.detection_transfer import (
     DetectionTransfer,
@@ -105,40 +106,22 @@ _GRID_CACHE: OrderedDict[tuple, OccupancyGrid] = OrderedDict()
 _GRID_CACHE_SIZE = 16
 
 
-def beam_angles(cfg: ScenarioConfig, sonar: bool) -> np.ndarray:
-    """Robot-frame beam angles of a laser or sonar (same as ``SensorSuite._beams``)."""
-    count = cfg.sonar_beams if sonar else cfg.laser_beams
-    fov = np.deg2rad(cfg.sonar_fov_deg if sonar else cfg.laser_fov_deg)
-    if fov >= 2 * np.pi - 1e-9:
-        return -np.pi + (np.arange(count) + 0.5) * 2 * np.pi / count
-    return np.linspace(-fov / 2, fov / 2, count)
-
-
 def map_resolution(cfg: ScenarioConfig) -> float:
     """Cell size (m) of the MCL maps: ``extras["mcl_resolution"]`` or from the world size."""
     res = cfg.extras.get("mcl_resolution")
+    check_extra("mcl_resolution", res)
     if res is None:
         return max(0.1, max(cfg.world_size) / 160.0)
-    if isinstance(res, bool) or not isinstance(res, (int, float)) or not 0 < res < np.inf:
-        raise ValueError(f"extras['mcl_resolution'] must be a positive number, got {res!r}")
     return float(res)
 
 
 def mcl_overrides(cfg: ScenarioConfig, sensor: str | None = None) -> dict:
     """:class:`MCLConfig` fields a scenario sets through ``extras["mcl"]`` (validated), updated
     by ``extras["mcl_laser"]`` / ``extras["mcl_sonar"]`` for a ``sensor`` robot's filter."""
-    known = set(MCLConfig.__dataclass_fields__) - {"n_particles", "n_max"}
     out: dict = {}
     for key in ("mcl", "mcl_laser", "mcl_sonar"):  # all validated, whichever robots exist
         tuned = cfg.extras.get(key, {})
-        if not isinstance(tuned, dict):
-            raise ValueError(f"extras[{key!r}] must be a dict of MCLConfig fields, got {tuned!r}")
-        bad = sorted(set(tuned) - known)
-        if bad:
-            raise ValueError(
-                f"extras[{key!r}] has unknown MCLConfig field(s) {bad} (n_particles comes from "
-                f"the config key n_particles); known: {sorted(known)}"
-            )
+        check_extra(key, tuned)
         if key in ("mcl", f"mcl_{sensor}"):
             out.update(tuned)
     return out
@@ -156,9 +139,7 @@ def laser_model(cfg: ScenarioConfig) -> str:
     model as sonars, with ray casts from the grid's range table and no cone.
     """
     m = cfg.extras.get("mcl_laser_model", "likelihood_field")
-    if m not in ("likelihood_field", "beam"):
-        raise ValueError(f"extras['mcl_laser_model'] must be 'likelihood_field' or 'beam', "
-                         f"got {m!r}")
+    check_extra("mcl_laser_model", m)
     return m
 
 
@@ -166,8 +147,7 @@ def detection_reset_fraction(cfg: ScenarioConfig) -> float:
     """``extras["mcl_detection_reset"]``: fraction of a detected robot's particles re-seeded
     from a confident observer's detection (0, the default, is the paper's pure transfer)."""
     f = cfg.extras.get("mcl_detection_reset", 0.0)
-    if isinstance(f, bool) or not isinstance(f, (int, float)) or not 0.0 <= f < 1.0:
-        raise ValueError(f"extras['mcl_detection_reset'] must be in [0, 1), got {f!r}")
+    check_extra("mcl_detection_reset", f)
     return float(f)
 
 
@@ -176,8 +156,7 @@ def global_init_factor(cfg: ScenarioConfig) -> int:
     uniform particle set of global localization holds (``GLOBAL_INIT_FACTOR`` by default;
     KLD-sampling cuts it at the first resampling, so only adaptive filters use it)."""
     f = cfg.extras.get("mcl_global_init_factor", GLOBAL_INIT_FACTOR)
-    if isinstance(f, bool) or not isinstance(f, int) or f < 1:
-        raise ValueError(f"extras['mcl_global_init_factor'] must be an int >= 1, got {f!r}")
+    check_extra("mcl_global_init_factor", f)
     return f
 
 
@@ -185,8 +164,7 @@ def detection_exponent(cfg: ScenarioConfig) -> float:
     """``extras["mcl_detection_exponent"]``: tempering of each belief transfer's factor
     (:attr:`TransferConfig.exponent`; 1, the default, is the paper's untempered Eq. 14)."""
     f = cfg.extras.get("mcl_detection_exponent", 1.0)
-    if isinstance(f, bool) or not isinstance(f, (int, float)) or not 0.0 < f <= 1.0:
-        raise ValueError(f"extras['mcl_detection_exponent'] must be in (0, 1], got {f!r}")
+    check_extra("mcl_detection_exponent", f)
     return float(f)
 
 
@@ -228,7 +206,7 @@ def known_map(world: World, sensor: str, resolution: float) -> OccupancyGrid:
     return grid
 
 
-class MCLBackend:
+class MCLBackend(EstimatorBackend):
     """Per-robot particle filters with detection-based belief transfer for ``robots``.
 
     Args:
@@ -286,7 +264,8 @@ class MCLBackend:
             )
         )
         self.reset_fraction = detection_reset_fraction(cfg)
-        self.resample_every_step = bool(cfg.extras.get("mcl_random_every_step", False))
+        self.resample_every_step = cfg.extras.get("mcl_random_every_step", False)
+        check_extra("mcl_random_every_step", self.resample_every_step)
         self.init_factor = global_init_factor(cfg)
         self.filters: list[ParticleFilter] = []
         self.rng = np.random.default_rng(0)
@@ -539,5 +518,3 @@ class MCLBackend:
             for i, g in enumerate(self.robots)
         }
 
-
-register_backend("mcl", MCLBackend)

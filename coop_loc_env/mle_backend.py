@@ -55,11 +55,12 @@ import numpy as np
 from coop_loc_env.config import ScenarioConfig
 from coop_loc_env.estimation import (
     GAUSSIAN_FEATURE_NAMES,
+    EstimatorBackend,
     gaussian_features,
     noisy_start,
-    register_backend,
     team_odometry,
 )
+from coop_loc_env.extras import check_extra
 from coop_loc_env.sensors import Readings
 from coop_loc_env.world import World
 from estimators.mle_online import UNKNOWN_POSE_STD, TeamMLE
@@ -80,22 +81,16 @@ ANCHORING = "one_robot"  # how the gauge is fixed (see the module docstring)
 def relative_slots(cfg: ScenarioConfig) -> int:
     """Number of teammate slots ``K`` in the relative-pose block (``extras``)."""
     k = cfg.extras.get("mle_relative_slots", DEFAULT_RELATIVE_SLOTS)
-    if isinstance(k, bool) or not isinstance(k, int) or k < 0:
-        raise ValueError(f"extras['mle_relative_slots'] must be an integer >= 0, got {k!r}")
+    check_extra("mle_relative_slots", k)
     return k
 
 
 def window_options(cfg: ScenarioConfig) -> tuple[int | None, float | None]:
     """``(window, keyframe_interval)`` from ``extras`` (see the module docstring)."""
     window = cfg.extras.get("mle_window", WINDOW_KEYFRAMES)
-    if window is not None and (isinstance(window, bool) or not isinstance(window, int)
-                               or window < 1):
-        raise ValueError(f"extras['mle_window'] must be an integer >= 1 or None, got {window!r}")
+    check_extra("mle_window", window)
     interval = cfg.extras.get("mle_keyframe_interval", KEYFRAME_INTERVAL_S)
-    if interval is not None and (isinstance(interval, bool) or not isinstance(
-            interval, int | float) or not interval >= 0):
-        raise ValueError(f"extras['mle_keyframe_interval'] must be a number >= 0 or None, got "
-                         f"{interval!r}")
+    check_extra("mle_keyframe_interval", interval)
     return window, None if interval is None else float(interval)
 
 
@@ -149,7 +144,7 @@ def relative_error_infos(
     }
 
 
-class MLEBackend:
+class MLEBackend(EstimatorBackend):
     """Centralized sliding-window MLE (Howard et al.) for the robots in ``robots``.
 
     See the module docstring for the frame, the features and the infos.
@@ -180,7 +175,7 @@ class MLEBackend:
             motion_window=MOTION_WINDOW_S,
             window=self.window,
             keyframe_interval=self.keyframe_interval,
-            keep_history=bool(cfg.extras.get("mle_keep_history", False)),
+            keep_history=cfg.extras.get("mle_keep_history", False),
             gate_prob=cfg.gate_prob if cfg.gate_prob < 1.0 else None,
         )
         self._cache: tuple[np.ndarray, np.ndarray] | None = None
@@ -237,5 +232,3 @@ class MLEBackend:
         """Eq. 15 relative errors per robot (uses the truth: logging only)."""
         return relative_error_infos(self.mean(), true_poses[self.robots], self.robots)
 
-
-register_backend("mle", MLEBackend)

@@ -166,6 +166,16 @@ def scan_minimum_detections(
     return Detections(det.observer[k], det.target[k], z[k], det.cov[k], det.genuine[k])
 
 
+def beam_angles(cfg: ScenarioConfig, sonar: bool) -> np.ndarray:
+    """Robot-frame beam angles of a laser or sonar: a full circle is split in equal
+    sectors (no beam twice at +-pi), a narrower field of view spans both edges."""
+    count = cfg.sonar_beams if sonar else cfg.laser_beams
+    fov = np.deg2rad(cfg.sonar_fov_deg if sonar else cfg.laser_fov_deg)
+    if fov >= 2 * np.pi - 1e-9:
+        return -np.pi + (np.arange(count) + 0.5) * 2 * np.pi / count
+    return np.linspace(-fov / 2, fov / 2, count)
+
+
 def _due(step: int, dt: float, rate: float) -> bool:
     """Whether a sensor of ``rate`` Hz fires during env step ``step`` (0-based)."""
     return int((step + 1) * dt * rate + 1e-9) > int(step * dt * rate + 1e-9)
@@ -186,7 +196,7 @@ class SensorSuite:
         self.is_sonar = np.array([s.range_sensor == "sonar" for s in specs])
         self.has_camera = np.array([s.has_camera for s in specs])
         self.has_detector = np.array([s.has_detector for s in specs])
-        self.beam_angles = [self._beams(sonar) for sonar in self.is_sonar]
+        self.beam_angles = [beam_angles(self.cfg, sonar) for sonar in self.is_sonar]
         self.max_beams = max(len(b) for b in self.beam_angles)
         self.range_max = np.where(self.is_sonar, cfg.sonar_max_range, cfg.laser_max_range)
         self.range_std = np.where(self.is_sonar, cfg.sonar_range_std, cfg.laser_range_std)
@@ -212,14 +222,6 @@ class SensorSuite:
             scene.seg_a[scene.seg_mask[:, sight]],
             scene.seg_b[scene.seg_mask[:, sight]],
         )
-
-    def _beams(self, sonar: bool) -> np.ndarray:
-        cfg = self.cfg
-        count = cfg.sonar_beams if sonar else cfg.laser_beams
-        fov = np.deg2rad(cfg.sonar_fov_deg if sonar else cfg.laser_fov_deg)
-        if fov >= 2 * np.pi - 1e-9:
-            return -np.pi + (np.arange(count) + 0.5) * 2 * np.pi / count
-        return np.linspace(-fov / 2, fov / 2, count)
 
     def _build_ray_tables(self) -> None:
         """Precompute, for every robot's range sensor, its sub-ray angles in the robot frame.

@@ -55,10 +55,3 @@ def compose_relative(pose_a: np.ndarray, rbo: np.ndarray) -> np.ndarray:
     y = pose_a[..., 1] + rbo[..., 0] * np.sin(ang)
     heading = wrap_angle(pose_a[..., 2] + rbo[..., 2])
     return np.stack([x, y, heading], axis=-1)
-
-
-def pose_to_local(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Express world points ``(..., 2)`` in the frame of ``pose`` (3,)."""
-    c, s = np.cos(pose[2]), np.sin(pose[2])
-    d = np.asarray(points, dtype=float) - pose[:2]
-    return np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1]], axis=-1)

@@ -273,11 +273,6 @@ class TeamEKF:
         self.time[i] = t
         self._table[i] = cb
 
-    def predict_all(self, t: float) -> None:
-        """Propagate every robot to time ``t``."""
-        for i in range(self.n):
-            self.predict_to(i, t)
-
     def belief(self, i: int) -> Belief:
         """Robot ``i``'s current marginal belief (at its own last propagated time)."""
         a = 3 * i

@@ -25,6 +25,8 @@ import numpy as np
 from scipy import stats
 
 from policies.baselines import StandStillPolicy  # noqa: F401 (re-exported)
+from policies.fox import LOCALIZED_M
+from policies.fox import time_to_localize as robot_times_to_localize
 from policies.runner import FIGURES, episode_figures, make_policy, run_episode
 
 COMPARE_FIGURES = FIGURES + ("time_to_localize_s", "localized_fraction")
@@ -37,7 +39,7 @@ LABELS = {
     "time_to_localize_s": "time to localize (s)",
     "localized_fraction": "localized",
 }
-SPREAD_THRESHOLD = 1.5
+SPREAD_THRESHOLD = LOCALIZED_M
 # The range each figure can take: its confidence interval is clipped to it (a
 # Student-t interval of counts or fractions near a bound would leave it).
 FIGURE_BOUNDS = {
@@ -73,14 +75,7 @@ def time_to_localize(ep: dict[str, Any], dt: float, threshold: float = SPREAD_TH
         spread = np.asarray(ep["series"]["particle_spread_m"], dtype=float)
     else:  # position_std_m is sqrt(0.5 (var_x + var_y))
         spread = np.sqrt(2.0) * np.asarray(ep["series"]["position_std_m"], dtype=float)
-    steps, n = spread.shape
-    times = np.full(n, steps * dt)
-    done = np.zeros(n, dtype=bool)
-    for i in range(n):
-        hit = np.flatnonzero(spread[:, i] < threshold)
-        if len(hit):
-            times[i] = (hit[0] + 1) * dt
-            done[i] = True
+    times, done = robot_times_to_localize(spread, dt, threshold)
     return float(times.mean()), float(done.mean())
 
 

@@ -54,13 +54,6 @@ from policies.runner import make_policy, run_episode
 from policies.vec_env import REWARD_MODES, ParallelEnvVecEnv, TimeToLocalizeReward, make_env_fn
 
 ALGOS = ("PPO", "SAC")
-REWARD_KEYS = (
-    "reward_localization_weight",
-    "reward_heading_weight",
-    "reward_coverage_weight",
-    "collision_penalty",
-    "tip_over_penalty",
-)
 EVAL_SEED = 100_000  # evaluation episodes use seeds EVAL_SEED + k, apart from training seeds
 BC_SEED = 200_000  # behaviour-cloning demonstrations use seeds BC_SEED + k
 

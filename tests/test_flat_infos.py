@@ -31,6 +31,24 @@ def test_reward_terms_flat_keys_match_the_dict_and_sum_to_the_reward():
         assert rewards[agent] == pytest.approx(sum(flat.values()))
 
 
+def test_a_reward_term_added_in_reward_terms_reaches_the_reward_and_the_infos():
+    from coop_loc_env.env import CoopLocParallelEnv
+
+    class WithBonus(CoopLocParallelEnv):
+        def _reward_terms(self, *args):
+            terms = super()._reward_terms(*args)
+            return {**terms, "bonus": [0.25] * self.config.n_robots}
+
+    plain, bonus = CoopLocParallelEnv(max_cycles=3), WithBonus(max_cycles=3)
+    plain.reset(seed=1)
+    bonus.reset(seed=1)
+    _, base_rewards, _, _, _ = _step(plain)
+    _, rewards, _, _, infos = _step(bonus)
+    for agent, info in infos.items():
+        assert info["reward_bonus"] == info["reward_terms"]["bonus"] == 0.25
+        assert rewards[agent] == pytest.approx(base_rewards[agent] + 0.25)
+
+
 def test_reward_terms_dict_false_leaves_only_numbers_and_arrays():
     env = coop_loc_env.parallel_env(max_cycles=5, reward_terms_dict=False)
     _, infos = env.reset(seed=0)

@@ -3,6 +3,15 @@
 A scenario is a function returning a :class:`~coop_loc_env.config.ScenarioConfig`
 from a dict of overrides. :func:`make_config` looks one up by name and applies
 the overrides (unknown keys and invalid values raise ``ValueError``).
+
+Adding a scenario: every scenario registers through :func:`register_scenario`
+(``scenario_from_base(base)`` turns a function returning a base config into a
+factory). A module of this package calls it at import and is listed in
+:data:`SCENARIO_MODULES`, which this package imports after the registry is
+defined; code outside the package calls ``register_scenario`` itself, after
+``import coop_loc_env``::
+
+    register_scenario("my_field", scenario_from_base(my_field_config))
 """
 
 from __future__ import annotations
@@ -69,7 +78,8 @@ def make_config(scenario: str, **overrides: Any) -> ScenarioConfig:
     return cfg
 
 
-# Import the scenario modules so they register themselves (add new modules here).
+#: The modules of this package that register the shipped scenarios (add new ones here);
+#: imported here, below the registry they register into.
 SCENARIO_MODULES = ("outdoor", "madhavan", "fox", "howard", "rendezvous")
 for _module in SCENARIO_MODULES:
     importlib.import_module(f"coop_loc_env.scenarios.{_module}")
