@@ -147,7 +147,7 @@ class ParticleFilter:
         self._angles_ok = b""  # bytes of the last beam angles found finite
         self._uniform_w = np.zeros(0)
         self._cum: tuple[np.ndarray, np.ndarray] = (self._uniform_w, self._uniform_w)
-        self._mb: tuple = ()  # reusable motion buffers
+        self._motion_work: tuple = ()  # reusable motion buffers
         self._sd = np.zeros((3, 4), dtype=np.float32)  # motion noise scales and means
         # The state is float32 (x, y, heading) with positions relative to the centre of
         # map cell (0, 0): float32 keeps ~1e-6 m there even for maps at UTM-size
@@ -162,7 +162,7 @@ class ParticleFilter:
         # The work arrays are views into each other; pickling or deep-copying them
         # would break them apart, so they are rebuilt instead.
         state = self.__dict__.copy()
-        state.update(_lfb={}, _mats={}, _mb=(), _beam_tabs={})
+        state.update(_lfb={}, _mats={}, _motion_work=(), _beam_tabs={})
         return state
 
     # ---------------------------------------------------------------- state
@@ -333,7 +333,7 @@ class ParticleFilter:
         sd_t = mn.trans_trans * at + mn.trans_rot * (abs(rot1) + abs(rot2)) + mn.min_xy
         sd_r2 = mn.rot_rot * abs(rot2) + mn.rot_trans * at + mn.min_heading
         n = self._weights.size
-        bufs = self._mb
+        bufs = self._motion_work
         if not bufs or bufs[1].shape[1] != n:
             bufs = self._motion_buffers(n)
         z1, noise, cs = bufs
@@ -360,9 +360,9 @@ class ParticleFilter:
     def _motion_buffers(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """New ``(z1, noise, cs)`` float32 work arrays: ``(4, n)`` normals over a row of
         ones, ``(3, n)`` motion noise, ``(2, n)`` translation."""
-        self._mb = (np.ones((4, n), dtype=np.float32), np.empty((3, n), dtype=np.float32),
+        self._motion_work = (np.ones((4, n), dtype=np.float32), np.empty((3, n), dtype=np.float32),
                     np.empty((2, n), dtype=np.float32))
-        return self._mb
+        return self._motion_work
 
     def _wrap_headings(self) -> None:
         wrap_angle_in_place(self._state[2])
