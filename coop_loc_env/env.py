@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import gymnasium
@@ -441,17 +442,21 @@ class CoopLocParallelEnv(ParallelEnv):
         else:
             columns = enumerate(columns)
         infos, rewards = {}, {}
+        names = list(terms)
+        flat_names = [_flat_reward_key(name) for name in names]
+        per_robot = list(zip(*terms.values(), strict=True))  # one tuple of terms per robot
         for i, (agent, exy, eth, gps, nsat, hits, touch, tipped_over, cells,
                 covered) in columns:
             rewards[agent] = totals[i]
-            own_terms = {name: values[i] for name, values in terms.items()}
+            values = per_robot[i]
+            own_terms = dict(zip(names, values, strict=True))
             info = {
                 "true_pose": poses[i],
                 "est_pose": est[i],
                 "pose_cov": cov[i],
                 "position_error": exy,
                 "heading_error": eth,
-                **{f"reward_{name}": value for name, value in own_terms.items()},
+                **dict(zip(flat_names, values, strict=True)),
                 "gps_fix": bool(gps),
                 "satellites": int(nsat),
                 "collisions": int(hits),
@@ -489,11 +494,15 @@ class CoopLocParallelEnv(ParallelEnv):
         w_loc, w_head = cfg.reward_localization_weight, cfg.reward_heading_weight
         w_cov = cfg.reward_coverage_weight
         # Shaping on belief uncertainty: minus the change of 0.5 log det P_xy since last step.
-        half_logdet = _half_logdet_xy(cov)
-        shaping = (-cfg.reward_uncertainty_weight * (half_logdet - self._half_logdet)).tolist()
-        self._half_logdet = half_logdet
+        # (Terms whose weight is 0 are 0.0 without computing them: the reward is the same.)
+        if cfg.reward_uncertainty_weight:
+            half_logdet = _half_logdet_xy(cov)
+            shaping = (-cfg.reward_uncertainty_weight * (half_logdet - self._half_logdet)).tolist()
+            self._half_logdet = half_logdet
+        else:
+            shaping = [0.0] * n
         team_term = -cfg.reward_team_weight * float(err_xy[self._active].mean()) if (
-            self._active.any()) else 0.0
+            cfg.reward_team_weight and self._active.any()) else 0.0
         pen_hit, pen_tip = -cfg.collision_penalty, -cfg.tip_over_penalty
         touching = [False] * n if in_contact is None else in_contact.tolist()
         # Python floats (the same IEEE arithmetic as numpy, per robot).
@@ -574,6 +583,12 @@ def _sum_terms(terms: dict[str, list[float]]) -> list[float]:
     for values in terms.values():
         totals = [total + v for total, v in zip(totals, values, strict=True)]
     return totals
+
+
+@functools.lru_cache(maxsize=64)
+def _flat_reward_key(name: str) -> str:
+    """The info key of a reward term in the flat form (``reward_<term>``)."""
+    return f"reward_{name}"
 
 
 def _half_logdet_xy(cov: np.ndarray) -> np.ndarray:

@@ -217,6 +217,7 @@ class World:
         self.physics_steps = physics_steps_for(cfg, float(self.max_speed.max()))
         self.poses = np.zeros((n, 3))
         self.in_contact = np.zeros(n, dtype=bool)
+        self.touching = np.zeros(n, dtype=bool)  # touching a shape at the end of the last step
         self.space: pymunk.Space | None = None
         self.bodies: list[pymunk.Body] = []
         self.contacts = {"counts": np.zeros(n, dtype=int)}
@@ -254,6 +255,7 @@ class World:
             space.add(shape)
         self.contacts["counts"][:] = 0
         self.in_contact[:] = False
+        self.touching[:] = False
         space.on_collision(ROBOT_COLLISION_TYPE, None, begin=_count_contact, data=self.contacts)
         self.poses = self._start_poses(rng)
         self.bodies = []
@@ -452,7 +454,8 @@ class World:
         self._angles = state[:, 2].copy()  # unwrapped, as pymunk keeps them
         self.poses[:, 2] = wrap_angle(self._angles)
         new = self.contacts["counts"] - before
-        self.in_contact = self._touching()
+        self.touching = self._touching()
+        self.in_contact = self.touching.copy()
         if np.count_nonzero(new):
             self.in_contact |= new > 0
         return new
