@@ -264,7 +264,7 @@ class TeamEKF:
         delta, q = OdometryTrack.motion(self._table[i], cb, self.x[a + 2])
         f = np.array([[1.0, 0.0, -delta[1]], [0.0, 1.0, delta[0]], [0.0, 0.0, 1.0]])
         self.x[a : a + 3] += delta
-        self.x[a + 2] = (self.x[a + 2] + math.pi) % (2.0 * math.pi) - math.pi
+        self.x[a + 2] = wrap_angle(self.x[a + 2])
         rows = self.P[a : a + 3, :]
         rows = f @ rows
         self.P[a : a + 3, :] = rows
