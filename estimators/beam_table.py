@@ -10,7 +10,7 @@ direction (from the face of the cell the ray hits: a ray that ends on the
 vertical face ``x = X`` has range ``(X - x) / cos(phi)``). A lookup corrects the
 cell-centre range to the particle's exact position and heading to first order,
 which removes most of the error of quantizing poses to cells and bins
-(figures in ``tests/test_beam_table.py`` and :func:`table_error`).
+(figures in ``tests/estimators/test_beam_table.py`` and :func:`table_error`).
 
 :class:`BeamLUT` tabulates the beam model's per-beam log-likelihood (tempered
 by ``likelihood_exponent``) over quantized measured and expected ranges, so a

@@ -99,7 +99,8 @@ SLOW_TESTS = frozenset({
 def pytest_collection_modifyitems(config, items):
     """Mark the tests of :data:`SLOW_TESTS` ``slow``."""
     for item in items:
-        nodeid = item.nodeid.removeprefix("tests/")
+        path, _, name = item.nodeid.partition("::")  # tests/<package>/test_x.py::name
+        nodeid = f"{path.rsplit('/', 1)[-1]}::{name}"
         if nodeid in SLOW_TESTS or nodeid.split("[")[0] in SLOW_TESTS:
             item.add_marker(pytest.mark.slow)
 

@@ -1,7 +1,7 @@
 """Behaviour regression: short seeded episodes must match the stored rollouts.
 
 If a change is meant to alter behaviour, regenerate the data with
-``python tests/golden_rollouts.py`` and commit it with the change.
+``python tests/env/golden_rollouts.py`` and commit it with the change.
 """
 
 from __future__ import annotations
@@ -31,5 +31,5 @@ def test_rollout_matches_stored(case, golden):
         np.testing.assert_allclose(
             value, expected, rtol=RTOL, atol=ATOL, equal_nan=True,
             err_msg=f"{case}/{key} differs from the stored rollout "
-            "(regenerate with `python tests/golden_rollouts.py` if intended)",
+            "(regenerate with `python tests/env/golden_rollouts.py` if intended)",
         )

@@ -15,7 +15,7 @@ from policies.learned import LearnedPolicy, load_learned_policy
 from policies.runner import make_policy, run_episode
 from policies.training import TrainConfig, find_checkpoint, train
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 TINY = ["--scenario", "outdoor_terrain", "--estimator", "ekf", "--set", "n_robots=2",
         "--max-cycles", "20", "--n-envs", "2", "--n-steps", "32", "--batch-size", "64",
         "--n-epochs", "2", "--no-progress"]

@@ -24,8 +24,8 @@ from estimators.log_replay import (
 from estimators.mrclam import interpolate_groundtruth, load_mrclam, read_table
 from estimators.team_ekf import MotionNoise, OdometryTrack, TeamEKF
 
-EXCERPT = Path(__file__).parent / "data" / "mrclam_excerpt"
-ROOT = Path(__file__).resolve().parents[1]
+EXCERPT = Path(__file__).resolve().parents[1] / "data" / "mrclam_excerpt"
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,7 @@ import coop_loc_env
 from coop_loc_env.scenarios.howard import DRIVER, START_ROOM
 from policies.howard import CircuitPolicy, DispersalPolicy, run_circuit, run_dispersal
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")

@@ -19,7 +19,7 @@ from coop_loc_env.sensors import (
 )
 from policies.madhavan import run_dgps_outage
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")

@@ -109,7 +109,7 @@ def test_scenario_training_defaults_reach_train_cli():
     import importlib.util
     from pathlib import Path
 
-    path = Path(__file__).resolve().parents[1] / "scripts" / "train.py"
+    path = Path(__file__).resolve().parents[2] / "scripts" / "train.py"
     spec = importlib.util.spec_from_file_location("train_cli", path)
     train_cli = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(train_cli)
@@ -158,7 +158,7 @@ def test_bc_from_none_turns_cloning_off():
     import importlib.util
     from pathlib import Path
 
-    path = Path(__file__).resolve().parents[1] / "scripts" / "train.py"
+    path = Path(__file__).resolve().parents[2] / "scripts" / "train.py"
     spec = importlib.util.spec_from_file_location("train_cli", path)
     train_cli = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(train_cli)

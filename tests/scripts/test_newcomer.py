@@ -112,7 +112,7 @@ def test_every_scenario_is_described():
 
 
 # ---------------------------------------------------------------- README
-README = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+README = (Path(__file__).resolve().parents[2] / "README.md").read_text()
 
 
 def test_readme_lists_every_scenario_and_reward_term():

@@ -263,7 +263,7 @@ def test_reproduce_fox_script_writes_json(tmp_path):
     import importlib.util
     from pathlib import Path
 
-    script = Path(__file__).resolve().parents[1] / "scripts" / "reproduce_fox.py"
+    script = Path(__file__).resolve().parents[2] / "scripts" / "reproduce_fox.py"
     spec = importlib.util.spec_from_file_location("reproduce_fox", script)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)

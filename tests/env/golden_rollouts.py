@@ -1,10 +1,10 @@
 """Stored regression rollouts: a few short seeded episodes per estimator.
 
-``tests/test_golden_rollouts.py`` replays these cases and compares observations,
+``tests/env/test_golden_rollouts.py`` replays these cases and compares observations,
 rewards and errors with ``tests/data/golden_rollouts.npz``. When a change is
 *meant* to alter behaviour, regenerate the file and commit it with the change:
 
-    python tests/golden_rollouts.py
+    python tests/env/golden_rollouts.py
 
 Actions come from NumPy's generator (not the action spaces' samplers), so the
 stored episodes depend only on this project's code and its seeds.
@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-GOLDEN_PATH = Path(__file__).resolve().parent / "data" / "golden_rollouts.npz"
+GOLDEN_PATH = Path(__file__).resolve().parents[1] / "data" / "golden_rollouts.npz"
 
 # name -> (scenario, overrides, episode seed, steps)
 CASES: dict[str, tuple[str, dict, int, int]] = {
@@ -75,5 +75,5 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
     raise SystemExit(main())
