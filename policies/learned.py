@@ -25,6 +25,16 @@ from more (on a shared 2-core machine, 14.0-27.3 ms per predict with torch's def
 threads vs 0.96-1.08 ms with 1: ``python scripts/_bench_inference.py``)."""
 
 
+def check_observation_shape(name: str, expected: tuple, env) -> None:
+    """Raise ``ValueError`` unless ``env``'s observations have the ``expected`` shape."""
+    got = env.observation_space(env.possible_agents[0]).shape
+    if tuple(expected) != tuple(got):
+        raise ValueError(
+            f"model {name!r} expects observations of shape {expected}, the env "
+            f"gives {got}: use the same scenario/config overrides as in training"
+        )
+
+
 class LearnedPolicy:
     """An SB3 model (in memory) shared by all agents.
 
@@ -51,13 +61,7 @@ class LearnedPolicy:
 
     def reset(self, env, seed: int | None = None) -> None:
         """Bind to ``env``; the observation shape must match the model's."""
-        expected = self.model.observation_space.shape
-        got = env.observation_space(env.possible_agents[0]).shape
-        if expected != got:
-            raise ValueError(
-                f"model {self.name!r} expects observations of shape {expected}, the env "
-                f"gives {got}: use the same scenario/config overrides as in training"
-            )
+        check_observation_shape(self.name, self.model.observation_space.shape, env)
         self.env = env
 
     def act(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:

@@ -31,7 +31,7 @@ import numpy as np
 from ray.rllib.env.multi_agent_env import MultiAgentEnv
 
 import coop_loc_env
-from policies.learned import is_rllib_run
+from policies.learned import INFERENCE_THREADS, check_observation_shape, is_rllib_run
 
 ENV_NAME = "coop_loc_rllib"
 MODULE_ID = "shared"  # the one policy every robot maps to
@@ -339,8 +339,10 @@ class RLlibPolicy:
         module_dir = ckpt.joinpath(*MODULE_PATH)
         if not module_dir.is_dir():
             raise ValueError(f"no module {MODULE_ID!r} in the RLlib checkpoint {str(ckpt)!r}")
+        import torch
         from ray.rllib.core.rl_module.rl_module import RLModule
 
+        torch.set_num_threads(INFERENCE_THREADS)  # one team observation per forward pass
         self.module = RLModule.from_checkpoint(str(module_dir.resolve()))
         self.module.eval()
         self.name = path.name
@@ -348,13 +350,7 @@ class RLlibPolicy:
 
     def reset(self, env, seed: int | None = None) -> None:
         """Bind to ``env``; the observation shape must match the network's."""
-        expected = self.module.observation_space.shape
-        got = env.observation_space(env.possible_agents[0]).shape
-        if expected != got:
-            raise ValueError(
-                f"model {self.name!r} expects observations of shape {expected}, the env "
-                f"gives {got}: use the same scenario/config overrides as in training"
-            )
+        check_observation_shape(self.name, self.module.observation_space.shape, env)
         self.env = env
 
     def act(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
