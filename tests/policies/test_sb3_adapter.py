@@ -123,19 +123,8 @@ def test_early_termination_gives_done_once_then_padding_until_copy_reset():
     assert rew.tolist() == [1.0, 2.0] and done.tolist() == [False, True]
 
 
-def _steep_and_flat_points() -> tuple[tuple[float, float, float], tuple[float, float, float]]:
-    terrain = coop_loc_env.parallel_env("outdoor_terrain").world.terrain
-    cx, cy = terrain.steep_centers[0]
-    grid = np.stack(np.meshgrid(np.linspace(1, 39, 77), np.linspace(1, 39, 77)), -1).reshape(-1, 2)
-    steep = grid[terrain.is_steep(grid)]
-    flat = grid[~terrain.is_steep(grid)]
-    s = steep[np.argmin(np.hypot(*(steep - (cx, cy)).T))]
-    f = flat[np.argmax(np.hypot(*(flat - s).T))]
-    return (float(s[0]), float(s[1]), 0.0), (float(f[0]), float(f[1]), 0.0)
-
-
-def test_real_env_tip_over_is_a_termination_then_padding():
-    steep, flat = _steep_and_flat_points()
+def test_real_env_tip_over_is_a_termination_then_padding(steep_and_flat):
+    steep, flat = steep_and_flat
     venv = _venv(n_robots=2, max_cycles=3, start_poses=(steep, flat))
     try:
         venv.seed(0)
