@@ -1,4 +1,4 @@
-"""Active hallway: four sonar robots localize globally in the symmetric ring; how they drive decides when.
+"""Active hallway: sonar robots localize globally in a symmetric ring; how they drive decides when.
 
 ``symmetric_hallway`` (Fox et al.'s Fig. 12 world) with four robots, up to
 1000 particles each and a 120 s horizon. The ring of corridors is symmetric
@@ -38,7 +38,7 @@ TRAINING_DEFAULTS: dict = {
 
 
 def active_hallway():
-    """Four sonar robots, 1000 particles each, localize globally in the symmetric hallway (120 s)."""
+    """Four sonar robots (1000 particles each) localize globally in the symmetric hallway."""
     return symmetric_hallway().replace(
         name="active_hallway",
         n_robots=4,
