@@ -26,6 +26,15 @@ from coop_loc_env.scenarios.fox import symmetric_hallway
 #: ``scripts/train.py`` option defaults for this scenario (option dest -> value).
 TRAINING_DEFAULTS: dict = {
     "timesteps": 50_000_000,  # the wall-clock limit ends the run
+    "bc_from": "corridor",
+    "bc_episodes": 16,
+    "bc_epochs": 40,
+    "dagger_rounds": 4,
+    "dagger_epochs": 15,
+    "bc_log_std": -1.5,
+    "no_reward_norm": True,
+    "learning_rate": 1e-4,
+    "clip_range": 0.1,
     "reward_mode": "localize",
     "localize_step_reward": 0.1,
     "localize_team_weight": 0.5,
