@@ -59,8 +59,10 @@ def main(argv: list[str] | None = None) -> int:
         b.plot([e["timesteps"] for e in evals], [e["localization_error_m"] for e in evals],
                "o-", label="learned (step 0: the clone)")
     if summary.get("baseline"):
+        config_path = args.run / "train_config.json"
+        config = json.loads(config_path.read_text()) if config_path.is_file() else {}
         b.axhline(summary["baseline"]["localization_error_m"], color="gray", ls="--",
-                  label="fsm, same seeds")
+                  label=f"{config.get('eval_baseline', 'fsm')}, same seeds")
     b.set(xlabel="agent steps (PPO)", ylabel="team loc. error (m)",
           title="evaluation (training layout)")
     b.legend(fontsize=8)
