@@ -79,7 +79,9 @@ from estimators.mcl_batch import (
     belief_summaries,
     compose_odometry_batch,
     particle_spreads,
+    predict_batch,
     update_beam_batch,
+    weigh_batch,
 )
 from estimators.occupancy import OccupancyGrid
 from estimators.particle_filter import (
@@ -236,6 +238,9 @@ class MCLBackend(EstimatorBackend):
         }
         self._angles = {t: beam_angles(cfg, t == "sonar") for t in self._grids}
         self._cone = 0.5 * np.deg2rad(cfg.sonar_fov_deg) / cfg.sonar_beams
+        # plain floats read at every step (config attribute lookups add up per robot)
+        self.config_fields = {k: float(getattr(cfg, k)) for k in (
+            "sonar_max_range", "laser_max_range", "compass_std")}
         n = cfg.n_particles
         # Motion-noise floors are per prediction (one per env step): scale them with dt.
         motion = ParticleMotionNoise(min_xy=0.02 * cfg.dt / 0.1, min_heading=0.01 * cfg.dt / 0.1)
@@ -335,18 +340,8 @@ class MCLBackend(EstimatorBackend):
         if live:
             odo = readings.odometry[:, self.robots[live]]  # (substeps, robots, 2)
             deltas = compose_odometry_batch(odo[..., 0].T, odo[..., 1].T, dt_sub)
-            for i, delta in zip(live, deltas, strict=True):
-                self.filters[i].predict_delta(delta)
-        stats["range_updates"] = self._range_updates(live, readings)
-        for i in live:
-            g = self.robots[i]
-            pf = self.filters[i]
-            gps = self._has_gps[i] and readings.gps_mask[g]
-            compass = self._has_compass[i] and readings.compass_mask[g]
-            if gps or compass:
-                pf.update_fix(readings.gps_xy[g] if gps else None,
-                              float(readings.gps_var[g]) if gps else 1.0,
-                              float(readings.compass[g]) if compass else None, cfg.compass_std)
+            predict_batch([self.filters[i] for i in live], deltas)
+        stats["range_updates"] = self._measurement_updates(live, readings)
         det = readings.detections
         if cfg.cooperative_updates and len(det):
             for k in range(len(det)):
@@ -449,14 +444,16 @@ class MCLBackend(EstimatorBackend):
             self._conflicts[ib] = []
         return confirmed
 
-    def _range_updates(self, live: list[int], readings: Readings) -> int:
-        """Weight the live robots' particles by their range scans; returns how many scans.
+    def _measurement_updates(self, live: list[int], readings: Readings) -> int:
+        """Weight the live robots' particles by their range scans, DGPS fixes and compass
+        readings; returns how many scans.
 
         Robots sharing a beam model (sonars; lasers with ``mcl_laser_model="beam"``)
-        are updated together (:func:`estimators.mcl_batch.update_beam_batch`); the
-        likelihood-field laser robot by robot.
+        are weighted by their scans together (:func:`estimators.mcl_batch.update_beam_batch`);
+        then the likelihood-field laser scans and all fixes in one pass
+        (:func:`estimators.mcl_batch.weigh_batch`).
         """
-        cfg = self.cfg
+        cfg = self.config_fields
         groups: dict[str, list[int]] = {}
         scans = 0
         for i in live:
@@ -467,18 +464,43 @@ class MCLBackend(EstimatorBackend):
             t = self._sensor(i)
             if np.isfinite(readings.ranges[g][: len(self._angles[t])]).any():
                 groups.setdefault(t, []).append(i)  # a scan without a reading carries nothing
+        lf_scans: list[int] = []
         for t, members in groups.items():
             angles = self._angles[t]
             rows = readings.ranges[self.robots[members], : len(angles)]
             filters = [self.filters[i] for i in members]
             if t == "sonar":
-                update_beam_batch(filters, rows, angles, cfg.sonar_max_range, self._cone)
+                update_beam_batch(filters, rows, angles, cfg["sonar_max_range"], self._cone)
             elif self._laser_beam:
-                update_beam_batch(filters, rows, angles, cfg.laser_max_range)
+                update_beam_batch(filters, rows, angles, cfg["laser_max_range"])
             else:
-                for pf, row in zip(filters, rows, strict=True):
-                    ok = np.isfinite(row)
-                    pf.update_likelihood_field(row[ok], angles[ok], cfg.laser_max_range)
+                lf_scans = members
+        weigh: list[int] = []
+        fixes = []
+        for i in live:
+            g = self.robots[i]
+            gps = self._has_gps[i] and readings.gps_mask[g]
+            compass = self._has_compass[i] and readings.compass_mask[g]
+            if gps or compass:
+                fixes.append(self.filters[i].fix_row(
+                    readings.gps_xy[g] if gps else None,
+                    float(readings.gps_var[g]) if gps else 1.0,
+                    float(readings.compass[g]) if compass else None, cfg["compass_std"]))
+                weigh.append(i)
+            elif i in lf_scans:
+                fixes.append(self.filters[i].fix_row())
+                weigh.append(i)
+        if weigh:
+            angles = self._angles.get("laser")
+            ranges = None
+            if lf_scans:
+                ranges = np.full((len(weigh), len(angles)), np.nan)
+                for r, i in enumerate(weigh):
+                    if i in lf_scans:
+                        row = readings.ranges[self.robots[i], : len(angles)]
+                        ranges[r] = np.where(np.isfinite(row), row, np.inf)
+            weigh_batch([self.filters[i] for i in weigh], ranges, angles,
+                        cfg["laser_max_range"], np.array(fixes))
         return scans
 
     # ------------------------------------------------------------------ outputs

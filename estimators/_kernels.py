@@ -17,14 +17,14 @@ __all__ = ["summary_sums"]
 
 @njit(cache=True)
 def summary_sums(
-    st: np.ndarray, cos_h: np.ndarray, sin_h: np.ndarray, w: np.ndarray, ends: np.ndarray,
+    flat: np.ndarray, w: np.ndarray, ends: np.ndarray,
     hist_cells: int, inv_cell: float, heading_bins: int,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover (compiled)
     """Per-segment weighted sums of particle sets stored back to back.
 
-    ``st`` ``(3, N)`` holds ``x, y, heading`` (``cos_h``, ``sin_h``: the headings'
-    cosines and sines), ``w`` ``(N,)`` the weights (each segment's summing to 1),
-    segment ``r`` ending (exclusive) at ``ends[r]``.
+    ``flat`` holds ``x, y, heading`` in the block layout of
+    :mod:`estimators._team_kernels`, ``w`` ``(N,)`` the weights (each segment's
+    summing to 1), segment ``r`` ending (exclusive) at ``ends[r]``.
     Returns ``sums (R, 5)`` (weighted sums of ``x, y, cos, sin`` and of ``w**2``),
     ``cov (R, 3, 3)`` (about the weighted mean, the heading wrapped about the
     circular mean), ``hist (R, hist_cells**2)`` (weight in the egocentric grid
@@ -47,12 +47,15 @@ def summary_sums(
         sc = 0.0
         ss = 0.0
         s2 = 0.0
-        for i in range(start, end):
-            wi = w[i]
-            sx += wi * st[0, i]
-            sy += wi * st[1, i]
-            sc += wi * cos_h[i]
-            ss += wi * sin_h[i]
+        n = end - start
+        base = 3 * start
+        for j in range(n):
+            wi = w[start + j]
+            h = flat[base + 2 * n + j]
+            sx += wi * flat[base + j]
+            sy += wi * flat[base + n + j]
+            sc += wi * math.cos(h)
+            ss += wi * math.sin(h)
             s2 += wi * wi
         sums[r, 0] = sx
         sums[r, 1] = sy
@@ -68,11 +71,11 @@ def summary_sums(
         c11 = 0.0
         c12 = 0.0
         c22 = 0.0
-        for i in range(start, end):
-            wi = w[i]
-            dx = st[0, i] - sx
-            dy = st[1, i] - sy
-            dh = st[2, i] - mh
+        for j in range(n):
+            wi = w[start + j]
+            dx = flat[base + j] - sx
+            dy = flat[base + n + j] - sy
+            dh = flat[base + 2 * n + j] - mh
             dh -= two_pi * math.floor(dh / two_pi + 0.5)
             c00 += wi * dx * dx
             c01 += wi * dx * dy
@@ -102,21 +105,20 @@ def summary_sums(
 @njit(cache=True)
 def beam_loglik(
     rows: np.ndarray, scales: np.ndarray, free_cells: np.ndarray, nx: int, ny: int,
-    res: float, n_bins: int, max_range: float, st: np.ndarray, angles: np.ndarray,
+    res: float, n_bins: int, max_range: float, flat: np.ndarray, angles: np.ndarray,
     lut: np.ndarray, inv_step: float, row_offsets: np.ndarray, ends: np.ndarray,
     occupied_loglik: float,
 ) -> np.ndarray:  # pragma: no cover (compiled)
-    """Scan log-likelihoods ``(N,)`` of particle sets stored back to back (see
-    :meth:`RangeTable.expected` and :meth:`BeamLUT.loglik`, whose float32 steps
-    this repeats in the same order), plus ``occupied_loglik`` for particles
-    outside the map's free cells.
+    """Scan log-likelihoods ``(N,)`` of particle sets in the block layout of
+    :mod:`estimators._team_kernels` (see :meth:`RangeTable.expected` and
+    :meth:`BeamLUT.loglik`, whose float32 steps this repeats in the same order), plus
+    ``occupied_loglik`` for particles outside the map's free cells.
 
     ``row_offsets (R, B)``: the likelihood-table row of robot ``r``'s reading of
     beam ``b``; segment ``r`` of the particles ends (exclusive) at ``ends[r]``.
     """
-    n = st.shape[1]
     nb = angles.size
-    out = np.empty(n)
+    out = np.empty(ends[-1] if ends.size else 0)
     inv = np.float32(1.0 / res)
     res32 = np.float32(res)
     scale = np.float32(n_bins / (2.0 * math.pi))
@@ -131,43 +133,46 @@ def beam_loglik(
     for b in range(nb):
         a_bins[b] = np.float32(angles[b]) * scale
     pow2 = (n_bins & (n_bins - 1)) == 0
-    r_i = 0
-    for i in range(n):
-        while i >= ends[r_i]:
-            r_i += 1
-        x = st[0, i]
-        y = st[1, i]
-        ux = np.float32(np.rint(x * inv))
-        uy = np.float32(np.rint(y * inv))
-        ix = int(ux)
-        iy = int(uy)
-        dx = x - ux * res32
-        dy = y - uy * res32
-        inside = 0 <= ix < nx and 0 <= iy < ny
-        cell = iy * nx + ix if inside else 0
-        hb = st[2, i] * scale + half_bins
-        total = 0.0
-        for b in range(nb):
-            kf = hb + a_bins[b]
-            k = np.float32(math.floor(kf))
-            dphi = ((kf - k) - half) * inv_scale
-            ki = int(k)
-            ki = ki & (n_bins - 1) if pow2 else ki % n_bins
-            j = cell * n_bins + ki
-            if inside:
-                r = np.float32(rows[j, 0]) * s0
-                r += (np.float32(rows[j, 1]) * s1) * dx
-                r += (np.float32(rows[j, 2]) * s2) * dy
-                r += (np.float32(rows[j, 3]) * s3) * dphi
-                r = min(max(r, zero), rmax)
-            else:
-                r = zero
-            q = r * istep
-            q += half
-            total += lut[int(q) + row_offsets[r_i, b]]
-        if not (inside and free_cells[cell]):
-            total += occupied_loglik
-        out[i] = total
+    start = 0
+    for r_i in range(ends.size):
+        end = ends[r_i]
+        n = end - start
+        base = 3 * start
+        for j in range(n):
+            x = flat[base + j]
+            y = flat[base + n + j]
+            ux = np.float32(np.rint(x * inv))
+            uy = np.float32(np.rint(y * inv))
+            ix = int(ux)
+            iy = int(uy)
+            dx = x - ux * res32
+            dy = y - uy * res32
+            inside = 0 <= ix < nx and 0 <= iy < ny
+            cell = iy * nx + ix if inside else 0
+            hb = flat[base + 2 * n + j] * scale + half_bins
+            total = 0.0
+            for b in range(nb):
+                kf = hb + a_bins[b]
+                k = np.float32(math.floor(kf))
+                dphi = ((kf - k) - half) * inv_scale
+                ki = int(k)
+                ki = ki & (n_bins - 1) if pow2 else ki % n_bins
+                jr = cell * n_bins + ki
+                if inside:
+                    r = np.float32(rows[jr, 0]) * s0
+                    r += (np.float32(rows[jr, 1]) * s1) * dx
+                    r += (np.float32(rows[jr, 2]) * s2) * dy
+                    r += (np.float32(rows[jr, 3]) * s3) * dphi
+                    r = min(max(r, zero), rmax)
+                else:
+                    r = zero
+                q = r * istep
+                q += half
+                total += lut[int(q) + row_offsets[r_i, b]]
+            if not (inside and free_cells[cell]):
+                total += occupied_loglik
+            out[start + j] = total
+        start = end
     return out
 
 
@@ -244,18 +249,22 @@ def first_occurrences(key: np.ndarray, size: int) -> np.ndarray:  # pragma: no c
 
 @njit(cache=True)
 def weighted_distances(
-    st: np.ndarray, w: np.ndarray, ends: np.ndarray, targets: np.ndarray,
+    flat: np.ndarray, w: np.ndarray, ends: np.ndarray, targets: np.ndarray,
 ) -> np.ndarray:  # pragma: no cover (compiled)
-    """Per segment ``r``: the weighted mean distance of the particles' positions
-    ``st[:2]`` from ``targets[r]`` (same coordinates)."""
+    """Per segment ``r`` of particles in the block layout: the weighted mean distance of
+    the particles' positions from ``targets[r]`` (same coordinates)."""
     out = np.zeros(ends.size)
     start = 0
     for r in range(ends.size):
+        n = ends[r] - start
+        base = 3 * start
         tx = targets[r, 0]
         ty = targets[r, 1]
         acc = 0.0
-        for i in range(start, ends[r]):
-            acc += w[i] * math.hypot(st[0, i] - tx, st[1, i] - ty)
+        for j in range(n):
+            dx = flat[base + j] - tx
+            dy = flat[base + n + j] - ty
+            acc += w[start + j] * math.sqrt(dx * dx + dy * dy)
         out[r] = acc
         start = ends[r]
     return out

@@ -288,13 +288,14 @@ class BeamLUT(NamedTuple):
         return self.table.take(idx).sum(axis=1, dtype=np.float64)
 
 
-def scan_loglik(table: RangeTable, lut: BeamLUT, state: np.ndarray, angles: np.ndarray,
+def scan_loglik(table: RangeTable, lut: BeamLUT, flat: np.ndarray, angles: np.ndarray,
                 row_offsets: np.ndarray, ends: np.ndarray, occupied_loglik: float) -> np.ndarray:
     """Beam-model scan log-likelihoods ``(N,)`` of particle sets stored back to back.
 
-    ``state`` ``(3, N)`` float32 (``x, y`` in m from the centre of cell ``(0, 0)``,
-    heading), robot ``r``'s particles ending (exclusive) at ``ends[r]`` and its
-    readings selecting the likelihood rows ``row_offsets[r]`` (:meth:`BeamLUT.rows`)
+    ``flat`` holds the float32 ``x, y`` (m from the centre of cell ``(0, 0)``) and
+    headings of robot ``r``'s particles, which end (exclusive) at ``ends[r]``, as one
+    ``(3, n_r)`` block (the block layout of :mod:`estimators._team_kernels`); its
+    readings select the likelihood rows ``row_offsets[r]`` (:meth:`BeamLUT.rows`)
     for the beams at robot-frame ``angles``. Equals
     ``lut.loglik(table.expected(...), rows)`` plus ``occupied_loglik`` where
     :meth:`RangeTable.free` is False, in one compiled pass.
@@ -304,7 +305,7 @@ def scan_loglik(table: RangeTable, lut: BeamLUT, state: np.ndarray, angles: np.n
                          f"{table.max_range} vs {lut.max_range}")
     return beam_loglik(table.rows, table.scales, table.free_cells, table.nx, table.ny,
                        table.resolution, table.n_bins, table.max_range,
-                       np.ascontiguousarray(state, np.float32),
+                       np.ascontiguousarray(flat, np.float32),
                        np.ascontiguousarray(angles, np.float64), lut.table,
                        1.0 / lut.step, np.ascontiguousarray(row_offsets, np.intp),
                        np.ascontiguousarray(ends, np.intp), float(occupied_loglik))

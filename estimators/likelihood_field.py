@@ -1,9 +1,12 @@
-"""The likelihood-field laser model's table and kernel (used by :class:`ParticleFilter`).
+"""The likelihood-field laser model's table (used by :class:`ParticleFilter`).
 
 :func:`build_lf_field` turns a map and an :class:`~estimators.particle_config.MCLConfig`
-into one flat ``float32`` table; :func:`lf_loglik` scores every particle's scan with
-one matrix product and one gather from it. The filter caches the tables and the
-work arrays (:func:`beam_matrix`, :func:`lf_buffers`) and applies the result.
+into one flat ``float32`` table; :func:`lf_endpoints` turns a scan into the beam
+endpoints the filter's compiled weighting reads
+(:func:`estimators._team_kernels.weigh_blocks`). :func:`lf_loglik` is the same
+score in numpy (one matrix product and one gather, with its work arrays from
+:func:`beam_matrix` and :func:`lf_buffers`), kept as the reference the compiled
+kernel is tested against.
 """
 
 from __future__ import annotations
@@ -16,7 +19,10 @@ import numpy as np
 from estimators.occupancy import OccupancyGrid
 from estimators.particle_config import MCLConfig
 
-__all__ = ["LF_POWER", "LFField", "beam_matrix", "build_lf_field", "lf_buffers", "lf_loglik"]
+__all__ = [
+    "LF_POWER", "LFField", "beam_matrix", "build_lf_field", "lf_buffers", "lf_endpoints",
+    "lf_loglik",
+]
 
 _LOG_SQRT_2PI = 0.5 * np.log(2.0 * np.pi)
 # For float32 0 <= x < 2**23, x + _MAGIC rounds x to an integer k (ties to even) and
@@ -89,6 +95,20 @@ def build_lf_field(grid: OccupancyGrid, cfg: MCLConfig, max_range: float) -> LFF
     hi = (np.array([[nx], [ny]]) * res).astype(np.float32)
     return LFField(table, pad, nxp, nyp, nxp * nyp, lo, hi, 1.0 / res, reach,
                    np.float32(_MAGIC + pad), lmax, span)
+
+
+def lf_endpoints(lf: LFField, ranges: np.ndarray, angles: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Beam endpoints ``(ux, uy)`` ``(B,)`` float32 in cells, in the robot frame, of readings
+    ``ranges`` (below the maximum range; clipped here to ``lf.reach``) at ``angles``: the
+    scan as the compiled weighting (:func:`estimators._team_kernels.weigh_blocks`) reads it,
+    rounded as :func:`lf_loglik` rounds it."""
+    r = np.minimum(ranges, lf.reach)
+    ux = np.multiply((np.cos(angles) * lf.inv_res).astype(np.float32), r, dtype=np.float32,
+                     casting="unsafe")
+    uy = np.multiply((np.sin(angles) * lf.inv_res).astype(np.float32), r, dtype=np.float32,
+                     casting="unsafe")
+    return ux, uy
 
 
 def lf_loglik(

@@ -1,14 +1,21 @@
 """Several robots' particle filters updated together in flat arrays.
 
-A team of :class:`~estimators.particle_filter.ParticleFilter` objects that share
-a map and a model can be stepped with one numpy call per operation instead of
-one per robot:
+A team of :class:`~estimators.particle_filter.ParticleFilter` objects can be
+stepped with one compiled call per operation instead of one per robot:
 
+* :func:`team_state` gathers the filters' states into one flat array (each
+  filter's state becomes a view of it, so later team calls reuse it as long as
+  no filter replaced its state);
 * :func:`compose_odometry_batch` composes every robot's odometry sub-steps at once;
+* :func:`predict_batch` moves every robot's particles (each filter draws its
+  noise from its own generator; the result equals
+  :meth:`ParticleFilter.predict_delta` robot by robot, bit for bit);
 * :func:`update_beam_batch` weights all robots' particles by their scans with
   one lookup in the shared :class:`~estimators.beam_table.RangeTable` and
   :class:`~estimators.beam_table.BeamLUT` (the result equals calling
   :meth:`ParticleFilter.update_beam` robot by robot, bit for bit);
+* :func:`weigh_batch` weights all robots' particles by their likelihood-field
+  laser scans and their DGPS / compass fixes in one pass;
 * :func:`belief_summaries` computes every robot's mean, covariance and
   :meth:`ParticleFilter.belief_features` embedding with segment reductions.
 
@@ -24,12 +31,160 @@ from collections.abc import Sequence
 import numpy as np
 
 from estimators._kernels import summary_sums, weighted_distances
+from estimators._team_kernels import FIX_COLUMNS, predict_blocks, weigh_blocks
 from estimators.beam_table import scan_loglik
+from estimators.likelihood_field import LF_POWER, lf_endpoints
 from estimators.particle_filter import ParticleFilter
 
 __all__ = [
-    "belief_summaries", "compose_odometry_batch", "particle_spreads", "update_beam_batch",
+    "belief_summaries", "compose_odometry_batch", "particle_spreads", "predict_batch",
+    "team_state", "team_weights", "update_beam_batch", "weigh_batch",
 ]
+
+
+def team_state(filters: Sequence[ParticleFilter]) -> tuple[np.ndarray, np.ndarray]:
+    """The filters' states in one flat float32 array (block layout, see
+    :mod:`estimators._team_kernels`) and the particle segments' ends ``(R,)``.
+
+    Each filter's state is made a view of the array, so a later call finds it
+    in place (no copy) unless a filter replaced its state meanwhile.
+    """
+    counts = np.fromiter((pf._weights.size for pf in filters), np.intp, len(filters))
+    ends = np.cumsum(counts)
+    if not filters:
+        return np.zeros(0, dtype=np.float32), ends
+    flat = filters[0]._state.base
+    start = 0
+    for pf, n in zip(filters, counts.tolist(), strict=True):
+        if flat is None or pf._state.base is not flat or pf._block_start != start:
+            break
+        start += n
+    else:
+        if flat.size == 3 * start:
+            return flat, ends
+    flat = np.concatenate([pf._flat_state() for pf in filters])
+    start = 0
+    for pf, n in zip(filters, counts.tolist(), strict=True):
+        pf._state = flat[3 * start:3 * (start + n)].reshape(3, n)
+        pf._block_start = start
+        start += n
+    return flat, ends
+
+
+def team_weights(filters: Sequence[ParticleFilter]) -> np.ndarray:
+    """The filters' weights in one ``(N,)`` array (a view of the last
+    :func:`weigh_batch`'s output when no filter changed its weights since)."""
+    if not filters:
+        return np.zeros(0)
+    w = filters[0]._weights.base
+    start = 0
+    for pf in filters:
+        if w is None or pf._weights.base is not w or pf._wblock_start != start:
+            break
+        start += pf._weights.size
+    else:
+        if w.size == start:
+            return w
+    return np.concatenate([pf._weights for pf in filters])
+
+
+def predict_batch(filters: Sequence[ParticleFilter], deltas: np.ndarray) -> None:
+    """:meth:`ParticleFilter.predict_delta` of every filter with its row of ``deltas (R, 3)``,
+    in one compiled pass (each filter draws its noise from its own generator)."""
+    deltas = np.asarray(deltas, dtype=float)
+    if deltas.shape != (len(filters), 3) or not np.all(np.isfinite(deltas)):
+        raise ValueError(f"deltas must be ({len(filters)}, 3) finite, got {deltas}")
+    if not filters:
+        return
+    flat, ends = team_state(filters)
+    params = np.empty((len(filters), 6), dtype=np.float32)
+    z = np.empty(flat.size, dtype=np.float32)
+    start = 0
+    for r, (pf, d) in enumerate(zip(filters, deltas.tolist(), strict=True)):
+        params[r] = pf._motion_draw(*d, out=z[3 * start:3 * ends[r]])[0]
+        start = ends[r]
+    predict_blocks(flat, z, params, ends)
+    for pf in filters:
+        pf._after_motion()
+
+
+def weigh_batch(
+    filters: Sequence[ParticleFilter],
+    ranges: np.ndarray | None,
+    angles: np.ndarray | None,
+    max_range: float | None,
+    fixes: np.ndarray,
+) -> np.ndarray:
+    """Weight every filter by its likelihood-field laser scan and its fixes in one pass.
+
+    ``ranges (R, B)``: robot ``r``'s readings at robot-frame ``angles (B,)``; a row of
+    NaN is no scan (the filter is not weighted by a scan), other non-finite readings
+    or readings at or beyond ``max_range`` carry no endpoint. ``fixes (R, 7)``: rows
+    of :meth:`ParticleFilter.fix_row` (zeros: no fix). The filters that have a scan
+    must share one map and one model. Same result as
+    :meth:`ParticleFilter.update_likelihood_field` then :meth:`ParticleFilter.update_fix`
+    robot by robot, up to float rounding (the fixes multiply the weights before, not
+    after, they are normalized). Returns the scans' log evidences (NaN: no scan).
+    """
+    nr = len(filters)
+    fixes = np.asarray(fixes, dtype=float)
+    if fixes.shape != (nr, FIX_COLUMNS):
+        raise ValueError(f"fixes must have shape ({nr}, {FIX_COLUMNS}), got {fixes.shape}")
+    out_ev = np.full(nr, np.nan)
+    if not nr:
+        return out_ev
+    nb = np.full(nr, -1, dtype=np.intp)
+    ux = uy = np.zeros((nr, 0), dtype=np.float32)
+    lead = None
+    if ranges is not None:
+        ranges = np.asarray(ranges, dtype=float)
+        angles = np.asarray(angles, dtype=float).ravel()
+        if ranges.shape != (nr, angles.size):
+            raise ValueError(f"ranges must have shape ({nr}, {angles.size}), got {ranges.shape}")
+        has = ~np.all(np.isnan(ranges), axis=1)
+        if np.any(ranges < 0):
+            raise ValueError(f"ranges must be >= 0, got {ranges}")
+        ux = np.zeros((nr, angles.size), dtype=np.float32)
+        uy = np.zeros((nr, angles.size), dtype=np.float32)
+        for r in np.flatnonzero(has).tolist():
+            pf = filters[r]
+            if lead is None:
+                lead = pf
+                lf = pf._lf_field(max_range)
+            elif pf.grid is not lead.grid or (pf.config is not lead.config
+                                              and pf.config != lead.config):
+                raise ValueError("weigh_batch needs the filters with scans to share one map "
+                                 "and one config")
+            row = ranges[r]
+            ok = row < max_range
+            k = int(ok.sum())
+            ux[r, :k], uy[r, :k] = lf_endpoints(lf, row[ok], angles[ok])
+            nb[r] = k
+    flat, ends = team_state(filters)
+    w_prev = team_weights(filters)
+    n = int(ends[-1])
+    loglik = np.empty(n) if lead is not None else np.zeros(0)
+    w, cum, res = np.empty(n), np.empty(n), np.empty((nr, 3))
+    lf_args = (lead if lead is not None else filters[0]).lf_kernel_args(
+        max_range if lead is not None else None)
+    weigh_blocks(flat, ends, w_prev, *lf_args, ux, uy, nb, float(LF_POWER), fixes, loglik, w,
+                 cum, res)
+    start = 0
+    for r, pf in enumerate(filters):
+        end = int(ends[r])
+        k = int(nb[r])
+        mr = max_range if k >= 0 else None
+        if nb[r] < 0 and not (fixes[r, 0] or fixes[r, 4]):
+            pass  # nothing to weigh by: the weights stay
+        elif res[r, 2]:
+            out_ev[r] = pf.take_weights(w[start:end], cum[start:end], res[r, 0], k, mr)
+            pf._wblock_start = start
+        else:
+            pf._weights = w_prev[start:end].copy()
+            out_ev[r] = pf._weigh_in_logs(loglik[start:end] if k >= 0 else None, fixes[r],
+                                          k, mr)
+        start = end
+    return out_ev
 
 
 def compose_odometry_batch(v: np.ndarray, w: np.ndarray, dt: float) -> np.ndarray:
@@ -95,9 +250,9 @@ def update_beam_batch(
     ok = np.isfinite(ranges)
     table, lut = pf0.beam_tables(max_range, cone_half_width)
     counts = [pf.n_particles for pf in filters]
-    st = np.concatenate([pf._state for pf in filters], axis=1)
+    flat, ends = team_state(filters)
     rows = lut.rows(np.where(ok, ranges, np.nan))
-    loglik = scan_loglik(table, lut, st, angles, rows, np.cumsum(counts), cfg.occupied_loglik)
+    loglik = scan_loglik(table, lut, flat, angles, rows, ends, cfg.occupied_loglik)
     n_beams = ok.sum(axis=1) * cfg.likelihood_exponent
     out = np.zeros(len(filters))
     start = 0
@@ -125,15 +280,13 @@ def belief_summaries(
     if not np.isfinite(cell_size) or cell_size <= 0:
         raise ValueError(f"cell_size must be positive, got {cell_size}")
     nr = len(filters)
-    counts = np.fromiter((pf.n_particles for pf in filters), np.intp, nr)
-    ends = np.cumsum(counts)
-    w = np.concatenate([pf._weights for pf in filters])
     # positions relative to each filter's cell (0, 0) centre (small numbers)
-    st = np.concatenate([pf._state for pf in filters], axis=1)
+    flat, ends = team_state(filters)
+    counts = np.diff(ends, prepend=0)
+    w = team_weights(filters)
     org = np.array([[pf._org[0, 0], pf._org[1, 0]] for pf in filters])
-    # float32 trigonometry in numpy (vectorized): several times faster, ~1e-7
-    sums, cov, hist, hhist = summary_sums(st, np.cos(st[2]), np.sin(st[2]), w, ends,
-                                          hist_cells, 1.0 / cell_size, heading_bins)
+    sums, cov, hist, hhist = summary_sums(flat, w, ends, hist_cells, 1.0 / cell_size,
+                                          heading_bins)
     mc, ms, w2 = sums[:, 2], sums[:, 3], sums[:, 4]
     mh = np.arctan2(ms, mc)
     mean = np.column_stack([sums[:, :2] + org, mh])
@@ -172,8 +325,7 @@ def particle_spreads(filters: Sequence[ParticleFilter], true_xy: np.ndarray) -> 
         raise ValueError(f"true_xy must be ({len(filters)}, 2) finite, got {true_xy.shape}")
     if not filters:
         return np.zeros(0)
-    st = np.concatenate([pf._state for pf in filters], axis=1)
-    w = np.concatenate([pf._weights for pf in filters])
-    ends = np.cumsum([pf.n_particles for pf in filters])
+    flat, ends = team_state(filters)
+    w = team_weights(filters)
     org = np.array([pf._org[:2, 0] for pf in filters])
-    return weighted_distances(st, w, ends, true_xy - org)
+    return weighted_distances(flat, w, ends, true_xy - org)

@@ -43,6 +43,7 @@ import math
 import numpy as np
 
 from estimators._kernels import first_occurrences, kld_bins
+from estimators._team_kernels import FIX_COLUMNS, predict_blocks, weigh_blocks
 from estimators.beam_table import (
     BeamLUT,
     RangeTable,
@@ -51,8 +52,8 @@ from estimators.beam_table import (
     range_table,
     scan_loglik,
 )
-from estimators.geometry import wrap_angle, wrap_angle_in_place
-from estimators.likelihood_field import LF_POWER, LFField, build_lf_field, lf_loglik
+from estimators.geometry import PI_BELOW, wrap_angle, wrap_angle_in_place
+from estimators.likelihood_field import LF_POWER, LFField, build_lf_field, lf_endpoints
 from estimators.occupancy import OccupancyGrid
 from estimators.particle_config import MCLConfig, ParticleBelief, ParticleMotionNoise
 from estimators.particle_features import belief_feature_names, belief_features, check_feature_args
@@ -62,6 +63,12 @@ from estimators.particle_sampling import (
     low_variance_from_cumulative,
     low_variance_indices,
 )
+
+# placeholders of the compiled weighting's likelihood-field arguments when there is no scan
+_NO_FIELD = (np.zeros(1, dtype=np.float32), 1, 0, np.float32(0), np.float32(1), np.float32(0),
+             np.float32(0), np.float32(0), np.float32(0))
+_NO_BEAMS = np.zeros(0, dtype=np.float32)
+_NO_LOGLIK = np.zeros(0)
 
 __all__ = [
     "MCLConfig",
@@ -141,14 +148,11 @@ class ParticleFilter:
         self.w_fast = 0.0
         self._unwrapped_steps = 0
         self._lf_cache: dict[float, LFField] = {}
+        self._lf_args: dict[float, tuple] = {}  # compiled-kernel arguments by max range
         self._beam_tabs: dict[tuple[float, float], tuple[RangeTable, BeamLUT]] = {}
-        self._mats: dict[bytes, tuple] = {}  # reusable beam matrices by beam angles
-        self._lfb: dict[tuple[int, int], tuple] = {}  # likelihood-field work arrays
         self._angles_ok = b""  # bytes of the last beam angles found finite
         self._uniform_w = np.zeros(0)
         self._cum: tuple[np.ndarray, np.ndarray] = (self._uniform_w, self._uniform_w)
-        self._motion_work: tuple = ()  # reusable motion buffers
-        self._sd = np.zeros((3, 4), dtype=np.float32)  # motion noise scales and means
         # The state is float32 (x, y, heading) with positions relative to the centre of
         # map cell (0, 0): float32 keeps ~1e-6 m there even for maps at UTM-size
         # coordinates, and the likelihood field finds cells by rounding.
@@ -156,13 +160,15 @@ class ParticleFilter:
         self._org = np.array([[grid.origin[0] + 0.5 * res], [grid.origin[1] + 0.5 * res], [0.0]])
         self._state = np.zeros((3, 0), dtype=np.float32)
         self._weights = np.zeros(0)
+        # where the state / weights start in a team array they are views of
+        # (estimators.mcl_batch.team_state / weigh_batch)
+        self._block_start = self._wblock_start = -1
         self.init_uniform()
 
     def __getstate__(self) -> dict:
-        # The work arrays are views into each other; pickling or deep-copying them
-        # would break them apart, so they are rebuilt instead.
+        # The tables are shared per map: rebuilt (from the module caches) instead of copied.
         state = self.__dict__.copy()
-        state.update(_lfb={}, _mats={}, _motion_work=(), _beam_tabs={})
+        state.update(_beam_tabs={}, _lf_args={})
         return state
 
     # ---------------------------------------------------------------- state
@@ -317,6 +323,15 @@ class ParticleFilter:
 
     def _predict(self, dx: float, dy: float, dth: float) -> None:
         """:meth:`predict_delta` for a checked, finite motion."""
+        params, z = self._motion_draw(dx, dy, dth)
+        predict_blocks(self._flat_state(), z, params[None, :], np.array([z.size // 3]))
+        self._after_motion()
+
+    def _motion_draw(self, dx: float, dy: float, dth: float, out: np.ndarray | None = None
+                     ) -> tuple[np.ndarray, np.ndarray]:
+        """The motion's parameters (:meth:`_motion_params`) and ``3 N`` float32 standard
+        normals from this filter's generator (into ``out`` if given): the inputs of one
+        motion update."""
         trans = math.hypot(dx, dy)
         if trans < 1e-9:
             rot1 = 0.0
@@ -325,44 +340,34 @@ class ParticleFilter:
         else:  # reversing: negative translation, not a half-turn
             rot1 = math.atan2(-dy, -dx)
             trans = -trans
-        rot2 = float(wrap_angle(dth - rot1))
+        rot2 = min((dth - rot1 + math.pi) % (2.0 * math.pi) - math.pi, PI_BELOW)
+        params = self._motion_params(trans, rot1, rot2)
+        if out is None:
+            out = np.empty(3 * self._weights.size, dtype=np.float32)
+        return params, self.rng.standard_normal(out=out, dtype=np.float32)
+
+    def _motion_params(self, trans: float, rot1: float, rot2: float) -> np.ndarray:
+        """``(6,)`` float32 ``rot1, trans, rot2`` and their noise standard deviations
+        (:class:`ParticleMotionNoise`); adds the translation to :attr:`odometer`."""
         at = abs(trans)
         self.odometer += at
         mn = self.config.motion
         sd_r1 = mn.rot_rot * abs(rot1) + mn.rot_trans * at + mn.min_heading
         sd_t = mn.trans_trans * at + mn.trans_rot * (abs(rot1) + abs(rot2)) + mn.min_xy
         sd_r2 = mn.rot_rot * abs(rot2) + mn.rot_trans * at + mn.min_heading
-        n = self._weights.size
-        bufs = self._motion_work
-        if not bufs or bufs[1].shape[1] != n:
-            bufs = self._motion_buffers(n)
-        z1, noise, cs = bufs
-        # float32 noise and trigonometry: ~1e-7 relative error, several times faster
-        self.rng.standard_normal(out=z1[:3], dtype=np.float32)
-        # noise = [[sd_r1, 0, 0, rot1], [0, sd_t, 0, trans], [0, 0, sd_r2, rot2]] @ [z; 1]
-        a = self._sd
-        a[0, 0], a[1, 1], a[2, 2] = sd_r1, sd_t, sd_r2
-        a[0, 3], a[1, 3], a[2, 3] = rot1, trans, rot2
-        np.matmul(a, z1, out=noise)
-        st = self._state
-        h = st[2]
-        h += noise[0]  # heading after the first turn
-        np.cos(h, out=cs[0])
-        np.sin(h, out=cs[1])
-        cs *= noise[1]  # translation along that heading
-        st[:2] += cs
-        h += noise[2]
+        return np.array([rot1, trans, rot2, sd_r1, sd_t, sd_r2], dtype=np.float32)
+
+    def _flat_state(self) -> np.ndarray:
+        """The state as a flat view (``(3, N)`` C order; made contiguous if it is not)."""
+        if not self._state.flags.c_contiguous:
+            self._state = np.ascontiguousarray(self._state)
+        return self._state.reshape(-1)
+
+    def _after_motion(self) -> None:
         # Headings are wrapped lazily (every few steps): consumers wrap as needed.
         self._unwrapped_steps += 1
         if self._unwrapped_steps >= 8:
             self._wrap_headings()
-
-    def _motion_buffers(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """New ``(z1, noise, cs)`` float32 work arrays: ``(4, n)`` normals over a row of
-        ones, ``(3, n)`` motion noise, ``(2, n)`` translation."""
-        self._motion_work = (np.ones((4, n), dtype=np.float32), np.empty((3, n), dtype=np.float32),
-                    np.empty((2, n), dtype=np.float32))
-        return self._motion_work
 
     def _wrap_headings(self) -> None:
         wrap_angle_in_place(self._state[2])
@@ -444,16 +449,8 @@ class ParticleFilter:
         if hi >= max_range:
             keep = ranges < max_range
             ranges, angles = ranges[keep], angles[keep]
-        if max_range > lf.reach:
-            ranges = np.minimum(ranges, lf.reach)
-        loglik = lf_loglik(lf, self._state, ranges, angles, self._mats, self._lfb)
-        nb = ranges.size
-        # The scan's log-likelihood is LF_POWER * loglik + nb * lmax, with loglik
-        # between -bound and 0.
-        cfg = self.config
-        bound = (nb * lf.span - cfg.occupied_loglik) / LF_POWER
-        return self._apply_loglik(loglik, nb * cfg.likelihood_exponent, nb * lf.lmax, bound,
-                                  LF_POWER)
+        return self._weigh(max_range, lf_endpoints(lf, ranges, angles), ranges.size,
+                           np.zeros(FIX_COLUMNS))
 
     def expected_ranges(
         self, angles: np.ndarray, max_range: float, cone_half_width: float = 0.0
@@ -519,7 +516,7 @@ class ParticleFilter:
                 raise ValueError(f"cone_half_width must be finite and >= 0, "
                                  f"got {cone_half_width}")
             table, lut = self.beam_tables(max_range, cone_half_width)
-            loglik = scan_loglik(table, lut, self._state, angles, lut.rows(ranges)[None, :],
+            loglik = scan_loglik(table, lut, self._flat_state(), angles, lut.rows(ranges)[None, :],
                                  np.array([self.n_particles]), cfg.occupied_loglik)
             return self._apply_loglik(loglik, ranges.size * cfg.likelihood_exponent)
         zexp = self.expected_ranges(angles, max_range, cone_half_width)
@@ -544,7 +541,6 @@ class ParticleFilter:
         ``exp(log_evidence / n_eff_beams)``, the per-beam geometric-mean
         likelihood, which does not depend on how many beams a scan has.
         """
-        cfg = self.config
         mx = 0.0
         p = power
         if bound < 80.0:  # exp(loglik) >= 2e-35 is a normal float32 (float64 after powering)
@@ -583,14 +579,19 @@ class ParticleFilter:
             total = e.sum()
             log_evidence = float(offset + m2 + np.log(total))
             self._weights = e / total
+        self._track_evidence(log_evidence, n_eff_beams)
+        return log_evidence
+
+    def _track_evidence(self, log_evidence: float, n_eff_beams: float) -> None:
+        """Update the augmented-MCL slow / fast averages of the per-beam evidence."""
         if n_eff_beams > 0:
+            cfg = self.config
             w_avg = math.exp(log_evidence / n_eff_beams)
             if self.w_slow == 0.0:
                 self.w_slow = self.w_fast = w_avg
             else:
                 self.w_slow += cfg.alpha_slow * (w_avg - self.w_slow)
                 self.w_fast += cfg.alpha_fast * (w_avg - self.w_fast)
-        return log_evidence
 
     def apply_weight_factors(self, factors: np.ndarray) -> None:
         """Multiply the weights by non-negative ``factors`` ``(N,)`` and renormalize.
@@ -622,46 +623,106 @@ class ParticleFilter:
         weight by ``exp(-|p - xy|^2 / (2 xy_var)) + 1e-12``; a heading (rad) with
         standard deviation ``heading_std`` by ``exp(-e^2 / (2 heading_std^2)) + 1e-12``
         with ``e`` the wrapped difference (the floors keep a wrong fix from zeroing
-        every weight). Computed in float32 on the internal state.
+        every weight).
         """
-        st = self._state
-        factor = None
+        fix = self.fix_row(xy, xy_var, heading, heading_std)
+        if fix[0] or fix[4]:
+            self._weigh(None, None, -1, fix)
+
+    def fix_row(
+        self,
+        xy: np.ndarray | None = None,
+        xy_var: float = 1.0,
+        heading: float | None = None,
+        heading_std: float = 1.0,
+    ) -> np.ndarray:
+        """The checked parameters of :meth:`update_fix` as the compiled update reads them:
+        ``[gps?, x, y, -0.5 / xy_var, compass?, heading, -0.5 / heading_std**2]``
+        (positions in state coordinates)."""
+        fix = np.zeros(FIX_COLUMNS)
         if xy is not None:
             t = np.asarray(xy, dtype=float)
             if t.shape != (2,) or not np.all(np.isfinite(t)):
                 raise ValueError(f"xy must be 2 finite numbers, got {xy}")
             if not (math.isfinite(xy_var) and xy_var > 0):
                 raise ValueError(f"xy_var must be finite and > 0, got {xy_var}")
-            t = t - self._org[:2, 0]
-            dx = st[0] - np.float32(t[0])
-            dy = st[1] - np.float32(t[1])
-            dx *= dx
-            dy *= dy
-            dx += dy
-            dx *= np.float32(-0.5 / xy_var)
-            factor = np.exp(dx)
-            factor += np.float32(1e-12)
+            org = self._org
+            fix[:4] = (1.0, t[0] - org[0, 0], t[1] - org[1, 0], -0.5 / xy_var)
         if heading is not None:
             if not math.isfinite(heading):
                 raise ValueError(f"heading must be finite, got {heading}")
             if not (math.isfinite(heading_std) and heading_std > 0):
                 raise ValueError(f"heading_std must be finite and > 0, got {heading_std}")
-            e = st[2] - np.float32(heading)
-            turns = np.rint(e * np.float32(0.5 / np.pi))
-            turns *= np.float32(2.0 * np.pi)
-            e -= turns
-            e *= e
-            e *= np.float32(-0.5 / heading_std**2)
-            g = np.exp(e)
-            g += np.float32(1e-12)
-            factor = g if factor is None else factor * g
-        if factor is None:
-            return
-        w = self._weights * factor
-        total = w.sum()
-        if total > 0 and np.isfinite(total):
-            w *= 1.0 / total
-            self._weights = w
+            fix[4:] = (1.0, heading, -0.5 / heading_std**2)
+        return fix
+
+    def _weigh(self, max_range: float | None, scan: tuple[np.ndarray, np.ndarray] | None,
+               nb: int, fix: np.ndarray) -> float:
+        """One compiled weighting (:func:`estimators._team_kernels.weigh_blocks`) of this
+        filter: a likelihood-field scan of ``nb`` endpoints ``scan`` (``nb = -1``: none)
+        and the fixes ``fix`` (:meth:`fix_row`). Returns the scan's log evidence."""
+        n = self._weights.size
+        lf_args = self.lf_kernel_args(max_range)
+        ux, uy = scan if scan is not None else (_NO_BEAMS, _NO_BEAMS)
+        loglik = np.empty(n) if nb >= 0 else _NO_LOGLIK
+        w, cum, out = np.empty(n), np.empty(n), np.empty((1, 3))
+        weigh_blocks(self._flat_state(), np.array([n]), self._weights, *lf_args,
+                     ux.reshape(1, -1), uy.reshape(1, -1), np.array([nb]), float(LF_POWER),
+                     fix.reshape(1, -1), loglik, w, cum, out)
+        if not out[0, 2]:
+            return self._weigh_in_logs(loglik if nb >= 0 else None, fix, nb, max_range)
+        return self.take_weights(w, cum, out[0, 0], nb, max_range)
+
+    def take_weights(self, w: np.ndarray, cum: np.ndarray, log_evidence: float, nb: int,
+                     max_range: float | None) -> float:
+        """Adopt weights ``w`` (normalized, ``cum`` their cumulative sums) computed by the
+        compiled weighting; ``log_evidence`` (less the field's constant) of a scan of ``nb``
+        endpoints updates the slow / fast averages. Returns the full log evidence."""
+        self._weights = w
+        self._cum = (w, cum)
+        if nb < 0:
+            return math.nan
+        lf = self._lf_field(max_range)
+        log_evidence += nb * lf.lmax
+        self._track_evidence(log_evidence, nb * self.config.likelihood_exponent)
+        return log_evidence
+
+    def _weigh_in_logs(self, loglik: np.ndarray | None, fix: np.ndarray, nb: int,
+                       max_range: float | None) -> float:
+        """:meth:`_weigh` in log space, for weights whose products underflow."""
+        w = self._world()
+        with np.errstate(divide="ignore"):
+            lw = np.log(self._weights)
+        log_evidence = math.nan
+        if loglik is not None:
+            lw = lw + loglik
+            m = lw.max()
+            log_evidence = float(m + np.log(np.exp(lw - m).sum()))
+        if fix[0]:
+            d2 = (w[0] - self._org[0, 0] - fix[1]) ** 2 + (w[1] - self._org[1, 0] - fix[2]) ** 2
+            lw = lw + np.log(np.exp(fix[3] * d2) + 1e-12)
+        if fix[4]:
+            e = wrap_angle(w[2] - fix[5])
+            lw = lw + np.log(np.exp(fix[6] * e * e) + 1e-12)
+        m = lw.max()
+        if not math.isfinite(m):
+            raise ValueError(f"weights' log-likelihood is not finite (max {m})")
+        e = np.exp(lw - m)
+        e /= e.sum()
+        return self.take_weights(e, np.add.accumulate(e), log_evidence, nb, max_range)
+
+    def lf_kernel_args(self, max_range: float | None) -> tuple:
+        """The likelihood field's arguments of the compiled weighting (:meth:`_weigh`);
+        placeholders for ``max_range=None`` (no scan)."""
+        if max_range is None:
+            return _NO_FIELD
+        lf = self._lf_field(max_range)
+        args = self._lf_args.get(float(max_range))
+        if args is None:
+            args = self._lf_args[float(max_range)] = (
+                lf.table, lf.nxp, lf.offset, np.float32(lf.pad), np.float32(lf.inv_res),
+                lf.lo[0, 0], lf.lo[1, 0], lf.hi[0, 0], lf.hi[1, 0])
+        return args
 
     # ----------------------------------------------------------- resampling
     def resample(self) -> None:

@@ -195,7 +195,8 @@ def test_compiled_scan_likelihood_repeats_the_table_lookups():
     z[1, 2] = np.nan
     rows = lut.rows(z)
     ends = np.array([1000, n])
-    got = scan_loglik(table, lut, st, angles, rows, ends, -10.0)
+    flat = np.concatenate([st[:, :1000].ravel(), st[:, 1000:].ravel()])  # block layout
+    got = scan_loglik(table, lut, flat, angles, rows, ends, -10.0)
     per_particle_rows = np.repeat(rows, [1000, n - 1000], axis=0)
     ref = lut.loglik(table.expected(st[0], st[1], st[2], angles), per_particle_rows)
     ref += np.where(table.free(st[0], st[1]), 0.0, -10.0)
