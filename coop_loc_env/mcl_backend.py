@@ -80,6 +80,8 @@ from estimators.mcl_batch import (
     compose_odometry_batch,
     particle_spreads,
     predict_batch,
+    team_state,
+    team_weights,
     update_beam_batch,
     weigh_batch,
 )
@@ -91,6 +93,7 @@ from estimators.particle_filter import (
     belief_feature_names,
     low_variance_indices,
 )
+from estimators.particle_sampling import resample_filters
 
 __all__ = ["MCLBackend", "beam_angles", "known_map", "map_resolution"]
 
@@ -327,20 +330,20 @@ class MCLBackend(EstimatorBackend):
         self._t += 1
         self._summary = None
         live = [i for i, g in enumerate(self.robots) if active[g]]
-        for i in live:
-            pf = self.filters[i]
-            # Resample only when the weights degenerate (not on every step, as
-            # ParticleFilter.resample_if_needed does while injection is on): every
-            # resampling lets symmetric modes drift, so fewer keep them alive longer.
-            # Random particles are injected at these resamplings.
-            if self.resample_every_step or (
-                pf.ess < pf.config.resample_ess_fraction * pf.n_particles
-            ):
-                pf.resample()
+        team = [self.filters[i] for i in live]
+        # Resample only when the weights degenerate (not on every step, as
+        # ParticleFilter.resample_if_needed does while injection is on): every
+        # resampling lets symmetric modes drift, so fewer keep them alive longer.
+        # Random particles are injected at these resamplings.
+        which = [self.resample_every_step
+                 or pf.ess < pf.config.resample_ess_fraction * pf.n_particles for pf in team]
+        if any(which):
+            flat, ends = team_state(team)
+            resample_filters(team, flat, ends, team_weights(team), which)
         if live:
             odo = readings.odometry[:, self.robots[live]]  # (substeps, robots, 2)
             deltas = compose_odometry_batch(odo[..., 0].T, odo[..., 1].T, dt_sub)
-            predict_batch([self.filters[i] for i in live], deltas)
+            predict_batch(team, deltas)
         stats["range_updates"] = self._measurement_updates(live, readings)
         det = readings.detections
         if cfg.cooperative_updates and len(det):

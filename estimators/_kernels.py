@@ -12,7 +12,7 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["summary_sums"]
+__all__ = ["summary_features", "summary_sums"]
 
 
 @njit(cache=True)
@@ -100,6 +100,73 @@ def summary_sums(
         cov[r, 2, 2] = c22
         start = end
     return sums, cov, hist, hhist
+
+
+@njit(cache=True)
+def summary_features(
+    flat: np.ndarray, w: np.ndarray, ends: np.ndarray, org: np.ndarray, bounds: np.ndarray,
+    count_frac: np.ndarray, hist_cells: int, inv_cell: float, heading_bins: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover (compiled)
+    """Means ``(R, 3)``, covariances ``(R, 3, 3)`` and belief features ``(R, F)`` float32
+    (:func:`estimators.particle_features.belief_features`' layout) of particle sets in the
+    block layout, from :func:`summary_sums`; ``org (R, 2)``: each set's state origin,
+    ``bounds (R, 4)``: its map's extent, ``count_frac (R,)``: its particle-count fraction."""
+    sums, cov, hist, hhist = summary_sums(flat, w, ends, hist_cells, inv_cell, heading_bins)
+    nr = ends.size
+    nh = hist_cells * hist_cells
+    nf = 15 + nh + heading_bins
+    mean = np.empty((nr, 3))
+    feats = np.empty((nr, nf), dtype=np.float32)
+    start = 0
+    for r in range(nr):
+        count = ends[r] - start
+        start = ends[r]
+        mc = sums[r, 2]
+        ms = sums[r, 3]
+        mh = math.atan2(ms, mc)
+        mx = sums[r, 0] + org[r, 0]
+        my = sums[r, 1] + org[r, 1]
+        mean[r, 0] = mx
+        mean[r, 1] = my
+        mean[r, 2] = mh
+        res = math.hypot(mc, ms)
+        sx = math.sqrt(max(cov[r, 0, 0], 0.0))
+        sy = math.sqrt(max(cov[r, 1, 1], 0.0))
+        sh = math.sqrt(max(cov[r, 2, 2], 0.0))
+        circ = math.sqrt(-2.0 * math.log(min(max(res, 1e-300), 1.0)))
+        f = feats[r]
+        f[0] = (mx - bounds[r, 0]) / (bounds[r, 2] - bounds[r, 0]) * 2 - 1
+        f[1] = (my - bounds[r, 1]) / (bounds[r, 3] - bounds[r, 1]) * 2 - 1
+        f[2] = math.cos(mh)
+        f[3] = math.sin(mh)
+        f[4] = min(max(math.log10(max(sx, 1e-12)), -3.0), 2.0)
+        f[5] = min(max(math.log10(max(sy, 1e-12)), -3.0), 2.0)
+        f[6] = min(max(math.log10(max(circ, 1e-12)), -3.0), 2.0)
+        k = 7
+        for a, b, sa, sb in ((0, 1, sx, sy), (0, 2, sx, sh), (1, 2, sy, sh)):
+            d = sa * sb
+            c = cov[r, a, b] / d if d > 0 else 0.0
+            f[k] = min(max(c, -1.0), 1.0)
+            k += 1
+        f[10] = res
+        f[11] = 1.0 / sums[r, 4] / count
+        total = 0.0
+        for j in range(nh):
+            total += hist[r, j]
+        outside = max(0.0, 1.0 - total)
+        ent = 0.0
+        for j in range(nh + 1):
+            m = hist[r, j] if j < nh else outside
+            if m > 0:
+                ent += m * math.log(m)
+        f[12] = -ent / math.log(nh + 1)
+        f[13] = count_frac[r]
+        for j in range(nh):
+            f[14 + j] = hist[r, j]
+        f[14 + nh] = outside
+        for j in range(heading_bins):
+            f[15 + nh + j] = hhist[r, j]
+    return mean, cov, feats
 
 
 @njit(cache=True)

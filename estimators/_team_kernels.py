@@ -16,10 +16,42 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["predict_blocks", "weigh_blocks"]
+__all__ = ["build_blocks", "compose_rows", "predict_blocks", "select_blocks", "weigh_blocks"]
 
 # fix columns of weigh_blocks: [gps?, gx, gy, -0.5 / var, compass?, heading, -0.5 / std**2]
 FIX_COLUMNS = 7
+
+
+@njit(cache=True)
+def compose_rows(v: np.ndarray, w: np.ndarray, dt: float) -> np.ndarray:  # pragma: no cover
+    """Relative motions ``(R, 3)`` of unicycle odometry sub-steps ``v, w (R, K)`` held for
+    ``dt`` each (exact arcs, in the robot frame at the start); ``nan`` rows where an input
+    is not finite (:func:`estimators.mcl_batch.compose_odometry_batch`)."""
+    nr, k = v.shape
+    out = np.zeros((nr, 3))
+    for r in range(nr):
+        th = 0.0
+        x = 0.0
+        y = 0.0
+        for j in range(k):
+            dth = w[r, j] * dt
+            if abs(dth) > 1e-9:
+                lx = v[r, j] / w[r, j] * math.sin(dth)
+                ly = v[r, j] / w[r, j] * (1.0 - math.cos(dth))
+            else:
+                lx = v[r, j] * dt
+                ly = 0.0
+            c = math.cos(th)
+            s = math.sin(th)
+            x += c * lx - s * ly
+            y += s * lx + c * ly
+            th += dth
+        out[r, 0] = x
+        out[r, 1] = y
+        out[r, 2] = th
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(th)):
+            out[r, 0] = np.nan
+    return out
 
 
 @njit(cache=True)
@@ -59,7 +91,7 @@ def weigh_blocks(
     table: np.ndarray, nxp: int, offset: int, pad: np.float32, inv_res: np.float32,
     lo_x: np.float32, lo_y: np.float32, hi_x: np.float32, hi_y: np.float32,
     ux: np.ndarray, uy: np.ndarray, nb: np.ndarray, power: float, fix: np.ndarray,
-    loglik: np.ndarray, w: np.ndarray, cum: np.ndarray, out: np.ndarray,
+    loglik: np.ndarray, w: np.ndarray, out: np.ndarray,
 ) -> None:  # pragma: no cover (compiled)
     """Weight every robot's particles by its laser scan (likelihood field) and fixes.
 
@@ -72,13 +104,14 @@ def weigh_blocks(
     ``exp(-0.5 e^2 / std^2) + 1e-12`` (``e`` the wrapped heading error) when
     their flags are set. A robot with neither keeps ``w_prev``.
 
-    Writes the normalized weights ``w``, their cumulative sums per robot ``cum``
-    and ``out[r] = (log sum w_prev exp(loglik - m) + m, ess, ok)``, the scan's
-    log evidence less the field's constant (``nan`` without a scan), the
-    effective sample size and 1, or 0 where the weights underflowed (``w``
-    then holds garbage for that robot and the caller redoes it).
+    Writes the normalized weights ``w`` and
+    ``out[r] = (log sum w_prev exp(loglik - m) + m, ess, ok)``: the scan's log
+    evidence less the field's constant (``nan`` without a scan), the effective
+    sample size, and 1, or 0 where the weights underflowed (``w`` then holds
+    garbage for that robot and the caller redoes it).
     """
     two_pi = 2.0 * math.pi
+    row = np.int32(nxp)  # cell (ix, iy) of the field is entry iy * nxp + ix
     start = 0
     for r in range(ends.size):
         end = ends[r]
@@ -89,19 +122,35 @@ def weigh_blocks(
         compass = fix[r, 4] != 0.0
         m = 0.0
         if scan:
-            m = -np.inf
+            # beams outer, particles inner: the index arithmetic vectorizes and the
+            # gathers run in a tight loop (each particle's float32 sum keeps its order)
+            xs = np.empty(n, dtype=np.float32)
+            ys = np.empty(n, dtype=np.float32)
+            cs = np.empty(n, dtype=np.float32)
+            ss = np.empty(n, dtype=np.float32)
+            acc = np.empty(n, dtype=np.float32)
+            ind = np.empty(n, dtype=np.int32)
             for j in range(n):
                 x = min(max(flat[base + j], lo_x), hi_x) * inv_res + pad
                 y = min(max(flat[base + n + j], lo_y), hi_y) * inv_res + pad
                 h = flat[base + 2 * n + j]
-                c = math.cos(h)
-                s = math.sin(h)
-                acc = table[offset + int(np.rint(y)) * nxp + int(np.rint(x))]
-                for b in range(nb[r]):
-                    ex = x + c * ux[r, b] - s * uy[r, b]
-                    ey = y + s * ux[r, b] + c * uy[r, b]
-                    acc += table[int(np.rint(ey)) * nxp + int(np.rint(ex))]
-                v = power * np.float64(acc)
+                xs[j] = x
+                ys[j] = y
+                cs[j] = math.cos(h)
+                ss[j] = math.sin(h)
+                acc[j] = table[offset + int(np.rint(y)) * nxp + int(np.rint(x))]
+            for b in range(nb[r]):
+                u = ux[r, b]
+                v = uy[r, b]
+                for j in range(n):
+                    ex = xs[j] + cs[j] * u - ss[j] * v
+                    ey = ys[j] + ss[j] * u + cs[j] * v
+                    ind[j] = np.int32(np.rint(ey)) * row + np.int32(np.rint(ex))
+                for j in range(n):
+                    acc[j] += table[np.uint32(ind[j])]
+            m = -np.inf
+            for j in range(n):
+                v = power * np.float64(acc[j])
                 loglik[start + j] = v
                 m = max(m, v)
         gx = fix[r, 1]
@@ -115,16 +164,21 @@ def weigh_blocks(
             i = start + j
             a = w_prev[i]
             if scan:
-                a *= math.exp(loglik[i] - m)
+                d = loglik[i] - m
+                # below exp's normal range the weight is 0 (a subnormal exp is slow)
+                a = a * math.exp(d) if d > -708.0 else 0.0
             sum1 += a
+            # exp(q) + 1e-12 is exactly 1e-12 for q <= -70: skip the exp there
             if gps:
                 dx = flat[base + j] - gx
                 dy = flat[base + n + j] - gy
-                a *= math.exp(gc * (dx * dx + dy * dy)) + 1e-12
+                q = gc * (dx * dx + dy * dy)
+                a *= math.exp(q) + 1e-12 if q > -70.0 else 1e-12
             if compass:
                 e = flat[base + 2 * n + j] - ch
                 e -= two_pi * np.rint(e / two_pi)
-                a *= math.exp(cc * e * e) + 1e-12
+                q = cc * e * e
+                a *= math.exp(q) + 1e-12 if q > -70.0 else 1e-12
             w[i] = a
             sum2 += a
         ok = sum2 > 0.0 and sum2 < np.inf and sum1 > 0.0
@@ -132,13 +186,167 @@ def weigh_blocks(
         out[r, 2] = 1.0 if ok else 0.0
         if ok:
             inv = 1.0 / sum2
-            acc2 = 0.0
             sq = 0.0
             for i in range(start, end):
                 wi = w[i] * inv
                 w[i] = wi
-                acc2 += wi
-                cum[i] = acc2
                 sq += wi * wi
             out[r, 1] = 1.0 / sq
         start = end
+
+
+@njit(cache=True)
+def _first_flags(key: np.ndarray, size: int) -> np.ndarray:  # pragma: no cover (compiled)
+    """Whether each entry of ``key`` (values ``0 .. size - 1``) is its value's first."""
+    n = key.size
+    out = np.zeros(n, dtype=np.bool_)
+    if size <= 16 * n + 2**20:  # a marker array of this size is cheap
+        seen = np.zeros(size, dtype=np.bool_)
+        for i in range(n):
+            out[i] = not seen[key[i]]
+            seen[key[i]] = True
+    else:  # sparse keys: sort instead (stable, so a run's first is its earliest)
+        order = np.argsort(key, kind="mergesort")
+        for j in range(n):
+            if j == 0 or key[order[j]] != key[order[j - 1]]:
+                out[order[j]] = True
+    return out
+
+
+@njit(cache=True)
+def select_blocks(
+    flat: np.ndarray, w: np.ndarray, ends: np.ndarray, mode: np.ndarray, u: np.ndarray,
+    m: np.ndarray, perm: np.ndarray, kld: np.ndarray, need: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover (compiled)
+    """Low-variance resampling of every robot with ``mode[r]`` 1 (fixed count) or 2
+    (KLD-sampling); ``mode`` 0 robots are skipped.
+
+    Robot ``r`` draws ``m[r]`` indices into its own particles with offset ``u[r]``
+    (as :func:`estimators.particle_sampling.low_variance_from_cumulative` does from
+    its weights' cumulative sums); with KLD-sampling they are reordered by
+    ``perm[o_r : o_r + m[r]]`` (``o_r`` the sum of the earlier ``m``) and the count
+    kept is the shortest prefix that reaches the bound ``need[int(kld[r, 6]) + k]``
+    for the ``k`` histogram bins it occupies, clipped to ``[kld[r, 7], m[r]]``
+    (``kld[r]``: ``org_x, org_y, 1 / bin_x, 1 / bin_y, 1 / bin_heading, n_heading_bins,
+    need offset, n_min``; headings must be wrapped). Returns the indices (at offsets
+    ``o_r``) and the counts ``(R,)`` (``m[r]`` for fixed counts).
+    """
+    nr = ends.size
+    total_m = 0
+    for r in range(nr):
+        total_m += m[r]
+    idx = np.empty(total_m, dtype=np.intp)
+    counts = m.copy()
+    start = 0
+    o = 0
+    for r in range(nr):
+        end = ends[r]
+        n = end - start
+        mr = m[r]
+        if mode[r] == 0:
+            start = end
+            continue
+        total = 0.0
+        for i in range(start, end):
+            total += w[i]
+        scale = mr / total
+        # pointer j goes to the first particle whose ceil(cum * m / total - u) exceeds j
+        i = 0
+        acc = w[start]
+        below = math.ceil(acc * scale - u[r]) if n > 1 else mr
+        for j in range(mr):
+            while below <= j:
+                i += 1
+                acc += w[start + i]
+                below = math.ceil(acc * scale - u[r]) if i < n - 1 else mr
+            idx[o + j] = i
+        if mode[r] == 2 and mr > 0:
+            sel = idx[o:o + mr].copy()
+            for j in range(mr):
+                idx[o + j] = sel[perm[o + j]]
+            base = 3 * start
+            org_x, org_y = kld[r, 0], kld[r, 1]
+            inv_bx, inv_by, inv_bt = kld[r, 2], kld[r, 3], kld[r, 4]
+            n_t = int(kld[r, 5])
+            kx = np.empty(mr, dtype=np.int64)
+            ky = np.empty(mr, dtype=np.int64)
+            for j in range(mr):
+                p = idx[o + j]
+                kx[j] = np.int64(math.floor((np.float64(flat[base + p]) + org_x) * inv_bx))
+                ky[j] = np.int64(math.floor((np.float64(flat[base + n + p]) + org_y) * inv_by))
+            kx0 = kx.min()
+            ky0 = ky.min()
+            ny_b = ky.max() - ky0 + 1
+            key = np.empty(mr, dtype=np.int64)
+            for j in range(mr):
+                h = flat[base + 2 * n + idx[o + j]]
+                t = np.int64(math.floor((h + np.float32(math.pi)) * np.float32(inv_bt)))
+                t = min(max(t, 0), n_t - 1)
+                key[j] = ((kx[j] - kx0) * ny_b + (ky[j] - ky0)) * n_t + t
+            first = _first_flags(key, (kx.max() - kx0 + 1) * ny_b * n_t)
+            off = int(kld[r, 6])
+            k = 0
+            keep = mr
+            for j in range(mr):
+                k += first[j]
+                if j + 1 >= need[off + k]:
+                    keep = j + 1
+                    break
+            counts[r] = min(max(keep, int(kld[r, 7])), mr)
+        o += mr
+        start = end
+    return idx, counts
+
+
+@njit(cache=True)
+def build_blocks(
+    flat: np.ndarray, ends: np.ndarray, mode: np.ndarray, idx: np.ndarray, m: np.ndarray,
+    keep: np.ndarray, inj: np.ndarray, n_inj: np.ndarray, org: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover (compiled)
+    """The team's state after resampling (block layout) and its segment ends.
+
+    Robot ``r`` with ``mode[r]`` 0 keeps its particles; otherwise its new set is
+    the first ``keep[r]`` particles of :func:`select_blocks`' indices (at the
+    offsets of ``m``) followed by ``n_inj[r]`` injected world poses, rows of
+    ``inj (K, 3)`` float64 in robot order, moved to state coordinates
+    (``org (R, 2)``) with the headings wrapped to ``[-pi, pi)``.
+    """
+    nr = ends.size
+    new_ends = np.empty(nr, dtype=np.intp)
+    total = 0
+    start = 0
+    for r in range(nr):
+        total += (ends[r] - start) if mode[r] == 0 else keep[r] + n_inj[r]
+        new_ends[r] = total
+        start = ends[r]
+    out = np.empty(3 * total, dtype=np.float32)
+    two_pi = 2.0 * math.pi
+    below_pi = np.nextafter(math.pi, 0.0)
+    start = 0
+    new_start = 0
+    o = 0
+    q = 0
+    for r in range(nr):
+        n = ends[r] - start
+        base = 3 * start
+        nn = new_ends[r] - new_start
+        nbase = 3 * new_start
+        if mode[r] == 0:
+            for j in range(3 * n):
+                out[nbase + j] = flat[base + j]
+        else:
+            for j in range(keep[r]):
+                p = idx[o + j]
+                out[nbase + j] = flat[base + p]
+                out[nbase + nn + j] = flat[base + n + p]
+                out[nbase + 2 * nn + j] = flat[base + 2 * n + p]
+            for j in range(keep[r], nn):
+                out[nbase + j] = np.float32(inj[q, 0] - org[r, 0])
+                out[nbase + nn + j] = np.float32(inj[q, 1] - org[r, 1])
+                h = (inj[q, 2] + math.pi) % two_pi - math.pi
+                out[nbase + 2 * nn + j] = np.float32(min(h, below_pi))
+                q += 1
+        o += m[r]
+        start = ends[r]
+        new_start = new_ends[r]
+    return out, new_ends

@@ -30,8 +30,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from estimators._kernels import summary_sums, weighted_distances
-from estimators._team_kernels import FIX_COLUMNS, predict_blocks, weigh_blocks
+from estimators._kernels import summary_features, weighted_distances
+from estimators._team_kernels import FIX_COLUMNS, compose_rows, predict_blocks, weigh_blocks
 from estimators.beam_table import scan_loglik
 from estimators.likelihood_field import LF_POWER, lf_endpoints
 from estimators.particle_filter import ParticleFilter
@@ -164,11 +164,11 @@ def weigh_batch(
     w_prev = team_weights(filters)
     n = int(ends[-1])
     loglik = np.empty(n) if lead is not None else np.zeros(0)
-    w, cum, res = np.empty(n), np.empty(n), np.empty((nr, 3))
+    w, res = np.empty(n), np.empty((nr, 3))
     lf_args = (lead if lead is not None else filters[0]).lf_kernel_args(
         max_range if lead is not None else None)
     weigh_blocks(flat, ends, w_prev, *lf_args, ux, uy, nb, float(LF_POWER), fixes, loglik, w,
-                 cum, res)
+                 res)
     start = 0
     for r, pf in enumerate(filters):
         end = int(ends[r])
@@ -177,7 +177,7 @@ def weigh_batch(
         if nb[r] < 0 and not (fixes[r, 0] or fixes[r, 4]):
             pass  # nothing to weigh by: the weights stay
         elif res[r, 2]:
-            out_ev[r] = pf.take_weights(w[start:end], cum[start:end], res[r, 0], k, mr)
+            out_ev[r] = pf.take_weights(w[start:end], res[r, 0], k, mr)
             pf._wblock_start = start
         else:
             pf._weights = w_prev[start:end].copy()
@@ -196,18 +196,12 @@ def compose_odometry_batch(v: np.ndarray, w: np.ndarray, dt: float) -> np.ndarra
     w = np.asarray(w, dtype=float)
     if v.shape != w.shape or v.ndim != 2:
         raise ValueError(f"v and w must be (R, K) of equal shape, got {v.shape} and {w.shape}")
-    if not (np.all(np.isfinite(v)) and np.all(np.isfinite(w)) and math.isfinite(dt)) or dt < 0:
+    if not math.isfinite(dt) or dt < 0:
         raise ValueError(f"odometry must be finite with dt >= 0, got dt={dt}")
-    dth = w * dt
-    start = np.zeros_like(dth)
-    np.cumsum(dth[:, :-1], axis=1, out=start[:, 1:])
-    turning = np.abs(dth) > 1e-9
-    safe_w = np.where(turning, w, 1.0)
-    lx = np.where(turning, v / safe_w * np.sin(dth), v * dt)
-    ly = np.where(turning, v / safe_w * (1.0 - np.cos(dth)), 0.0)
-    c, s = np.cos(start), np.sin(start)
-    return np.stack([np.sum(c * lx - s * ly, axis=1), np.sum(s * lx + c * ly, axis=1),
-                     np.sum(dth, axis=1)], axis=1)
+    out = compose_rows(v, w, float(dt))
+    if np.isnan(out[:, 0]).any():
+        raise ValueError(f"odometry must be finite, got v={v}, w={w}")
+    return out
 
 
 def update_beam_batch(
@@ -279,42 +273,15 @@ def belief_summaries(
                          f"{heading_bins}")
     if not np.isfinite(cell_size) or cell_size <= 0:
         raise ValueError(f"cell_size must be positive, got {cell_size}")
-    nr = len(filters)
     # positions relative to each filter's cell (0, 0) centre (small numbers)
     flat, ends = team_state(filters)
-    counts = np.diff(ends, prepend=0)
     w = team_weights(filters)
-    org = np.array([[pf._org[0, 0], pf._org[1, 0]] for pf in filters])
-    sums, cov, hist, hhist = summary_sums(flat, w, ends, hist_cells, 1.0 / cell_size,
-                                          heading_bins)
-    mc, ms, w2 = sums[:, 2], sums[:, 3], sums[:, 4]
-    mh = np.arctan2(ms, mc)
-    mean = np.column_stack([sums[:, :2] + org, mh])
-    resultant = np.hypot(mc, ms)
-    std = np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2), 0.0))
-    denom = std[:, :, None] * std[:, None, :]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        corr = np.where(denom > 0, cov / np.where(denom > 0, denom, 1.0), 0.0)
-    circ_std = np.sqrt(-2.0 * np.log(np.clip(resultant, 1e-300, 1.0)))
-    cm, sm = np.cos(mh), np.sin(mh)
-    outside = np.maximum(0.0, 1.0 - hist.sum(axis=1))
-    mass = np.concatenate([hist, outside[:, None]], axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        plogp = np.where(mass > 0, mass * np.log(np.where(mass > 0, mass, 1.0)), 0.0)
-    entropy = -plogp.sum(axis=1) / np.log(mass.shape[1]) if mass.shape[1] > 1 else np.zeros(nr)
+    org = np.array([[pf._org[0, 0], pf._org[1, 0]] for pf in filters]).reshape(-1, 2)
+    bounds = np.array([pf.grid.bounds for pf in filters], dtype=float).reshape(-1, 4)
     count_frac = np.array([min(pf.n_particles / pf.config.n_max, 1.0) if pf.config.adaptive
                            else 1.0 for pf in filters])
-    bounds = np.array([pf.grid.bounds for pf in filters])
-    log_std = np.clip(np.log10(np.maximum(
-        np.column_stack([std[:, 0], std[:, 1], circ_std]), 1e-12)), -3.0, 2.0)
-    feats = np.column_stack([
-        (mean[:, 0] - bounds[:, 0]) / (bounds[:, 2] - bounds[:, 0]) * 2 - 1,
-        (mean[:, 1] - bounds[:, 1]) / (bounds[:, 3] - bounds[:, 1]) * 2 - 1,
-        cm, sm, log_std,
-        np.clip(np.column_stack([corr[:, 0, 1], corr[:, 0, 2], corr[:, 1, 2]]), -1.0, 1.0),
-        resultant, 1.0 / w2 / counts, entropy, count_frac, hist, outside, hhist,
-    ]).astype(np.float32)
-    return mean, cov, feats
+    return summary_features(flat, w, ends, org, bounds, count_frac, int(hist_cells),
+                            1.0 / cell_size, int(heading_bins))
 
 
 def particle_spreads(filters: Sequence[ParticleFilter], true_xy: np.ndarray) -> np.ndarray:

@@ -42,7 +42,6 @@ import math
 
 import numpy as np
 
-from estimators._kernels import first_occurrences, kld_bins
 from estimators._team_kernels import FIX_COLUMNS, predict_blocks, weigh_blocks
 from estimators.beam_table import (
     BeamLUT,
@@ -58,10 +57,9 @@ from estimators.occupancy import OccupancyGrid
 from estimators.particle_config import MCLConfig, ParticleBelief, ParticleMotionNoise
 from estimators.particle_features import belief_feature_names, belief_features, check_feature_args
 from estimators.particle_sampling import (
-    kld_need,
     kld_sample_bound,
-    low_variance_from_cumulative,
     low_variance_indices,
+    resample_filters,
 )
 
 # placeholders of the compiled weighting's likelihood-field arguments when there is no scan
@@ -152,7 +150,6 @@ class ParticleFilter:
         self._beam_tabs: dict[tuple[float, float], tuple[RangeTable, BeamLUT]] = {}
         self._angles_ok = b""  # bytes of the last beam angles found finite
         self._uniform_w = np.zeros(0)
-        self._cum: tuple[np.ndarray, np.ndarray] = (self._uniform_w, self._uniform_w)
         # The state is float32 (x, y, heading) with positions relative to the centre of
         # map cell (0, 0): float32 keeps ~1e-6 m there even for maps at UTM-size
         # coordinates, and the likelihood field finds cells by rounding.
@@ -562,15 +559,13 @@ class ParticleFilter:
         uniform = self._weights is self._uniform_w  # just resampled: no need to multiply
         if not uniform:
             w *= self._weights
-        cum = np.add.accumulate(w)  # the total, and what resampling needs next
-        total = float(cum[-1])
+        total = float(w.sum())
         if total > 0 and math.isfinite(total):
             log_evidence = offset + power * mx + math.log(total)
             if uniform:
                 log_evidence -= math.log(w.size)
             w *= 1.0 / total
             self._weights = w
-            self._cum = (w, cum)
         else:  # underflow: redo in log space
             with np.errstate(divide="ignore"):
                 lw = np.log(self._weights) + power * loglik.astype(np.float64)
@@ -665,21 +660,20 @@ class ParticleFilter:
         lf_args = self.lf_kernel_args(max_range)
         ux, uy = scan if scan is not None else (_NO_BEAMS, _NO_BEAMS)
         loglik = np.empty(n) if nb >= 0 else _NO_LOGLIK
-        w, cum, out = np.empty(n), np.empty(n), np.empty((1, 3))
+        w, out = np.empty(n), np.empty((1, 3))
         weigh_blocks(self._flat_state(), np.array([n]), self._weights, *lf_args,
                      ux.reshape(1, -1), uy.reshape(1, -1), np.array([nb]), float(LF_POWER),
-                     fix.reshape(1, -1), loglik, w, cum, out)
+                     fix.reshape(1, -1), loglik, w, out)
         if not out[0, 2]:
             return self._weigh_in_logs(loglik if nb >= 0 else None, fix, nb, max_range)
-        return self.take_weights(w, cum, out[0, 0], nb, max_range)
+        return self.take_weights(w, out[0, 0], nb, max_range)
 
-    def take_weights(self, w: np.ndarray, cum: np.ndarray, log_evidence: float, nb: int,
+    def take_weights(self, w: np.ndarray, log_evidence: float, nb: int,
                      max_range: float | None) -> float:
-        """Adopt weights ``w`` (normalized, ``cum`` their cumulative sums) computed by the
-        compiled weighting; ``log_evidence`` (less the field's constant) of a scan of ``nb``
-        endpoints updates the slow / fast averages. Returns the full log evidence."""
+        """Adopt normalized weights ``w`` computed by the compiled weighting;
+        ``log_evidence`` (less the field's constant) of a scan of ``nb`` endpoints updates
+        the slow / fast averages. Returns the full log evidence."""
         self._weights = w
-        self._cum = (w, cum)
         if nb < 0:
             return math.nan
         lf = self._lf_field(max_range)
@@ -709,7 +703,7 @@ class ParticleFilter:
             raise ValueError(f"weights' log-likelihood is not finite (max {m})")
         e = np.exp(lw - m)
         e /= e.sum()
-        return self.take_weights(e, np.add.accumulate(e), log_evidence, nb, max_range)
+        return self.take_weights(e, log_evidence, nb, max_range)
 
     def lf_kernel_args(self, max_range: float | None) -> tuple:
         """The likelihood field's arguments of the compiled weighting (:meth:`_weigh`);
@@ -731,34 +725,17 @@ class ParticleFilter:
         A fraction :attr:`inject_probability` (in expectation) of the new set is
         drawn uniformly over free space; the rest by low-variance resampling.
         With ``config.adaptive`` the new size is chosen by KLD sampling between
-        ``n_min`` and ``n_max`` (:meth:`_kld_draw`); otherwise the size is kept.
+        ``n_min`` and ``n_max``: ``n_max`` particles are drawn by low-variance
+        resampling and shuffled, and the shortest prefix whose size reaches the
+        KLD bound for the number of histogram bins (``kld_bin``) it occupies is
+        kept; otherwise the size is kept. Random draws, in order: adaptive: the
+        resampling offset, the shuffle, the injected count (binomial); fixed size:
+        the injected count, the offset; then the injected positions
+        (:meth:`OccupancyGrid.sample_free`) and headings.
+        (:func:`estimators.particle_sampling.resample_filters` does it for a team.)
         """
-        cfg = self.config
-        rng = self.rng
-        p_inj = self.inject_probability
-        if cfg.adaptive:
-            state = self._kld_draw()
-            n = state.shape[1]
-            n_inj = int(rng.binomial(n, p_inj)) if p_inj > 0 else 0
-            if n_inj:
-                state = state[:, : n - n_inj]
-        else:
-            n = self._weights.size
-            n_inj = int(rng.binomial(n, p_inj)) if p_inj > 0 else 0
-            idx = low_variance_from_cumulative(self._cumulative_weights(), n - n_inj, rng)
-            state = self._state.take(idx, axis=1)
-        if n_inj:
-            state = np.concatenate([state, self._uniform_poses(n_inj)], axis=1)
-        self._state = state
-        self._weights = self._uniform_weights(n)
-
-    def _cumulative_weights(self) -> np.ndarray:
-        """Cumulative sums of the weights (up to a constant factor): the ones the last
-        measurement update computed while these weights are current."""
-        w, cum = self._cum
-        if w is not self._weights:  # weights are replaced, never changed in place
-            cum = np.add.accumulate(self._weights)
-        return cum
+        resample_filters([self], self._flat_state(), np.array([self._weights.size]),
+                         self._weights, [True])
 
     def _uniform_weights(self, n: int) -> np.ndarray:
         """Weights ``1 / n`` (a shared read-only array: weights are never changed in place)."""
@@ -777,37 +754,6 @@ class ParticleFilter:
             self.resample()
             return True
         return False
-
-    def _kld_draw(self) -> np.ndarray:
-        """KLD sampling (Fox 2003): a ``(3, n)`` resampled set, ``n_min <= n <= n_max``.
-
-        Draws ``n_max`` particles by low-variance resampling, shuffles them, and
-        keeps the shortest prefix whose size reaches the KLD bound for the
-        number of histogram bins (``kld_bin``) that prefix occupies.
-        """
-        cfg = self.config
-        n_max = cfg.n_max
-        idx = low_variance_from_cumulative(self._cumulative_weights(), n_max, self.rng)
-        idx = idx[self.rng.permutation(n_max)]
-        if self._unwrapped_steps:
-            self._wrap_headings()
-        st = np.take(self._state, idx, axis=1)
-        bx, by, bt = cfg.kld_bin
-        n_t = math.ceil(2.0 * math.pi / bt)
-        key, size = kld_bins(st, self._org[0, 0], self._org[1, 0], 1.0 / bx, 1.0 / by,
-                             1.0 / bt, n_t)
-        if size <= 16 * n_max + 2**20:  # a marker array of this size is cheap
-            is_new = first_occurrences(key, size)
-        else:
-            _, first = np.unique(key, return_index=True)
-            is_new = np.zeros(n_max, dtype=bool)
-            is_new[first] = True
-        k = np.cumsum(is_new)  # bins occupied by the first i + 1 particles
-        need = kld_need(cfg.kld_epsilon, cfg.kld_delta, cfg.n_min, n_max)[k]
-        enough = np.flatnonzero(np.arange(1, n_max + 1) >= need)
-        n = int(enough[0]) + 1 if enough.size else n_max
-        n = int(np.clip(n, cfg.n_min, n_max))
-        return st[:, :n].copy()
 
     # --------------------------------------------------------------- output
     def mean_pose(self) -> np.ndarray:

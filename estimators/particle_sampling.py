@@ -1,14 +1,26 @@
-"""Resampling helpers of the particle filter: low-variance (systematic) resampling
-and the KLD-sampling bound (Fox 2003) on the number of particles."""
+"""Resampling helpers of the particle filter: low-variance (systematic) resampling,
+the KLD-sampling bound (Fox 2003) on the number of particles, and the compiled
+resampling of one or several filters at once (:func:`resample_filters`)."""
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from functools import lru_cache
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.special import ndtri
 
-__all__ = ["kld_need", "kld_sample_bound", "low_variance_from_cumulative", "low_variance_indices"]
+from estimators._team_kernels import build_blocks, select_blocks
+
+if TYPE_CHECKING:
+    from estimators.particle_filter import ParticleFilter
+
+__all__ = [
+    "kld_need", "kld_sample_bound", "low_variance_from_cumulative", "low_variance_indices",
+    "resample_filters",
+]
 
 
 def low_variance_indices(weights: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -68,3 +80,83 @@ def kld_need(epsilon: float, delta: float, n_min: int, n_max: int) -> np.ndarray
     need = np.maximum(kld_sample_bound(np.arange(n_max + 1), epsilon, delta), n_min)
     need.flags.writeable = False
     return need
+
+
+def resample_filters(filters: Sequence[ParticleFilter], flat: np.ndarray, ends: np.ndarray,
+                     w: np.ndarray, which: Sequence[bool]) -> np.ndarray:
+    """:meth:`ParticleFilter.resample` of ``filters[r]`` where ``which[r]``, all in two
+    compiled passes over the team's arrays; returns the team's new state (block layout),
+    which every filter's state is then a view of (resampled filters get uniform weights).
+
+    ``flat``, ``ends``, ``w``: the filters' states (block layout, each filter's state a
+    view of ``flat``), segment ends and weights. Each filter draws from its own
+    generator in the order :meth:`ParticleFilter.resample` documents, so resampling a
+    team equals resampling its filters one by one.
+    """
+    nr = len(filters)
+    mode = np.zeros(nr, dtype=np.intp)
+    u = np.zeros(nr)
+    m = np.zeros(nr, dtype=np.intp)
+    n_inj = np.zeros(nr, dtype=np.intp)
+    kld = np.zeros((nr, 8))
+    perms: list[np.ndarray] = []
+    needs: list[np.ndarray] = []
+    need_off = 0
+    p_inj = [0.0] * nr
+    for r, pf in enumerate(filters):
+        if not which[r]:
+            continue
+        cfg = pf.config
+        rng = pf.rng
+        p_inj[r] = pf.inject_probability
+        if cfg.adaptive:
+            mode[r] = 2
+            m[r] = cfg.n_max
+            u[r] = rng.random()
+            perms.append(rng.permutation(cfg.n_max))
+            if pf._unwrapped_steps:
+                pf._wrap_headings()
+            bx, by, bt = cfg.kld_bin
+            need = kld_need(cfg.kld_epsilon, cfg.kld_delta, cfg.n_min, cfg.n_max)
+            kld[r] = (pf._org[0, 0], pf._org[1, 0], 1.0 / bx, 1.0 / by, 1.0 / bt,
+                      math.ceil(2.0 * math.pi / bt), need_off, cfg.n_min)
+            needs.append(need)
+            need_off += need.size
+        else:
+            mode[r] = 1
+            n = int(ends[r] - (ends[r - 1] if r else 0))
+            n_inj[r] = int(rng.binomial(n, p_inj[r])) if p_inj[r] > 0 else 0
+            u[r] = rng.random()
+            m[r] = n - n_inj[r]
+    perm = np.zeros(int(m.sum()), dtype=np.intp)  # KLD robots' permutations at their offsets
+    it = iter(perms)
+    o = 0
+    for r in range(nr):
+        if mode[r] == 2:
+            perm[o:o + m[r]] = next(it)
+        o += m[r]
+    need_all = np.concatenate(needs) if needs else np.zeros(1)
+    idx, counts = select_blocks(flat, w, ends, mode, u, m, perm, kld, need_all)
+    keep = counts.copy()
+    inj: list[np.ndarray] = []
+    for r, pf in enumerate(filters):
+        if mode[r] == 2:
+            n = int(counts[r])
+            n_inj[r] = int(pf.rng.binomial(n, p_inj[r])) if p_inj[r] > 0 else 0
+            keep[r] = n - n_inj[r]
+        if n_inj[r]:
+            xy = pf.grid.sample_free(int(n_inj[r]), pf.rng)
+            th = pf.rng.uniform(-np.pi, np.pi, size=int(n_inj[r]))
+            inj.append(np.column_stack([xy, th]))
+    org = np.array([pf._org[:2, 0] for pf in filters]).reshape(-1, 2)
+    inj_all = np.concatenate(inj) if inj else np.zeros((0, 3))
+    new, new_ends = build_blocks(flat, ends, mode, idx, m, keep, inj_all, n_inj, org)
+    start = 0
+    for r, pf in enumerate(filters):
+        end = int(new_ends[r])
+        pf._state = new[3 * start:3 * end].reshape(3, end - start)
+        pf._block_start = start
+        if mode[r]:
+            pf._weights = pf._uniform_weights(end - start)
+        start = end
+    return new

@@ -439,7 +439,7 @@ def test_low_variance_resampling_skips_zero_weights():
             assert idx.size == n and np.all(w[idx] > 0)
 
 
-def test_headings_stay_wrapped_and_resampling_reuses_the_update_sums():
+def test_headings_stay_wrapped_through_motion_updates_and_resampling():
     g = room()
     pf = ParticleFilter(g, np.random.default_rng(6), MCLConfig(n_particles=500))
     pf.init_gaussian(np.array([5.0, 3.0, 3.1]), np.diag([0.2, 0.2, 0.3]) ** 2)
@@ -449,8 +449,6 @@ def test_headings_stay_wrapped_and_resampling_reuses_the_update_sums():
         h = pf.particles[:, 2]
         assert np.all((h >= -np.pi) & (h < np.pi))
         pf.update_likelihood_field(z, BEAMS, MAX_RANGE)
-        cum = pf._cumulative_weights()
-        np.testing.assert_allclose(cum / cum[-1], np.cumsum(pf.weights), rtol=1e-12, atol=1e-15)
         if k % 3 == 0:
             pf.resample()
 
