@@ -95,10 +95,10 @@ def weigh_blocks(
 ) -> None:  # pragma: no cover (compiled)
     """Weight every robot's particles by its laser scan (likelihood field) and fixes.
 
-    Robot ``r`` with ``nb[r] >= 0`` has a scan of ``nb[r]`` endpoints: ``ux[r, b],
-    uy[r, b]`` (float32, cells) in its frame. Each particle's scan score is the
-    float32 sum, in this order, of the field's penalty at its own cell and the
-    field at its endpoints (as :func:`estimators.likelihood_field.lf_loglik`
+    Robot ``r`` with ``nb[r] >= 0`` has a scan of ``nb[r]`` endpoints: the finite
+    ``ux[r, b], uy[r, b]`` (float32, cells; NaN: no endpoint) in its frame. Each
+    particle's scan score is the float32 sum, in this order, of the field's penalty
+    at its own cell and the field at its endpoints (as :func:`estimators.likelihood_field.lf_loglik`
     computes it), ``loglik = power * score`` (float64). ``fix[r]`` adds a DGPS
     position factor ``exp(-0.5 |p - g|^2 / var) + 1e-12`` and a compass factor
     ``exp(-0.5 e^2 / std^2) + 1e-12`` (``e`` the wrapped heading error) when
@@ -139,9 +139,11 @@ def weigh_blocks(
                 cs[j] = math.cos(h)
                 ss[j] = math.sin(h)
                 acc[j] = table[offset + int(np.rint(y)) * nxp + int(np.rint(x))]
-            for b in range(nb[r]):
+            for b in range(ux.shape[1]):
                 u = ux[r, b]
                 v = uy[r, b]
+                if u != u:  # NaN: no endpoint
+                    continue
                 for j in range(n):
                     ex = xs[j] + cs[j] * u - ss[j] * v
                     ey = ys[j] + ss[j] * u + cs[j] * v

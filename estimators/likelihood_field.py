@@ -99,15 +99,18 @@ def build_lf_field(grid: OccupancyGrid, cfg: MCLConfig, max_range: float) -> LFF
 
 def lf_endpoints(lf: LFField, ranges: np.ndarray, angles: np.ndarray
                  ) -> tuple[np.ndarray, np.ndarray]:
-    """Beam endpoints ``(ux, uy)`` ``(B,)`` float32 in cells, in the robot frame, of readings
-    ``ranges`` (below the maximum range; clipped here to ``lf.reach``) at ``angles``: the
-    scan as the compiled weighting (:func:`estimators._team_kernels.weigh_blocks`) reads it,
-    rounded as :func:`lf_loglik` rounds it."""
+    """Beam endpoints ``(ux, uy)`` float32 in cells, in the robot frame, of readings
+    ``ranges`` (``(..., B)``, below the maximum range; clipped here to ``lf.reach``; NaN
+    gives NaN) at ``angles (B,)``: the scan as the compiled weighting
+    (:func:`estimators._team_kernels.weigh_blocks`) reads it, rounded as
+    :func:`lf_loglik` rounds it."""
     r = np.minimum(ranges, lf.reach)
-    ux = np.multiply((np.cos(angles) * lf.inv_res).astype(np.float32), r, dtype=np.float32,
-                     casting="unsafe")
-    uy = np.multiply((np.sin(angles) * lf.inv_res).astype(np.float32), r, dtype=np.float32,
-                     casting="unsafe")
+    c = (np.cos(angles) * lf.inv_res).astype(np.float32)
+    s = (np.sin(angles) * lf.inv_res).astype(np.float32)
+    ux = np.empty(r.shape, dtype=np.float32)
+    uy = np.empty(r.shape, dtype=np.float32)
+    np.multiply(c, r, out=ux, casting="unsafe")  # in float64, rounded once
+    np.multiply(s, r, out=uy, casting="unsafe")
     return ux, uy
 
 

@@ -144,22 +144,19 @@ def weigh_batch(
         has = ~np.all(np.isnan(ranges), axis=1)
         if np.any(ranges < 0):
             raise ValueError(f"ranges must be >= 0, got {ranges}")
-        ux = np.zeros((nr, angles.size), dtype=np.float32)
-        uy = np.zeros((nr, angles.size), dtype=np.float32)
         for r in np.flatnonzero(has).tolist():
             pf = filters[r]
             if lead is None:
                 lead = pf
-                lf = pf._lf_field(max_range)
             elif pf.grid is not lead.grid or (pf.config is not lead.config
                                               and pf.config != lead.config):
                 raise ValueError("weigh_batch needs the filters with scans to share one map "
                                  "and one config")
-            row = ranges[r]
-            ok = row < max_range
-            k = int(ok.sum())
-            ux[r, :k], uy[r, :k] = lf_endpoints(lf, row[ok], angles[ok])
-            nb[r] = k
+        if lead is not None:
+            ok = ranges < max_range  # NaN and inf compare False
+            nb = np.where(has, ok.sum(axis=1), -1)
+            ux, uy = lf_endpoints(lead._lf_field(max_range), np.where(ok, ranges, np.nan),
+                                  angles)
     flat, ends = team_state(filters)
     w_prev = team_weights(filters)
     n = int(ends[-1])
