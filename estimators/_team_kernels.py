@@ -91,7 +91,7 @@ def weigh_blocks(
     table: np.ndarray, nxp: int, offset: int, pad: np.float32, inv_res: np.float32,
     lo_x: np.float32, lo_y: np.float32, hi_x: np.float32, hi_y: np.float32,
     ux: np.ndarray, uy: np.ndarray, nb: np.ndarray, power: float, fix: np.ndarray,
-    loglik: np.ndarray, w: np.ndarray, out: np.ndarray,
+    loglik: np.ndarray, scored: bool, w: np.ndarray, out: np.ndarray,
 ) -> None:  # pragma: no cover (compiled)
     """Weight every robot's particles by its laser scan (likelihood field) and fixes.
 
@@ -102,7 +102,9 @@ def weigh_blocks(
     computes it), ``loglik = power * score`` (float64). ``fix[r]`` adds a DGPS
     position factor ``exp(-0.5 |p - g|^2 / var) + 1e-12`` and a compass factor
     ``exp(-0.5 e^2 / std^2) + 1e-12`` (``e`` the wrapped heading error) when
-    their flags are set. A robot with neither keeps ``w_prev``.
+    their flags are set. A robot with neither keeps ``w_prev``. With ``scored``
+    the scan log-likelihoods are already in ``loglik`` (any scan model; the field
+    arguments are then unused).
 
     Writes the normalized weights ``w`` and
     ``out[r] = (log sum w_prev exp(loglik - m) + m, ess, ok)``: the scan's log
@@ -121,7 +123,7 @@ def weigh_blocks(
         gps = fix[r, 0] != 0.0
         compass = fix[r, 4] != 0.0
         m = 0.0
-        if scan:
+        if scan and not scored:
             # beams outer, particles inner: the index arithmetic vectorizes and the
             # gathers run in a tight loop (each particle's float32 sum keeps its order)
             xs = np.empty(n, dtype=np.float32)
@@ -150,11 +152,12 @@ def weigh_blocks(
                     ind[j] = np.int32(np.rint(ey)) * row + np.int32(np.rint(ex))
                 for j in range(n):
                     acc[j] += table[np.uint32(ind[j])]
-            m = -np.inf
             for j in range(n):
-                v = power * np.float64(acc[j])
-                loglik[start + j] = v
-                m = max(m, v)
+                loglik[start + j] = power * np.float64(acc[j])
+        if scan:
+            m = -np.inf
+            for i in range(start, end):
+                m = max(m, loglik[i])
         gx = fix[r, 1]
         gy = fix[r, 2]
         gc = fix[r, 3]

@@ -31,10 +31,11 @@ from collections.abc import Sequence
 import numpy as np
 
 from estimators._kernels import summary_features, weighted_distances
-from estimators._team_kernels import FIX_COLUMNS, compose_rows, predict_blocks, weigh_blocks
+from estimators._team_kernels import FIX_COLUMNS, compose_rows, predict_blocks
 from estimators.beam_table import scan_loglik
 from estimators.likelihood_field import LF_POWER, lf_endpoints
 from estimators.particle_filter import ParticleFilter
+from estimators.particle_weighting import weigh_filters
 
 __all__ = [
     "belief_summaries", "compose_odometry_batch", "particle_spreads", "predict_batch",
@@ -158,30 +159,15 @@ def weigh_batch(
             ux, uy = lf_endpoints(lead._lf_field(max_range), np.where(ok, ranges, np.nan),
                                   angles)
     flat, ends = team_state(filters)
-    w_prev = team_weights(filters)
     n = int(ends[-1])
-    loglik = np.empty(n) if lead is not None else np.zeros(0)
-    w, res = np.empty(n), np.empty((nr, 3))
-    lf_args = (lead if lead is not None else filters[0]).lf_kernel_args(
-        max_range if lead is not None else None)
-    weigh_blocks(flat, ends, w_prev, *lf_args, ux, uy, nb, float(LF_POWER), fixes, loglik, w,
-                 res)
-    start = 0
-    for r, pf in enumerate(filters):
-        end = int(ends[r])
-        k = int(nb[r])
-        mr = max_range if k >= 0 else None
-        if nb[r] < 0 and not (fixes[r, 0] or fixes[r, 4]):
-            pass  # nothing to weigh by: the weights stay
-        elif res[r, 2]:
-            out_ev[r] = pf.take_weights(w[start:end], res[r, 0], k, mr)
-            pf._wblock_start = start
-        else:
-            pf._weights = w_prev[start:end].copy()
-            out_ev[r] = pf._weigh_in_logs(loglik[start:end] if k >= 0 else None, fixes[r],
-                                          k, mr)
-        start = end
-    return out_ev
+    if lead is None:
+        return weigh_filters(filters, flat, ends, team_weights(filters), fixes, nb, np.empty(n),
+                             False, np.zeros(nr), np.zeros(nr))
+    lf = lead._lf_field(max_range)
+    k = np.maximum(nb, 0)
+    return weigh_filters(filters, flat, ends, team_weights(filters), fixes, nb, np.empty(n),
+                         False, k * lf.lmax, k * lead.config.likelihood_exponent,
+                         lead.lf_kernel_args(max_range), ux, uy, float(LF_POWER))
 
 
 def compose_odometry_batch(v: np.ndarray, w: np.ndarray, dt: float) -> np.ndarray:
@@ -240,17 +226,13 @@ def update_beam_batch(
         raise ValueError(f"cone_half_width must be finite and >= 0, got {cone_half_width}")
     ok = np.isfinite(ranges)
     table, lut = pf0.beam_tables(max_range, cone_half_width)
-    counts = [pf.n_particles for pf in filters]
     flat, ends = team_state(filters)
     rows = lut.rows(np.where(ok, ranges, np.nan))
     loglik = scan_loglik(table, lut, flat, angles, rows, ends, cfg.occupied_loglik)
-    n_beams = ok.sum(axis=1) * cfg.likelihood_exponent
-    out = np.zeros(len(filters))
-    start = 0
-    for r, (pf, n) in enumerate(zip(filters, counts, strict=True)):
-        out[r] = pf._apply_loglik(loglik[start:start + n], n_beams[r])
-        start += n
-    return out
+    n_beams = ok.sum(axis=1)
+    nr = len(filters)
+    return weigh_filters(filters, flat, ends, team_weights(filters), np.zeros((nr, FIX_COLUMNS)),
+                         n_beams, loglik, True, np.zeros(nr), n_beams * cfg.likelihood_exponent)
 
 
 def belief_summaries(

@@ -42,7 +42,7 @@ import math
 
 import numpy as np
 
-from estimators._team_kernels import FIX_COLUMNS, predict_blocks, weigh_blocks
+from estimators._team_kernels import FIX_COLUMNS, predict_blocks
 from estimators.beam_table import (
     BeamLUT,
     RangeTable,
@@ -61,12 +61,7 @@ from estimators.particle_sampling import (
     low_variance_indices,
     resample_filters,
 )
-
-# placeholders of the compiled weighting's likelihood-field arguments when there is no scan
-_NO_FIELD = (np.zeros(1, dtype=np.float32), 1, 0, np.float32(0), np.float32(1), np.float32(0),
-             np.float32(0), np.float32(0), np.float32(0))
-_NO_BEAMS = np.zeros(0, dtype=np.float32)
-_NO_LOGLIK = np.zeros(0)
+from estimators.particle_weighting import NO_FIELD, weigh_filters
 
 __all__ = [
     "MCLConfig",
@@ -435,19 +430,36 @@ class ParticleFilter:
         ``ranges`` and robot-frame beam ``angles`` are ``(B,)``; readings at or
         beyond ``max_range`` (including ``inf``) carry no endpoint and are
         skipped. Beam endpoints are precomputed in the robot frame (in cell
-        units) and moved to every particle with one ``float32`` matrix product;
-        the particle's own cell rides along as an extra zero-range "beam" that
-        gathers the occupied-position penalty. One ``take`` from a flat table
-        then scores everything. Returns ``log sum_i w_i p(z | x_i)`` with the
-        tempered likelihood and the position penalty included.
+        units); one compiled pass moves them to every particle, reads the field
+        there and the position penalty at the particle's own cell, and weights
+        (:func:`estimators.particle_weighting.weigh_filters`). Returns
+        ``log sum_i w_i p(z | x_i)`` with the tempered likelihood and the
+        position penalty included.
         """
         ranges, angles, max_range, hi = self._scan_input(ranges, angles, max_range)
         lf = self._lf_field(max_range)
         if hi >= max_range:
             keep = ranges < max_range
             ranges, angles = ranges[keep], angles[keep]
-        return self._weigh(max_range, lf_endpoints(lf, ranges, angles), ranges.size,
-                           np.zeros(FIX_COLUMNS))
+        nb = ranges.size
+        ux, uy = lf_endpoints(lf, ranges, angles)
+        return self._weigh_self(np.zeros(FIX_COLUMNS), nb, None, nb * lf.lmax, nb,
+                                self.lf_kernel_args(max_range), ux, uy)
+
+    def _weigh_self(self, fix: np.ndarray, nb: int, loglik: np.ndarray | None,
+                    offset: float = 0.0, n_beams: int = 0, lf_args: tuple = NO_FIELD,
+                    ux: np.ndarray | None = None, uy: np.ndarray | None = None) -> float:
+        """:func:`estimators.particle_weighting.weigh_filters` of this filter alone: a scan
+        of ``nb`` beams (-1: none) scored before (``loglik``) or by the likelihood field,
+        and the fixes ``fix``. Returns the scan's log evidence."""
+        n = self._weights.size
+        scored = loglik is not None
+        return float(weigh_filters(
+            [self], self._flat_state(), np.array([n]), self._weights, fix.reshape(1, -1),
+            np.array([nb]), loglik if scored else np.empty(n), scored, np.array([offset]),
+            np.array([n_beams * self.config.likelihood_exponent]), lf_args,
+            None if ux is None else ux.reshape(1, -1), None if uy is None else uy.reshape(1, -1),
+            float(LF_POWER))[0])
 
     def expected_ranges(
         self, angles: np.ndarray, max_range: float, cone_half_width: float = 0.0
@@ -507,7 +519,7 @@ class ParticleFilter:
         ranges, angles, max_range, _ = self._scan_input(ranges, angles, max_range)
         cfg = self.config
         if ranges.size == 0:
-            return self._apply_loglik(self._position_penalty(), 0)
+            return self._weigh_self(np.zeros(FIX_COLUMNS), 0, self._position_penalty())
         if cfg.beam_lookup_bins:
             if not np.isfinite(cone_half_width) or cone_half_width < 0:
                 raise ValueError(f"cone_half_width must be finite and >= 0, "
@@ -515,67 +527,14 @@ class ParticleFilter:
             table, lut = self.beam_tables(max_range, cone_half_width)
             loglik = scan_loglik(table, lut, self._flat_state(), angles, lut.rows(ranges)[None, :],
                                  np.array([self.n_particles]), cfg.occupied_loglik)
-            return self._apply_loglik(loglik, ranges.size * cfg.likelihood_exponent)
+            return self._weigh_self(np.zeros(FIX_COLUMNS), ranges.size, loglik,
+                                    n_beams=ranges.size)
         zexp = self.expected_ranges(angles, max_range, cone_half_width)
         z = np.minimum(ranges, max_range)[None, :]
         p = beam_probability(z, zexp, max_range, cfg.beam_sigma, cfg.beam_z_hit, cfg.beam_z_short,
                              cfg.beam_z_max, cfg.beam_z_rand, cfg.beam_lambda_short)
         loglik = cfg.likelihood_exponent * np.log(p).sum(axis=1) + self._position_penalty()
-        return self._apply_loglik(loglik, ranges.size * cfg.likelihood_exponent)
-
-    def _apply_loglik(
-        self, loglik: np.ndarray, n_eff_beams: float, offset: float = 0.0,
-        bound: float = math.inf, power: int = 1,
-    ) -> float:
-        """Multiply weights by ``exp(power * loglik + offset)``; update the slow/fast averages.
-
-        ``power * loglik + offset`` is the tempered scan log-likelihood plus the
-        position penalty (``power`` 1, 2 or 4 and the constant ``offset`` taken
-        out by the caller). ``bound``: the caller guarantees
-        ``-bound <= loglik <= 0``; within float32's or float64's normal range
-        ``exp(loglik)`` needs no maximum subtracted. Returns the log evidence
-        ``log sum_i w_i p(z | x_i)``. The augmented-MCL averages track
-        ``exp(log_evidence / n_eff_beams)``, the per-beam geometric-mean
-        likelihood, which does not depend on how many beams a scan has.
-        """
-        mx = 0.0
-        p = power
-        if bound < 80.0:  # exp(loglik) >= 2e-35 is a normal float32 (float64 after powering)
-            e = np.exp(loglik)
-            w = np.square(e, dtype=np.float64) if p > 1 else e.astype(np.float64)
-            p //= 2
-        elif bound * power < 600.0:  # exp(power * loglik) >= 3e-261 is a normal float64
-            w = np.exp(loglik, dtype=np.float64)
-        else:
-            mx = float(loglik.max())
-            if not math.isfinite(mx):
-                raise ValueError(f"scan log-likelihood is not finite (max {mx})")
-            # float64 from here on: weight ratios far below float32's range must survive
-            w = np.subtract(loglik, mx, dtype=np.float64)
-            np.exp(w, out=w)
-        while p > 1:
-            w *= w
-            p //= 2
-        uniform = self._weights is self._uniform_w  # just resampled: no need to multiply
-        if not uniform:
-            w *= self._weights
-        total = float(w.sum())
-        if total > 0 and math.isfinite(total):
-            log_evidence = offset + power * mx + math.log(total)
-            if uniform:
-                log_evidence -= math.log(w.size)
-            w *= 1.0 / total
-            self._weights = w
-        else:  # underflow: redo in log space
-            with np.errstate(divide="ignore"):
-                lw = np.log(self._weights) + power * loglik.astype(np.float64)
-            m2 = lw.max()
-            e = np.exp(lw - m2)
-            total = e.sum()
-            log_evidence = float(offset + m2 + np.log(total))
-            self._weights = e / total
-        self._track_evidence(log_evidence, n_eff_beams)
-        return log_evidence
+        return self._weigh_self(np.zeros(FIX_COLUMNS), ranges.size, loglik, n_beams=ranges.size)
 
     def _track_evidence(self, log_evidence: float, n_eff_beams: float) -> None:
         """Update the augmented-MCL slow / fast averages of the per-beam evidence."""
@@ -622,7 +581,7 @@ class ParticleFilter:
         """
         fix = self.fix_row(xy, xy_var, heading, heading_std)
         if fix[0] or fix[4]:
-            self._weigh(None, None, -1, fix)
+            self._weigh_self(fix, -1, None)
 
     def fix_row(
         self,
@@ -651,65 +610,11 @@ class ParticleFilter:
             fix[4:] = (1.0, heading, -0.5 / heading_std**2)
         return fix
 
-    def _weigh(self, max_range: float | None, scan: tuple[np.ndarray, np.ndarray] | None,
-               nb: int, fix: np.ndarray) -> float:
-        """One compiled weighting (:func:`estimators._team_kernels.weigh_blocks`) of this
-        filter: a likelihood-field scan of ``nb`` endpoints ``scan`` (``nb = -1``: none)
-        and the fixes ``fix`` (:meth:`fix_row`). Returns the scan's log evidence."""
-        n = self._weights.size
-        lf_args = self.lf_kernel_args(max_range)
-        ux, uy = scan if scan is not None else (_NO_BEAMS, _NO_BEAMS)
-        loglik = np.empty(n) if nb >= 0 else _NO_LOGLIK
-        w, out = np.empty(n), np.empty((1, 3))
-        weigh_blocks(self._flat_state(), np.array([n]), self._weights, *lf_args,
-                     ux.reshape(1, -1), uy.reshape(1, -1), np.array([nb]), float(LF_POWER),
-                     fix.reshape(1, -1), loglik, w, out)
-        if not out[0, 2]:
-            return self._weigh_in_logs(loglik if nb >= 0 else None, fix, nb, max_range)
-        return self.take_weights(w, out[0, 0], nb, max_range)
-
-    def take_weights(self, w: np.ndarray, log_evidence: float, nb: int,
-                     max_range: float | None) -> float:
-        """Adopt normalized weights ``w`` computed by the compiled weighting;
-        ``log_evidence`` (less the field's constant) of a scan of ``nb`` endpoints updates
-        the slow / fast averages. Returns the full log evidence."""
-        self._weights = w
-        if nb < 0:
-            return math.nan
-        lf = self._lf_field(max_range)
-        log_evidence += nb * lf.lmax
-        self._track_evidence(log_evidence, nb * self.config.likelihood_exponent)
-        return log_evidence
-
-    def _weigh_in_logs(self, loglik: np.ndarray | None, fix: np.ndarray, nb: int,
-                       max_range: float | None) -> float:
-        """:meth:`_weigh` in log space, for weights whose products underflow."""
-        w = self._world()
-        with np.errstate(divide="ignore"):
-            lw = np.log(self._weights)
-        log_evidence = math.nan
-        if loglik is not None:
-            lw = lw + loglik
-            m = lw.max()
-            log_evidence = float(m + np.log(np.exp(lw - m).sum()))
-        if fix[0]:
-            d2 = (w[0] - self._org[0, 0] - fix[1]) ** 2 + (w[1] - self._org[1, 0] - fix[2]) ** 2
-            lw = lw + np.log(np.exp(fix[3] * d2) + 1e-12)
-        if fix[4]:
-            e = wrap_angle(w[2] - fix[5])
-            lw = lw + np.log(np.exp(fix[6] * e * e) + 1e-12)
-        m = lw.max()
-        if not math.isfinite(m):
-            raise ValueError(f"weights' log-likelihood is not finite (max {m})")
-        e = np.exp(lw - m)
-        e /= e.sum()
-        return self.take_weights(e, log_evidence, nb, max_range)
-
     def lf_kernel_args(self, max_range: float | None) -> tuple:
         """The likelihood field's arguments of the compiled weighting (:meth:`_weigh`);
         placeholders for ``max_range=None`` (no scan)."""
         if max_range is None:
-            return _NO_FIELD
+            return NO_FIELD
         lf = self._lf_field(max_range)
         args = self._lf_args.get(float(max_range))
         if args is None:
