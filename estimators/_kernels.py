@@ -290,49 +290,6 @@ def tree_density(
 
 
 @njit(cache=True)
-def kld_bins(
-    st: np.ndarray, org_x: float, org_y: float, inv_bx: float, inv_by: float, inv_bt: float,
-    n_t: int,
-) -> tuple[np.ndarray, int]:  # pragma: no cover (compiled)
-    """KLD histogram bin of every particle of ``st (3, n)`` (state coordinates, heading in
-    ``[-pi, pi]``): keys ``0 .. size - 1`` and ``size``, the number of possible keys."""
-    n = st.shape[1]
-    kx = np.empty(n, dtype=np.int64)
-    ky = np.empty(n, dtype=np.int64)
-    kx_min = ky_min = np.int64(2**62)
-    ky_max = np.int64(-(2**62))
-    kx_max = ky_max
-    for i in range(n):
-        a = np.int64(math.floor((np.float64(st[0, i]) + org_x) * inv_bx))
-        b = np.int64(math.floor((np.float64(st[1, i]) + org_y) * inv_by))
-        kx[i] = a
-        ky[i] = b
-        kx_min = min(kx_min, a)
-        ky_min = min(ky_min, b)
-        kx_max = max(kx_max, a)
-        ky_max = max(ky_max, b)
-    ny_b = ky_max - ky_min + 1
-    key = np.empty(n, dtype=np.int64)
-    for i in range(n):
-        t = np.int64(math.floor((st[2, i] + np.float32(math.pi)) * np.float32(inv_bt)))
-        t = min(max(t, 0), n_t - 1)
-        key[i] = ((kx[i] - kx_min) * ny_b + (ky[i] - ky_min)) * n_t + t
-    return key, (kx_max - kx_min + 1) * ny_b * n_t
-
-
-@njit(cache=True)
-def first_occurrences(key: np.ndarray, size: int) -> np.ndarray:  # pragma: no cover
-    """Whether each entry of ``key`` (in ``0 .. size - 1``) is its value's first occurrence."""
-    seen = np.zeros(size, dtype=np.bool_)
-    out = np.empty(key.size, dtype=np.bool_)
-    for i in range(key.size):
-        k = key[i]
-        out[i] = not seen[k]
-        seen[k] = True
-    return out
-
-
-@njit(cache=True)
 def weighted_distances(
     flat: np.ndarray, w: np.ndarray, ends: np.ndarray, targets: np.ndarray,
 ) -> np.ndarray:  # pragma: no cover (compiled)

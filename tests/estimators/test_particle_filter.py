@@ -610,29 +610,6 @@ def test_weights_stay_finite_under_hopeless_scans_and_out_of_map_particles():
     assert pf.n_particles == 200
 
 
-def test_kld_bins_and_first_occurrences_match_numpy():
-    from estimators._kernels import first_occurrences, kld_bins
-
-    rng = np.random.default_rng(6)
-    st = np.stack([rng.normal(3.0, 2.0, 3000), rng.normal(-2.0, 1.0, 3000),
-                   rng.uniform(-np.pi, np.pi, 3000)]).astype(np.float32)
-    st[2, :3] = [np.float32(np.pi), -np.float32(np.pi), 0.0]  # float32 pi lies beyond pi
-    bx, by, bt = 0.5, 0.5, np.deg2rad(10.0)
-    n_t = int(np.ceil(2 * np.pi / bt))
-    key, size = kld_bins(st, 1.25, -0.5, 1 / bx, 1 / by, 1 / bt, n_t)
-    kx = np.floor((st[0] + 1.25) / bx).astype(int)
-    ky = np.floor((st[1] - 0.5) / by).astype(int)
-    kt = np.clip(np.floor((st[2] + np.float32(np.pi)) * np.float32(1 / bt)).astype(int), 0,
-                 n_t - 1)
-    ref = ((kx - kx.min()) * (ky.max() - ky.min() + 1) + ky - ky.min()) * n_t + kt
-    np.testing.assert_array_equal(key, ref)
-    assert size == (kx.max() - kx.min() + 1) * (ky.max() - ky.min() + 1) * n_t
-    _, first = np.unique(key, return_index=True)
-    expected = np.zeros(key.size, dtype=bool)
-    expected[first] = True
-    np.testing.assert_array_equal(first_occurrences(key, size), expected)
-
-
 def test_position_std_is_the_rms_weighted_axis_std():
     pf = ParticleFilter(room(), np.random.default_rng(3), MCLConfig(n_particles=500))
     pf.set_particles(pf.particles, np.random.default_rng(4).random(500))
