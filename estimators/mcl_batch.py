@@ -181,7 +181,7 @@ def compose_odometry_batch(v: np.ndarray, w: np.ndarray, dt: float) -> np.ndarra
         raise ValueError(f"v and w must be (R, K) of equal shape, got {v.shape} and {w.shape}")
     if not math.isfinite(dt) or dt < 0:
         raise ValueError(f"odometry must be finite with dt >= 0, got dt={dt}")
-    out = compose_rows(v, w, float(dt))
+    out = compose_rows(np.ascontiguousarray(v), np.ascontiguousarray(w), float(dt))
     if np.isnan(out[:, 0]).any():
         raise ValueError(f"odometry must be finite, got v={v}, w={w}")
     return out

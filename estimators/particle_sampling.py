@@ -136,6 +136,8 @@ def resample_filters(filters: Sequence[ParticleFilter], flat: np.ndarray, ends: 
             perm[o:o + m[r]] = next(it)
         o += m[r]
     need_all = np.concatenate(needs) if needs else np.zeros(1)
+    if not w.flags.writeable:  # one compiled signature: writeable arrays
+        w = w.copy()
     idx, counts = select_blocks(flat, w, ends, mode, u, m, perm, kld, need_all)
     keep = counts.copy()
     inj: list[np.ndarray] = []

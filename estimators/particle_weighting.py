@@ -27,7 +27,6 @@ __all__ = ["NO_FIELD", "weigh_filters"]
 # placeholders of the likelihood-field arguments of weigh_blocks when no field is read
 NO_FIELD = (np.zeros(1, dtype=np.float32), 1, 0, np.float32(0), np.float32(1), np.float32(0),
             np.float32(0), np.float32(0), np.float32(0))
-_NO_BEAMS = np.zeros((1, 0), dtype=np.float32)
 
 
 def weigh_filters(
@@ -53,7 +52,9 @@ def weigh_filters(
     w = np.empty(w_prev.size)
     res = np.empty((nr, 3))
     if ux is None:
-        ux = uy = np.broadcast_to(_NO_BEAMS, (nr, 0))
+        ux = uy = np.zeros((nr, 0), dtype=np.float32)
+    if not w_prev.flags.writeable:  # one compiled signature: writeable arrays
+        w_prev = w_prev.copy()
     weigh_blocks(flat, ends, w_prev, *lf_args, ux, uy, nb, float(power), fixes, loglik, scored,
                  w, res)
     start = 0
