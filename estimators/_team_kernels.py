@@ -16,7 +16,10 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["build_blocks", "compose_rows", "predict_blocks", "select_blocks", "weigh_blocks"]
+__all__ = [
+    "build_blocks", "compose_rows", "normals_from_bits", "predict_blocks", "select_blocks",
+    "weigh_blocks", "ziggurat_tables",
+]
 
 # fix columns of weigh_blocks: [gps?, gx, gy, -0.5 / var, compass?, heading, -0.5 / std**2]
 FIX_COLUMNS = 7
@@ -355,3 +358,90 @@ def build_blocks(
         start = ends[r]
         new_start = new_ends[r]
     return out, new_ends
+
+
+def ziggurat_tables() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Marsaglia and Tsang's 128-layer ziggurat for the standard normal: ``(kn, wn, fn)``."""
+    m1 = 2147483648.0
+    dn = tn = 3.442619855899
+    vn = 9.91256303526217e-3
+    kn = np.zeros(128)
+    wn = np.zeros(128)
+    fn = np.zeros(128)
+    q = vn / math.exp(-0.5 * dn * dn)
+    kn[0] = dn / q * m1
+    kn[1] = 0.0
+    wn[0] = q / m1
+    wn[127] = dn / m1
+    fn[0] = 1.0
+    fn[127] = math.exp(-0.5 * dn * dn)
+    for i in range(126, 0, -1):
+        dn = math.sqrt(-2.0 * math.log(vn / dn + math.exp(-0.5 * dn * dn)))
+        kn[i + 1] = dn / tn * m1
+        tn = dn
+        fn[i] = math.exp(-0.5 * dn * dn)
+        wn[i] = dn / m1
+    return kn, wn, fn
+
+
+@njit(cache=True)
+def normals_from_bits(raw: np.ndarray, out: np.ndarray, kn: np.ndarray, wn: np.ndarray,
+                      fn: np.ndarray) -> int:  # pragma: no cover (compiled)
+    """Fill ``out`` (float32) with standard normals made from the 64-bit words ``raw`` by
+    the ziggurat method (Marsaglia and Tsang 2000). Word ``i`` gives ``out[i]``'s first
+    try (a signed 32-bit value and, from other bits, the layer); the few tries that fall
+    outside their layer's rectangle are redone in order with the words after
+    ``out.size`` (the tail and wedge tests take one more word each). Returns how many
+    words were used, or -1 if ``raw`` ran out (the caller supplies more words)."""
+    tail = 3.442619855899
+    inv32 = 1.0 / 4294967296.0
+    n = out.size
+    nraw = raw.size
+    if nraw < n:
+        return -1
+    redo = np.empty(n, dtype=np.bool_)
+    low = np.uint64(0xFFFFFFFF)
+    sh = np.uint64(32)
+    m7 = np.uint64(127)
+    for i in range(n):  # the common case, without branches
+        bits = raw[i]
+        hz = np.int64(bits & low) - 2147483648
+        iz = np.int64((bits >> sh) & m7)
+        out[i] = hz * wn[iz]
+        redo[i] = abs(hz) >= kn[iz]
+    k = n
+    for i in range(n):
+        if not redo[i]:
+            continue
+        bits = raw[i]
+        while True:
+            hz = np.int64(bits & low) - 2147483648
+            iz = np.int64((bits >> sh) & m7)
+            x = hz * wn[iz]
+            if abs(hz) < kn[iz]:
+                break
+            if k >= nraw:
+                return -1
+            extra = raw[k]
+            k += 1
+            u1 = (np.float64(extra & low) + 0.5) * inv32
+            u2 = (np.float64(extra >> sh) + 0.5) * inv32
+            if iz == 0:  # the tail beyond the base strip: draw from it until accepted
+                x = -math.log(u1) / tail
+                while -2.0 * math.log(u2) < x * x:
+                    if k >= nraw:
+                        return -1
+                    extra = raw[k]
+                    k += 1
+                    x = -math.log((np.float64(extra & low) + 0.5) * inv32) / tail
+                    u2 = (np.float64(extra >> sh) + 0.5) * inv32
+                x = tail + x if hz > 0 else -tail - x
+                break
+            if fn[iz] + u1 * (fn[iz - 1] - fn[iz]) < math.exp(-0.5 * x * x):
+                break
+            if k >= nraw:
+                return -1
+            bits = raw[k]
+            k += 1
+        out[i] = x
+    return k

@@ -60,6 +60,7 @@ from estimators.particle_sampling import (
     kld_sample_bound,
     low_variance_indices,
     resample_filters,
+    standard_normals,
 )
 from estimators.particle_weighting import NO_FIELD, weigh_filters
 
@@ -336,7 +337,7 @@ class ParticleFilter:
         params = self._motion_params(trans, rot1, rot2)
         if out is None:
             out = np.empty(3 * self._weights.size, dtype=np.float32)
-        return params, self.rng.standard_normal(out=out, dtype=np.float32)
+        return params, standard_normals(self.rng, out)
 
     def _motion_params(self, trans: float, rot1: float, rot2: float) -> np.ndarray:
         """``(6,)`` float32 ``rot1, trans, rot2`` and their noise standard deviations

@@ -12,15 +12,35 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.special import ndtri
 
-from estimators._team_kernels import build_blocks, select_blocks
+from estimators._team_kernels import (
+    build_blocks,
+    normals_from_bits,
+    select_blocks,
+    ziggurat_tables,
+)
 
 if TYPE_CHECKING:
     from estimators.particle_filter import ParticleFilter
 
 __all__ = [
     "kld_need", "kld_sample_bound", "low_variance_from_cumulative", "low_variance_indices",
-    "resample_filters",
+    "resample_filters", "standard_normals",
 ]
+
+_ZIGGURAT = ziggurat_tables()
+
+
+def standard_normals(rng: np.random.Generator, out: np.ndarray) -> np.ndarray:
+    """Fill the float32 array ``out`` with standard normals from ``rng``'s bit stream and
+    return it (the ziggurat method in one compiled pass; about twice as fast as
+    ``rng.standard_normal(dtype=np.float32)``, from a different stream)."""
+    n = out.size
+    extra = 16 + n // 16  # about 1.3 % of the tries need another word
+    while True:
+        raw = rng.bit_generator.random_raw(n + extra)
+        if normals_from_bits(raw, out, *_ZIGGURAT) >= 0:
+            return out
+        extra *= 2
 
 
 def low_variance_indices(weights: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
