@@ -276,6 +276,7 @@ class MCLBackend(EstimatorBackend):
         check_extra("mcl_random_every_step", self.resample_every_step)
         self.init_factor = global_init_factor(cfg)
         self.filters: list[ParticleFilter] = []
+        self._origins = np.zeros((0, 2))  # each filter's state origin (world x, y)
         self.rng = np.random.default_rng(0)
         self.transfers_applied = np.zeros(len(self.robots), dtype=int)
         self._t = 0
@@ -309,6 +310,7 @@ class MCLBackend(EstimatorBackend):
             else:
                 pf.init_gaussian(start[i], cov)
             self.filters.append(pf)
+        self._origins = np.array([pf.state_origin for pf in self.filters]).reshape(-1, 2)
         self.transfer.reset()
         self.transfers_applied[:] = 0
         self._t = 0
@@ -456,55 +458,74 @@ class MCLBackend(EstimatorBackend):
         then the likelihood-field laser scans and all fixes in one pass
         (:func:`estimators.mcl_batch.weigh_batch`).
         """
+        if not live:
+            return 0
         cfg = self.config_fields
-        groups: dict[str, list[int]] = {}
-        scans = 0
-        for i in live:
-            g = self.robots[i]
-            if not (self._has_range[i] and readings.range_mask[g]):
-                continue
-            scans += 1
-            t = self._sensor(i)
-            if np.isfinite(readings.ranges[g][: len(self._angles[t])]).any():
-                groups.setdefault(t, []).append(i)  # a scan without a reading carries nothing
-        lf_scans: list[int] = []
-        for t, members in groups.items():
+        idx = np.asarray(live)
+        g = self.robots[idx]
+        scanned = self._has_range[idx] & readings.range_mask[g]
+        sonar = self._sonar[idx]
+        lf_rows = None
+        lf_scan = np.zeros(idx.size, dtype=bool)
+        for t in self._grids:
             angles = self._angles[t]
-            rows = readings.ranges[self.robots[members], : len(angles)]
-            filters = [self.filters[i] for i in members]
+            member = scanned & (sonar if t == "sonar" else ~sonar)
+            if not member.any():
+                continue
+            rows = readings.ranges[g[member], : len(angles)]
+            carry = np.isfinite(rows).any(axis=1)  # a scan without a reading carries nothing
+            if not carry.any():
+                continue
+            rows = rows[carry]
+            sel = np.flatnonzero(member)[carry]
+            if t == "laser" and not self._laser_beam:
+                lf_scan[sel] = True
+                lf_rows = np.where(np.isfinite(rows), rows, np.inf)
+                continue
+            filters = [self.filters[live[k]] for k in sel.tolist()]
             if t == "sonar":
                 update_beam_batch(filters, rows, angles, cfg["sonar_max_range"], self._cone)
-            elif self._laser_beam:
-                update_beam_batch(filters, rows, angles, cfg["laser_max_range"])
             else:
-                lf_scans = members
-        weigh: list[int] = []
-        fixes = []
-        for i in live:
-            g = self.robots[i]
-            gps = self._has_gps[i] and readings.gps_mask[g]
-            compass = self._has_compass[i] and readings.compass_mask[g]
-            if gps or compass:
-                fixes.append(self.filters[i].fix_row(
-                    readings.gps_xy[g] if gps else None,
-                    float(readings.gps_var[g]) if gps else 1.0,
-                    float(readings.compass[g]) if compass else None, cfg["compass_std"]))
-                weigh.append(i)
-            elif i in lf_scans:
-                fixes.append(self.filters[i].fix_row())
-                weigh.append(i)
-        if weigh:
-            angles = self._angles.get("laser")
+                update_beam_batch(filters, rows, angles, cfg["laser_max_range"])
+        gps = self._has_gps[idx] & readings.gps_mask[g]
+        compass = self._has_compass[idx] & readings.compass_mask[g]
+        weigh = lf_scan | gps | compass
+        if weigh.any():
+            fixes = self._fix_rows(idx, gps, compass, readings)[weigh]
+            team = [self.filters[live[k]] for k in np.flatnonzero(weigh).tolist()]
             ranges = None
-            if lf_scans:
-                ranges = np.full((len(weigh), len(angles)), np.nan)
-                for r, i in enumerate(weigh):
-                    if i in lf_scans:
-                        row = readings.ranges[self.robots[i], : len(angles)]
-                        ranges[r] = np.where(np.isfinite(row), row, np.inf)
-            weigh_batch([self.filters[i] for i in weigh], ranges, angles,
-                        cfg["laser_max_range"], np.array(fixes))
-        return scans
+            angles = self._angles.get("laser")
+            if lf_rows is not None:
+                ranges = np.full((len(team), len(angles)), np.nan)
+                ranges[lf_scan[weigh]] = lf_rows
+            weigh_batch(team, ranges, angles, cfg["laser_max_range"], fixes)
+        return int(scanned.sum())
+
+    def _fix_rows(self, idx: np.ndarray, gps: np.ndarray, compass: np.ndarray,
+                  readings: Readings) -> np.ndarray:
+        """:meth:`ParticleFilter.fix_row` of robots ``idx`` (backend indices) for their DGPS
+        fixes (where ``gps``) and compass readings (where ``compass``), vectorized."""
+        g = self.robots[idx]
+        fixes = np.zeros((g.size, 7))
+        if gps.any():
+            xy = readings.gps_xy[g[gps]]
+            var = readings.gps_var[g[gps]]
+            if not (np.all(np.isfinite(xy)) and np.all(np.isfinite(var)) and np.all(var > 0)):
+                raise ValueError(f"DGPS fixes must be finite with a positive variance, got "
+                                 f"{xy}, {var}")
+            fixes[gps, 0] = 1.0
+            fixes[gps, 1:3] = xy - self._origins[idx[gps]]
+            fixes[gps, 3] = -0.5 / var
+        if compass.any():
+            c = readings.compass[g[compass]]
+            std = self.config_fields["compass_std"]
+            if not (np.all(np.isfinite(c)) and std > 0):
+                raise ValueError(f"compass readings must be finite with compass_std > 0, got "
+                                 f"{c}, {std}")
+            fixes[compass, 4] = 1.0
+            fixes[compass, 5] = c
+            fixes[compass, 6] = -0.5 / std**2
+        return fixes
 
     # ------------------------------------------------------------------ outputs
     def _summaries(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

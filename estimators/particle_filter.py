@@ -196,6 +196,12 @@ class ParticleFilter:
         return state
 
     @property
+    def state_origin(self) -> np.ndarray:
+        """World ``(x, y)`` of the internal state's origin (the centre of map cell (0, 0));
+        :meth:`fix_row` positions are measured from it."""
+        return self._org[:2, 0].copy()
+
+    @property
     def weights(self) -> np.ndarray:
         """``(N,)`` normalized weights (a read-only view)."""
         view = self._weights.view()
