@@ -201,22 +201,13 @@ def beam_loglik(
         a_bins[b] = np.float32(angles[b]) * scale
     pow2 = (n_bins & (n_bins - 1)) == 0
     mask = n_bins - 1
+    kis = np.empty(nb, dtype=np.int64)
+    dphis = np.empty(nb, dtype=np.float32)
     start = 0
     for r_i in range(ends.size):
         end = ends[r_i]
         n = end - start
         base = 3 * start
-        # per particle: cell, offsets from its centre, heading in bins; then beams
-        # outer and particles inner (index arithmetic vectorizes, gathers run tight;
-        # each particle's sum keeps the beam order)
-        cells = np.empty(n, dtype=np.int64)
-        dxs = np.empty(n, dtype=np.float32)
-        dys = np.empty(n, dtype=np.float32)
-        hbs = np.empty(n, dtype=np.float32)
-        ins = np.empty(n, dtype=np.bool_)
-        total = np.zeros(n)
-        kis = np.empty(n, dtype=np.int64)
-        dphis = np.empty(n, dtype=np.float32)
         for j in range(n):
             x = flat[base + j]
             y = flat[base + n + j]
@@ -224,39 +215,36 @@ def beam_loglik(
             uy = np.float32(np.rint(y * inv))
             ix = int(ux)
             iy = int(uy)
-            dxs[j] = x - ux * res32
-            dys[j] = y - uy * res32
+            dx = x - ux * res32
+            dy = y - uy * res32
             inside = 0 <= ix < nx and 0 <= iy < ny
-            ins[j] = inside
-            cells[j] = (iy * nx + ix if inside else 0) * n_bins
-            hbs[j] = flat[base + 2 * n + j] * scale + half_bins
-        for b in range(nb):
-            ab = a_bins[b]
-            off = row_offsets[r_i, b]
-            for j in range(n):
-                kf = hbs[j] + ab
+            cell = iy * nx + ix if inside else 0
+            hb = flat[base + 2 * n + j] * scale + half_bins
+            # the beams' table rows first (vectorizes), then the lookups: one
+            # particle's beams read one cell's rows, close together in memory
+            for b in range(nb):
+                kf = hb + a_bins[b]
                 k = np.float32(math.floor(kf))
-                dphis[j] = ((kf - k) - half) * inv_scale
+                dphis[b] = ((kf - k) - half) * inv_scale
                 ki = int(k)
-                kis[j] = cells[j] + (ki & mask if pow2 else ki % n_bins)
-            for j in range(n):
-                jr = kis[j]
-                if ins[j]:
+                kis[b] = cell * n_bins + (ki & mask if pow2 else ki % n_bins)
+            total = 0.0
+            for b in range(nb):
+                jr = kis[b]
+                if inside:
                     r = np.float32(rows[jr, 0]) * s0
-                    r += (np.float32(rows[jr, 1]) * s1) * dxs[j]
-                    r += (np.float32(rows[jr, 2]) * s2) * dys[j]
-                    r += (np.float32(rows[jr, 3]) * s3) * dphis[j]
+                    r += (np.float32(rows[jr, 1]) * s1) * dx
+                    r += (np.float32(rows[jr, 2]) * s2) * dy
+                    r += (np.float32(rows[jr, 3]) * s3) * dphis[b]
                     r = min(max(r, zero), rmax)
                 else:
                     r = zero
                 q = r * istep
                 q += half
-                total[j] += lut[int(q) + off]
-        for j in range(n):
-            c = cells[j] // n_bins
-            if not (ins[j] and free_cells[c]):
-                total[j] += occupied_loglik
-            out[start + j] = total[j]
+                total += lut[int(q) + row_offsets[r_i, b]]
+            if not (inside and free_cells[cell]):
+                total += occupied_loglik
+            out[start + j] = total
         start = end
     return out
 
