@@ -224,15 +224,16 @@ def _first_flags(key: np.ndarray, size: int) -> np.ndarray:  # pragma: no cover 
 @njit(cache=True)
 def select_blocks(
     flat: np.ndarray, w: np.ndarray, ends: np.ndarray, mode: np.ndarray, u: np.ndarray,
-    m: np.ndarray, perm: np.ndarray, kld: np.ndarray, need: np.ndarray,
+    m: np.ndarray, bits: np.ndarray, kld: np.ndarray, need: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover (compiled)
     """Low-variance resampling of every robot with ``mode[r]`` 1 (fixed count) or 2
     (KLD-sampling); ``mode`` 0 robots are skipped.
 
     Robot ``r`` draws ``m[r]`` indices into its own particles with offset ``u[r]``
     (as :func:`estimators.particle_sampling.low_variance_from_cumulative` does from
-    its weights' cumulative sums); with KLD-sampling they are reordered by
-    ``perm[o_r : o_r + m[r]]`` (``o_r`` the sum of the earlier ``m``) and the count
+    its weights' cumulative sums); with KLD-sampling they are shuffled (Fisher-Yates,
+    step ``i`` swapping with ``j = floor(u (i + 1))``, ``u`` the top 53 bits of
+    ``bits[o_r + i]``; ``o_r`` the sum of the earlier ``m``) and the count
     kept is the shortest prefix that reaches the bound ``need[int(kld[r, 6]) + k]``
     for the ``k`` histogram bins it occupies, clipped to ``[kld[r, 7], m[r]]``
     (``kld[r]``: ``org_x, org_y, 1 / bin_x, 1 / bin_y, 1 / bin_heading, n_heading_bins,
@@ -269,9 +270,12 @@ def select_blocks(
                 below = math.ceil(acc * scale - u[r]) if i < n - 1 else mr
             idx[o + j] = i
         if mode[r] == 2 and mr > 0:
-            sel = idx[o:o + mr].copy()
-            for j in range(mr):
-                idx[o + j] = sel[perm[o + j]]
+            for i in range(mr - 1, 0, -1):
+                u53 = np.float64(bits[o + i] >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+                j = int(u53 * (i + 1))
+                t = idx[o + i]
+                idx[o + i] = idx[o + j]
+                idx[o + j] = t
             base = 3 * start
             org_x, org_y = kld[r, 0], kld[r, 1]
             inv_bx, inv_by, inv_bt = kld[r, 2], kld[r, 3], kld[r, 4]

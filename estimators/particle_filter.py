@@ -641,7 +641,8 @@ class ParticleFilter:
         resampling and shuffled, and the shortest prefix whose size reaches the
         KLD bound for the number of histogram bins (``kld_bin``) it occupies is
         kept; otherwise the size is kept. Random draws, in order: adaptive: the
-        resampling offset, the shuffle, the injected count (binomial); fixed size:
+        resampling offset, ``n_max`` 64-bit words for the shuffle, the injected count
+        (binomial); fixed size:
         the injected count, the offset; then the injected positions
         (:meth:`OccupancyGrid.sample_free`) and headings.
         (:func:`estimators.particle_sampling.resample_filters` does it for a team.)

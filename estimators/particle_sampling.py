@@ -119,7 +119,7 @@ def resample_filters(filters: Sequence[ParticleFilter], flat: np.ndarray, ends: 
     m = np.zeros(nr, dtype=np.intp)
     n_inj = np.zeros(nr, dtype=np.intp)
     kld = np.zeros((nr, 8))
-    perms: list[np.ndarray] = []
+    words: list[np.ndarray] = []
     needs: list[np.ndarray] = []
     need_off = 0
     p_inj = [0.0] * nr
@@ -133,7 +133,7 @@ def resample_filters(filters: Sequence[ParticleFilter], flat: np.ndarray, ends: 
             mode[r] = 2
             m[r] = cfg.n_max
             u[r] = rng.random()
-            perms.append(rng.permutation(cfg.n_max))
+            words.append(rng.bit_generator.random_raw(cfg.n_max))  # the shuffle
             if pf._unwrapped_steps:
                 pf._wrap_headings()
             bx, by, bt = cfg.kld_bin
@@ -148,17 +148,17 @@ def resample_filters(filters: Sequence[ParticleFilter], flat: np.ndarray, ends: 
             n_inj[r] = int(rng.binomial(n, p_inj[r])) if p_inj[r] > 0 else 0
             u[r] = rng.random()
             m[r] = n - n_inj[r]
-    perm = np.zeros(int(m.sum()), dtype=np.intp)  # KLD robots' permutations at their offsets
-    it = iter(perms)
+    bits = np.zeros(int(m.sum()), dtype=np.uint64)  # KLD robots' shuffle words at offsets
+    it = iter(words)
     o = 0
     for r in range(nr):
         if mode[r] == 2:
-            perm[o:o + m[r]] = next(it)
+            bits[o:o + m[r]] = next(it)
         o += m[r]
     need_all = np.concatenate(needs) if needs else np.zeros(1)
     if not w.flags.writeable:  # one compiled signature: writeable arrays
         w = w.copy()
-    idx, counts = select_blocks(flat, w, ends, mode, u, m, perm, kld, need_all)
+    idx, counts = select_blocks(flat, w, ends, mode, u, m, bits, kld, need_all)
     keep = counts.copy()
     inj: list[np.ndarray] = []
     for r, pf in enumerate(filters):

@@ -120,7 +120,10 @@ def reference_resample(pf: ParticleFilter) -> np.ndarray:
     cum = np.add.accumulate(pf.weights)
     if cfg.adaptive:
         idx = low_variance_from_cumulative(cum, cfg.n_max, rng)
-        idx = idx[rng.permutation(cfg.n_max)]
+        words = rng.bit_generator.random_raw(cfg.n_max)
+        for i in range(cfg.n_max - 1, 0, -1):  # Fisher-Yates from the words' top 53 bits
+            j = int(float(int(words[i]) >> 11) / 2.0**53 * (i + 1))
+            idx[i], idx[j] = idx[j], idx[i]
         sel = st[:, idx].astype(np.float32)
         bx, by, bt = cfg.kld_bin
         n_t = math.ceil(2 * math.pi / bt)
