@@ -204,24 +204,6 @@ def weigh_blocks(
 
 
 @njit(cache=True)
-def _first_flags(key: np.ndarray, size: int) -> np.ndarray:  # pragma: no cover (compiled)
-    """Whether each entry of ``key`` (values ``0 .. size - 1``) is its value's first."""
-    n = key.size
-    out = np.zeros(n, dtype=np.bool_)
-    if size <= 16 * n + 2**20:  # a marker array of this size is cheap
-        seen = np.zeros(size, dtype=np.bool_)
-        for i in range(n):
-            out[i] = not seen[key[i]]
-            seen[key[i]] = True
-    else:  # sparse keys: sort instead (stable, so a run's first is its earliest)
-        order = np.argsort(key, kind="mergesort")
-        for j in range(n):
-            if j == 0 or key[order[j]] != key[order[j - 1]]:
-                out[order[j]] = True
-    return out
-
-
-@njit(cache=True)
 def select_blocks(
     flat: np.ndarray, w: np.ndarray, ends: np.ndarray, mode: np.ndarray, u: np.ndarray,
     m: np.ndarray, bits: np.ndarray, kld: np.ndarray, need: np.ndarray,
@@ -231,10 +213,10 @@ def select_blocks(
 
     Robot ``r`` draws ``m[r]`` indices into its own particles with offset ``u[r]``
     (as :func:`estimators.particle_sampling.low_variance_from_cumulative` does from
-    its weights' cumulative sums); with KLD-sampling they are shuffled (Fisher-Yates,
-    step ``i`` swapping with ``j = floor(u (i + 1))``, ``u`` the top 53 bits of
-    ``bits[o_r + i]``; ``o_r`` the sum of the earlier ``m``) and the count
-    kept is the shortest prefix that reaches the bound ``need[int(kld[r, 6]) + k]``
+    its weights' cumulative sums); with KLD-sampling they are shuffled (Fisher-Yates
+    forward: position ``i`` swaps with ``i + floor(u (m[r] - i))``, ``u`` the top 53
+    bits of ``bits[o_r + i]``; ``o_r`` the sum of the earlier ``m``) only as far as the
+    count kept: the shortest prefix that reaches the bound ``need[int(kld[r, 6]) + k]``
     for the ``k`` histogram bins it occupies, clipped to ``[kld[r, 7], m[r]]``
     (``kld[r]``: ``org_x, org_y, 1 / bin_x, 1 / bin_y, 1 / bin_heading, n_heading_bins,
     need offset, n_min``; headings must be wrapped). Returns the indices (at offsets
@@ -270,39 +252,47 @@ def select_blocks(
                 below = math.ceil(acc * scale - u[r]) if i < n - 1 else mr
             idx[o + j] = i
         if mode[r] == 2 and mr > 0:
-            for i in range(mr - 1, 0, -1):
-                u53 = np.float64(bits[o + i] >> np.uint64(11)) * (1.0 / 9007199254740992.0)
-                j = int(u53 * (i + 1))
-                t = idx[o + i]
-                idx[o + i] = idx[o + j]
-                idx[o + j] = t
+            # histogram bin of each of the robot's particles
             base = 3 * start
             org_x, org_y = kld[r, 0], kld[r, 1]
             inv_bx, inv_by, inv_bt = kld[r, 2], kld[r, 3], kld[r, 4]
             n_t = int(kld[r, 5])
-            kx = np.empty(mr, dtype=np.int64)
-            ky = np.empty(mr, dtype=np.int64)
-            for j in range(mr):
-                p = idx[o + j]
-                kx[j] = np.int64(math.floor((np.float64(flat[base + p]) + org_x) * inv_bx))
-                ky[j] = np.int64(math.floor((np.float64(flat[base + n + p]) + org_y) * inv_by))
+            kx = np.empty(n, dtype=np.int64)
+            ky = np.empty(n, dtype=np.int64)
+            for p in range(n):
+                kx[p] = np.int64(math.floor((np.float64(flat[base + p]) + org_x) * inv_bx))
+                ky[p] = np.int64(math.floor((np.float64(flat[base + n + p]) + org_y) * inv_by))
             kx0 = kx.min()
             ky0 = ky.min()
             ny_b = ky.max() - ky0 + 1
-            key = np.empty(mr, dtype=np.int64)
-            for j in range(mr):
-                h = flat[base + 2 * n + idx[o + j]]
-                t = np.int64(math.floor((h + np.float32(math.pi)) * np.float32(inv_bt)))
-                t = min(max(t, 0), n_t - 1)
-                key[j] = ((kx[j] - kx0) * ny_b + (ky[j] - ky0)) * n_t + t
-            first = _first_flags(key, (kx.max() - kx0 + 1) * ny_b * n_t)
+            size = (kx.max() - kx0 + 1) * ny_b * n_t
+            dense = size <= 16 * mr + 2**20  # a marker array of this size is cheap
+            seen = np.zeros(size if dense else 1, dtype=np.bool_)
+            seen_set = {np.int64(-1)}
+            # shuffle forward (Fisher-Yates: position i takes a uniform pick of the rest)
+            # and stop at the shortest prefix that reaches the bound
             off = int(kld[r, 6])
             k = 0
             keep = mr
-            for j in range(mr):
-                k += first[j]
-                if j + 1 >= need[off + k]:
-                    keep = j + 1
+            for i in range(mr):
+                u53 = np.float64(bits[o + i] >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+                j = i + int(u53 * (mr - i))
+                p = idx[o + j]
+                idx[o + j] = idx[o + i]
+                idx[o + i] = p
+                h = flat[base + 2 * n + p]
+                t = np.int64(math.floor((h + np.float32(math.pi)) * np.float32(inv_bt)))
+                t = min(max(t, 0), n_t - 1)
+                key = ((kx[p] - kx0) * ny_b + (ky[p] - ky0)) * n_t + t
+                if dense:
+                    if not seen[key]:
+                        seen[key] = True
+                        k += 1
+                elif key not in seen_set:
+                    seen_set.add(key)
+                    k += 1
+                if i + 1 >= need[off + k]:  # need >= n_min: the prefix is shuffled
+                    keep = i + 1
                     break
             counts[r] = min(max(keep, int(kld[r, 7])), mr)
         o += mr
