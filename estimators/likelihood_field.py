@@ -34,6 +34,7 @@ assert _MAGIC_BITS * 256 % 2**32 == 0
 # The likelihood-field table holds log-likelihoods divided by this: a scan's sum then
 # stays within float32 exp's range for common scans (powered back in float64).
 LF_POWER = 4
+_UNITS: dict[tuple[bytes, float], tuple[np.ndarray, np.ndarray]] = {}  # beam directions
 
 
 class LFField(NamedTuple):
@@ -104,13 +105,18 @@ def lf_endpoints(lf: LFField, ranges: np.ndarray, angles: np.ndarray
     gives NaN) at ``angles (B,)``: the scan as the compiled weighting
     (:func:`estimators._team_kernels.weigh_blocks`) reads it, rounded as
     :func:`lf_loglik` rounds it."""
+    key = (angles.tobytes(), lf.inv_res)
+    unit = _UNITS.get(key)
+    if unit is None:
+        if len(_UNITS) > 64:  # scanners repeat their angles: a few entries suffice
+            _UNITS.clear()
+        unit = _UNITS[key] = (np.cos(angles) * lf.inv_res).astype(np.float32), (
+            np.sin(angles) * lf.inv_res).astype(np.float32)
     r = np.minimum(ranges, lf.reach)
-    c = (np.cos(angles) * lf.inv_res).astype(np.float32)
-    s = (np.sin(angles) * lf.inv_res).astype(np.float32)
     ux = np.empty(r.shape, dtype=np.float32)
     uy = np.empty(r.shape, dtype=np.float32)
-    np.multiply(c, r, out=ux, casting="unsafe")  # in float64, rounded once
-    np.multiply(s, r, out=uy, casting="unsafe")
+    np.multiply(unit[0], r, out=ux, casting="unsafe")  # in float64, rounded once
+    np.multiply(unit[1], r, out=uy, casting="unsafe")
     return ux, uy
 
 

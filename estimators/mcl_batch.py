@@ -131,42 +131,40 @@ def weigh_batch(
     fixes = np.asarray(fixes, dtype=float)
     if fixes.shape != (nr, FIX_COLUMNS):
         raise ValueError(f"fixes must have shape ({nr}, {FIX_COLUMNS}), got {fixes.shape}")
-    out_ev = np.full(nr, np.nan)
     if not nr:
-        return out_ev
-    nb = np.full(nr, -1, dtype=np.intp)
-    ux = uy = np.zeros((nr, 0), dtype=np.float32)
-    lead = None
-    if ranges is not None:
-        ranges = np.asarray(ranges, dtype=float)
-        angles = np.asarray(angles, dtype=float).ravel()
-        if ranges.shape != (nr, angles.size):
-            raise ValueError(f"ranges must have shape ({nr}, {angles.size}), got {ranges.shape}")
-        has = ~np.all(np.isnan(ranges), axis=1)
-        if np.any(ranges < 0):
-            raise ValueError(f"ranges must be >= 0, got {ranges}")
-        for r in np.flatnonzero(has).tolist():
-            pf = filters[r]
-            if lead is None:
-                lead = pf
-            elif pf.grid is not lead.grid or (pf.config is not lead.config
-                                              and pf.config != lead.config):
-                raise ValueError("weigh_batch needs the filters with scans to share one map "
-                                 "and one config")
-        if lead is not None:
-            ok = ranges < max_range  # NaN and inf compare False
-            nb = np.where(has, ok.sum(axis=1), -1)
-            ux, uy = lf_endpoints(lead._lf_field(max_range), np.where(ok, ranges, np.nan),
-                                  angles)
+        return np.zeros(0)
     flat, ends = team_state(filters)
     n = int(ends[-1])
+    w_prev = team_weights(filters)
+    if ranges is None:
+        nb = np.full(nr, -1, dtype=np.intp)
+        return weigh_filters(filters, flat, ends, w_prev, fixes, nb, np.empty(n), False,
+                             np.zeros(nr), np.zeros(nr))
+    ranges = np.asarray(ranges, dtype=float)
+    angles = np.asarray(angles, dtype=float).ravel()
+    if ranges.shape != (nr, angles.size):
+        raise ValueError(f"ranges must have shape ({nr}, {angles.size}), got {ranges.shape}")
+    if (ranges < 0).any():
+        raise ValueError(f"ranges must be >= 0, got {ranges}")
+    ok = ranges < max_range  # NaN and inf compare False
+    has = (ranges == ranges).any(axis=1)  # a row of NaN is no scan
+    lead = None
+    for r in np.flatnonzero(has).tolist():
+        pf = filters[r]
+        if lead is None:
+            lead = pf
+        elif pf.grid is not lead.grid or (pf.config is not lead.config
+                                          and pf.config != lead.config):
+            raise ValueError("weigh_batch needs the filters with scans to share one map "
+                             "and one config")
     if lead is None:
-        return weigh_filters(filters, flat, ends, team_weights(filters), fixes, nb, np.empty(n),
-                             False, np.zeros(nr), np.zeros(nr))
+        return weigh_batch(filters, None, None, None, fixes)
     lf = lead._lf_field(max_range)
-    k = np.maximum(nb, 0)
-    return weigh_filters(filters, flat, ends, team_weights(filters), fixes, nb, np.empty(n),
-                         False, k * lf.lmax, k * lead.config.likelihood_exponent,
+    k = ok.sum(axis=1)
+    nb = np.where(has, k, -1)
+    ux, uy = lf_endpoints(lf, np.where(ok, ranges, np.nan), angles)
+    return weigh_filters(filters, flat, ends, w_prev, fixes, nb, np.empty(n), False,
+                         k * lf.lmax, k * lead.config.likelihood_exponent,
                          lead.lf_kernel_args(max_range), ux, uy, float(LF_POWER))
 
 

@@ -156,6 +156,7 @@ class ParticleFilter:
         # where the state / weights start in a team array they are views of
         # (estimators.mcl_batch.team_state / weigh_batch)
         self._block_start = self._wblock_start = -1
+        self._ess: tuple[np.ndarray, float] = (self._weights, 0.0)  # weights and their ESS
         self.init_uniform()
 
     def __getstate__(self) -> dict:
@@ -216,7 +217,11 @@ class ParticleFilter:
     @property
     def ess(self) -> float:
         """Effective sample size ``1 / sum(w^2)``."""
-        return float(1.0 / np.dot(self._weights, self._weights))
+        w, ess = self._ess
+        if w is not self._weights:  # weights are replaced, never changed in place
+            ess = float(1.0 / np.dot(self._weights, self._weights))
+            self._ess = (self._weights, ess)
+        return ess
 
     @property
     def inject_probability(self) -> float:

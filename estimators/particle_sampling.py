@@ -28,6 +28,9 @@ __all__ = [
 ]
 
 _ZIGGURAT = ziggurat_tables()
+_NO_BITS = np.zeros(0, dtype=np.uint64)
+_NO_NEED = np.zeros(1)
+_NO_POSES = np.zeros((0, 3))
 
 
 def standard_normals(rng: np.random.Generator, out: np.ndarray) -> np.ndarray:
@@ -114,15 +117,16 @@ def resample_filters(filters: Sequence[ParticleFilter], flat: np.ndarray, ends: 
     team equals resampling its filters one by one.
     """
     nr = len(filters)
-    mode = np.zeros(nr, dtype=np.intp)
-    u = np.zeros(nr)
-    m = np.zeros(nr, dtype=np.intp)
-    n_inj = np.zeros(nr, dtype=np.intp)
+    mode = [0] * nr
+    u = [0.0] * nr
+    m = [0] * nr
+    n_inj = [0] * nr
     kld = np.zeros((nr, 8))
     words: list[np.ndarray] = []
     needs: list[np.ndarray] = []
     need_off = 0
     p_inj = [0.0] * nr
+    ends_l = ends.tolist()
     for r, pf in enumerate(filters):
         if not which[r]:
             continue
@@ -144,35 +148,44 @@ def resample_filters(filters: Sequence[ParticleFilter], flat: np.ndarray, ends: 
             need_off += need.size
         else:
             mode[r] = 1
-            n = int(ends[r] - (ends[r - 1] if r else 0))
+            n = ends_l[r] - (ends_l[r - 1] if r else 0)
             n_inj[r] = int(rng.binomial(n, p_inj[r])) if p_inj[r] > 0 else 0
             u[r] = rng.random()
             m[r] = n - n_inj[r]
-    bits = np.zeros(int(m.sum()), dtype=np.uint64)  # KLD robots' shuffle words at offsets
-    it = iter(words)
-    o = 0
-    for r in range(nr):
-        if mode[r] == 2:
-            bits[o:o + m[r]] = next(it)
-        o += m[r]
-    need_all = np.concatenate(needs) if needs else np.zeros(1)
+    if words:  # KLD robots' shuffle words at their offsets
+        bits = np.zeros(sum(m), dtype=np.uint64)
+        it = iter(words)
+        o = 0
+        for r in range(nr):
+            if mode[r] == 2:
+                bits[o:o + m[r]] = next(it)
+            o += m[r]
+        need_all = np.concatenate(needs)
+    else:
+        bits = _NO_BITS
+        need_all = _NO_NEED
     if not w.flags.writeable:  # one compiled signature: writeable arrays
         w = w.copy()
-    idx, counts = select_blocks(flat, w, ends, mode, u, m, bits, kld, need_all)
-    keep = counts.copy()
+    mode_a = np.array(mode, dtype=np.intp)
+    m_a = np.array(m, dtype=np.intp)
+    idx, counts = select_blocks(flat, w, ends, mode_a, np.array(u), m_a, bits, kld, need_all)
+    keep = counts.tolist()
     inj: list[np.ndarray] = []
     for r, pf in enumerate(filters):
         if mode[r] == 2:
-            n = int(counts[r])
+            n = keep[r]
             n_inj[r] = int(pf.rng.binomial(n, p_inj[r])) if p_inj[r] > 0 else 0
             keep[r] = n - n_inj[r]
         if n_inj[r]:
-            xy = pf.grid.sample_free(int(n_inj[r]), pf.rng)
-            th = pf.rng.uniform(-np.pi, np.pi, size=int(n_inj[r]))
-            inj.append(np.column_stack([xy, th]))
+            pose = np.empty((n_inj[r], 3))
+            pose[:, :2] = pf.grid.sample_free(n_inj[r], pf.rng)
+            pose[:, 2] = pf.rng.uniform(-np.pi, np.pi, size=n_inj[r])
+            inj.append(pose)
     org = np.array([pf._org[:2, 0] for pf in filters]).reshape(-1, 2)
-    inj_all = np.concatenate(inj) if inj else np.zeros((0, 3))
-    new, new_ends = build_blocks(flat, ends, mode, idx, m, keep, inj_all, n_inj, org)
+    inj_all = np.concatenate(inj) if inj else _NO_POSES
+    n_inj_a = np.array(n_inj, dtype=np.intp)
+    new, new_ends = build_blocks(flat, ends, mode_a, idx, m_a, np.array(keep, dtype=np.intp),
+                                 inj_all, n_inj_a, org)
     start = 0
     for r, pf in enumerate(filters):
         end = int(new_ends[r])

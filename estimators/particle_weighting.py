@@ -58,22 +58,30 @@ def weigh_filters(
     weigh_blocks(flat, ends, w_prev, *lf_args, ux, uy, nb, float(power), fixes, loglik, scored,
                  w, res)
     start = 0
+    ends_l = ends.tolist()
+    nb_l = nb.tolist()
+    res_l = res.tolist()
+    flags = (fixes[:, 0] != 0) | (fixes[:, 4] != 0)
+    offsets_l = np.broadcast_to(offsets, (nr,)).tolist()
+    n_eff_l = np.broadcast_to(n_eff, (nr,)).tolist()
     for r, pf in enumerate(filters):
-        end = int(ends[r])
-        scan = nb[r] >= 0
-        if scan or fixes[r, 0] or fixes[r, 4]:
-            if res[r, 2]:
+        end = ends_l[r]
+        scan = nb_l[r] >= 0
+        if scan or flags[r]:
+            ev_r, ess, ok = res_l[r]
+            if ok:
                 pf._weights = w[start:end]
                 pf._wblock_start = start
-                ev = res[r, 0] + offsets[r]
+                pf._ess = (pf._weights, ess)
+                ev = ev_r + offsets_l[r]
             else:  # the products underflowed: redo this filter in log space
                 pf._weights, ev = _weights_in_logs(pf, w_prev[start:end],
                                                    loglik[start:end] if scan else None,
                                                    fixes[r])
-                ev += offsets[r]
+                ev += offsets_l[r]
             if scan:
                 evidence[r] = ev
-                pf._track_evidence(ev, n_eff[r])
+                pf._track_evidence(ev, n_eff_l[r])
         start = end
     return evidence
 
