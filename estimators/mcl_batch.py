@@ -43,6 +43,9 @@ __all__ = [
 ]
 
 
+_ENDS: dict[tuple[int, ...], np.ndarray] = {}  # segment ends by particle counts (not written)
+
+
 def team_state(filters: Sequence[ParticleFilter]) -> tuple[np.ndarray, np.ndarray]:
     """The filters' states in one flat float32 array (block layout, see
     :mod:`estimators._team_kernels`) and the particle segments' ends ``(R,)``.
@@ -50,22 +53,29 @@ def team_state(filters: Sequence[ParticleFilter]) -> tuple[np.ndarray, np.ndarra
     Each filter's state is made a view of the array, so a later call finds it
     in place (no copy) unless a filter replaced its state meanwhile.
     """
-    counts = np.fromiter((pf._weights.size for pf in filters), np.intp, len(filters))
-    ends = np.cumsum(counts)
     if not filters:
-        return np.zeros(0, dtype=np.float32), ends
+        return np.zeros(0, dtype=np.float32), np.zeros(0, dtype=np.intp)
     flat = filters[0]._state.base
+    valid = flat is not None
+    counts = []
     start = 0
-    for pf, n in zip(filters, counts.tolist(), strict=True):
-        if flat is None or pf._state.base is not flat or pf._block_start != start:
-            break
+    for pf in filters:
+        n = pf._weights.size
+        counts.append(n)
+        if valid and (pf._state.base is not flat or pf._block_start != start):
+            valid = False
         start += n
-    else:
-        if flat.size == 3 * start:
-            return flat, ends
+    key = tuple(counts)
+    ends = _ENDS.get(key)
+    if ends is None:
+        if len(_ENDS) > 256:  # adaptive counts vary: keep the cache small
+            _ENDS.clear()
+        ends = _ENDS[key] = np.cumsum(np.array(counts, dtype=np.intp))
+    if valid and flat.size == 3 * start:
+        return flat, ends
     flat = np.concatenate([pf._flat_state() for pf in filters])
     start = 0
-    for pf, n in zip(filters, counts.tolist(), strict=True):
+    for pf, n in zip(filters, counts, strict=True):
         pf._state = flat[3 * start:3 * (start + n)].reshape(3, n)
         pf._block_start = start
         start += n
