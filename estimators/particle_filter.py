@@ -20,18 +20,21 @@ weighted particle set and offers
   (:meth:`ParticleFilter.belief_features`, layout in
   :func:`belief_feature_names`).
 
-One class in one file on purpose (about 800 lines): every method of
+One class in one file on purpose (about 750 lines): every method of
 :class:`ParticleFilter` works on the same private state layout (float32 poses
-relative to the centre of map cell (0, 0), lazily wrapped headings, reused work
-buffers), which splitting the class would expose. What does not touch that state
-lives beside it: parameters in :mod:`estimators.particle_config`, the
-likelihood-field table and kernel in :mod:`estimators.likelihood_field`,
-resampling helpers in :mod:`estimators.particle_sampling`, the belief embedding in
+relative to the centre of map cell (0, 0), lazily wrapped headings, a state
+that may be a view of a team array), which splitting the class would expose.
+What does not touch that state lives beside it: parameters in
+:mod:`estimators.particle_config`, the likelihood-field table in
+:mod:`estimators.likelihood_field`, resampling and motion-noise draws in
+:mod:`estimators.particle_sampling`, the compiled weighting in
+:mod:`estimators.particle_weighting`, the belief embedding in
 :mod:`estimators.particle_features` (their public names are importable from here
 too), per-map beam tables in :mod:`estimators.beam_table`, team-level batching in
-:mod:`estimators.mcl_batch`, compiled loops in :mod:`estimators._kernels`.
+:mod:`estimators.mcl_batch`, compiled loops in :mod:`estimators._kernels` and
+:mod:`estimators._team_kernels` (one filter is a team of one).
 
-Numerics use numpy/scipy, plus the few numba loops there. All randomness comes from the
+Numerics use numpy/scipy, plus the numba loops there. All randomness comes from the
 ``numpy.random.Generator`` given to the constructor, so two filters built with
 equal seeds and fed equal data produce identical particles.
 """
