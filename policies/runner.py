@@ -118,10 +118,25 @@ def _infogain(arg: str) -> Policy:
     return _no_argument(InfoGainPolicy, "infogain")(arg)
 
 
+def _corridor(arg: str) -> Policy:
+    from policies.scripted import CorridorPolicy
+
+    if not arg:
+        return CorridorPolicy()
+    try:
+        return CorridorPolicy(float(arg))
+    except ValueError as err:
+        raise ValueError(
+            f"policy 'corridor:{arg}': corridor:SPEED needs a speed in (0, 1]"
+        ) from err
+
+
 register_policy("gather", _gather,
                 "drive toward the teammates that can inform you (by the shared estimates)")
 register_policy("infogain", _infogain,
                 "greedy team information seeking over motion primitives (EKF beliefs)")
+register_policy("corridor", _corridor,
+                "follow the free space ahead at full speed by the own scan; corridor:SPEED")
 POLICY_NAMES = tuple(_POLICIES)  # the built-in names
 
 

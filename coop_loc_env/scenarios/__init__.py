@@ -80,6 +80,6 @@ def make_config(scenario: str, **overrides: Any) -> ScenarioConfig:
 
 #: The modules of this package that register the shipped scenarios (add new ones here);
 #: imported here, below the registry they register into.
-SCENARIO_MODULES = ("outdoor", "madhavan", "fox", "howard", "rendezvous")
+SCENARIO_MODULES = ("outdoor", "madhavan", "fox", "howard", "rendezvous", "active_hallway")
 for _module in SCENARIO_MODULES:
     importlib.import_module(f"coop_loc_env.scenarios.{_module}")

@@ -7,12 +7,17 @@
   information seeking over a few motion primitives, minimizing the team's
   expected posterior log det covariance over a short horizon.
 
-Both read only beliefs (means and covariances the team shares), the robot's
+* :class:`~policies.scripted.corridor.CorridorPolicy` (``corridor``): follow
+  the free space ahead at full speed by the robot's own scan (exploration for
+  global localization; needs no belief).
+
+They read only beliefs (means and covariances the team shares), the robot's
 own laser bins, the static map (obstacles, tree canopies) and the robots'
 hardware (which ones carry GPS); never the true poses.
 """
 
+from policies.scripted.corridor import CorridorPolicy
 from policies.scripted.gather import GatherPolicy
 from policies.scripted.infogain import InfoGainPolicy
 
-__all__ = ["GatherPolicy", "InfoGainPolicy"]
+__all__ = ["CorridorPolicy", "GatherPolicy", "InfoGainPolicy"]

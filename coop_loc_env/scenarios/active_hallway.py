@@ -1,0 +1,65 @@
+"""Active hallway: sonar robots localize globally in a symmetric ring; how they drive decides when.
+
+``symmetric_hallway`` (Fox et al.'s Fig. 12 world) with four robots, up to
+1000 particles each and a 120 s horizon. The ring of corridors is symmetric
+under quarter turns; only the open bay off the left corridor breaks the
+symmetry, so a robot knows where it is only after its sonar has seen the bay,
+or after a detection by a teammate that has. A robot that stands still never
+localizes, one that wanders slowly takes most of the episode, and one that
+drives the corridors at full speed without stalling against the walls sees the
+bay sooner and meets its teammates more often.
+
+The figure of merit is the time to localize (:mod:`policies.compare`: the first
+time a robot's particle spread -- the mean particle distance from the true
+pose -- falls below 1.5 m, the episode length for a robot that never gets
+there). For learning, the scenario carries the training defaults of
+``scripts/train.py --scenario active_hallway`` (:data:`TRAINING_DEFAULTS`):
+the reward is minus the time to localize
+(:class:`policies.vec_env.TimeToLocalizeReward`), paid per robot.
+"""
+
+from __future__ import annotations
+
+from coop_loc_env.scenarios import register_scenario, register_training_defaults
+from coop_loc_env.scenarios.fox import symmetric_hallway
+
+#: ``scripts/train.py`` option defaults for this scenario (option dest -> value).
+TRAINING_DEFAULTS: dict = {
+    "timesteps": 50_000_000,  # the wall-clock limit ends the run
+    "bc_from": "corridor",
+    "bc_episodes": 16,
+    "bc_epochs": 40,
+    "dagger_rounds": 4,
+    "dagger_epochs": 15,
+    "bc_log_std": -1.5,
+    "no_reward_norm": True,
+    "learning_rate": 1e-4,
+    "clip_range": 0.1,
+    "reward_mode": "localize",
+    "localize_step_reward": 0.1,
+    "localize_team_weight": 0.5,
+    "localize_collision_weight": 0.1,
+    "eval_freq": 100_000,
+    "eval_episodes": 4,
+    "eval_baseline": "wander:1.0",
+    "checkpoint_freq": 200_000,
+}
+
+
+def active_hallway():
+    """Four sonar robots (1000 particles each) localize globally in the symmetric hallway."""
+    return symmetric_hallway().replace(
+        name="active_hallway",
+        n_robots=4,
+        n_particles=1000,
+        max_cycles=240,
+    )
+
+
+def _factory(overrides: dict):
+    return active_hallway().replace(**overrides)
+
+
+_factory.__doc__ = active_hallway.__doc__
+register_scenario("active_hallway", _factory)
+register_training_defaults("active_hallway", TRAINING_DEFAULTS)
