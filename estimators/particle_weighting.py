@@ -61,9 +61,9 @@ def weigh_filters(
     ends_l = ends.tolist()
     nb_l = nb.tolist()
     res_l = res.tolist()
-    flags = (fixes[:, 0] != 0) | (fixes[:, 4] != 0)
-    offsets_l = np.broadcast_to(offsets, (nr,)).tolist()
-    n_eff_l = np.broadcast_to(n_eff, (nr,)).tolist()
+    flags = ((fixes[:, 0] != 0) | (fixes[:, 4] != 0)).tolist()
+    offsets_l = np.asarray(offsets, dtype=float).tolist()
+    n_eff_l = np.asarray(n_eff, dtype=float).tolist()
     for r, pf in enumerate(filters):
         end = ends_l[r]
         scan = nb_l[r] >= 0
