@@ -5,8 +5,10 @@ ends[r]``, ``start_r`` the previous end) have their float32 ``x, y, heading``
 rows stored as one C-ordered ``(3, n_r)`` block at offset ``3 * start_r`` of a
 flat array, so each filter's ``(3, n_r)`` state is a contiguous view of the team
 array and one call updates every robot. Weights and other per-particle values
-are flat ``(N,)`` arrays. Private helpers of :mod:`estimators.mcl_batch` and
-:class:`estimators.particle_filter.ParticleFilter`; inputs are checked there.
+are flat ``(N,)`` arrays. Private helpers of :mod:`estimators.mcl_batch`,
+:mod:`estimators.particle_weighting`, :mod:`estimators.particle_sampling` and
+:class:`estimators.particle_filter.ParticleFilter` (one filter is a team of one);
+inputs are checked there.
 """
 
 from __future__ import annotations
