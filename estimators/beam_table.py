@@ -40,7 +40,7 @@ __all__ = [
 ]
 
 _LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
-_MAX_SLOPE = 4.0  # |d range / d position| kept below this (incidence under ~76 degrees)
+_MAX_SLOPE = 32.0  # |d range / d position| kept below this (incidence under ~88 degrees)
 _CACHE_SIZE = 16
 _TABLES: OrderedDict[tuple, RangeTable] = OrderedDict()
 _LUTS: OrderedDict[tuple, BeamLUT] = OrderedDict()
@@ -140,8 +140,9 @@ def _build(grid: OccupancyGrid, max_range: float, n_bins: int, cone: float, rays
            ) -> RangeTable:
     """Cast the table's rays from every free cell centre and derive the corrections.
 
-    (Sampling 2 x 2 points per cell instead, for 4x the memory, only lowered the
-    hallway's 99th-percentile error from 0.38 m to 0.20 m.)
+    The position derivatives are clipped to +-``_MAX_SLOPE``: rays that graze a
+    wall need steep ones (clipping them at 4 left the hallway's 99th-percentile
+    error at 0.38 m instead of 0.14 m).
     """
     ny, nx = grid.shape
     res = grid.resolution
