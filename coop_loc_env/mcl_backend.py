@@ -44,9 +44,11 @@ Not handled: detections between an MCL robot and a robot running another
 estimator (EKF/MLE) are ignored by this backend (and by the EKF's); the
 relative measurement would need a Gaussian <-> particle conversion.
 
-Odometry is composed for the whole team at once, and the means, covariances,
-features and particle spreads of all filters are computed together once per
-step (:mod:`estimators.mcl_batch`).
+Steps 1-4 run for the whole team at once, as compiled passes over one flat
+array of all robots' particles (:mod:`estimators.mcl_batch`; each filter keeps
+its own random generator, so the result equals stepping the robots one by
+one), and the means, covariances, features and particle spreads of all
+filters are computed together once per step.
 
 Observation features: :meth:`ParticleFilter.belief_features` (48 values, layout
 in :func:`estimators.particle_filter.belief_feature_names`): weighted mean and
