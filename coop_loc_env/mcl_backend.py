@@ -44,9 +44,11 @@ Not handled: detections between an MCL robot and a robot running another
 estimator (EKF/MLE) are ignored by this backend (and by the EKF's); the
 relative measurement would need a Gaussian <-> particle conversion.
 
-Odometry is composed for the whole team at once, and the means, covariances,
-features and particle spreads of all filters are computed together once per
-step (:mod:`estimators.mcl_batch`).
+Steps 1-4 run for the whole team at once, as compiled passes over one flat
+array of all robots' particles (:mod:`estimators.mcl_batch`; each filter keeps
+its own random generator, so the result equals stepping the robots one by
+one), and the means, covariances, features and particle spreads of all
+filters are computed together once per step.
 
 Observation features: :meth:`ParticleFilter.belief_features` (48 values, layout
 in :func:`estimators.particle_filter.belief_feature_names`): weighted mean and
@@ -79,7 +81,11 @@ from estimators.mcl_batch import (
     belief_summaries,
     compose_odometry_batch,
     particle_spreads,
+    predict_batch,
+    team_state,
+    team_weights,
     update_beam_batch,
+    weigh_batch,
 )
 from estimators.occupancy import OccupancyGrid
 from estimators.particle_filter import (
@@ -89,6 +95,7 @@ from estimators.particle_filter import (
     belief_feature_names,
     low_variance_indices,
 )
+from estimators.particle_sampling import resample_filters
 
 __all__ = ["MCLBackend", "beam_angles", "known_map", "map_resolution"]
 
@@ -236,6 +243,9 @@ class MCLBackend(EstimatorBackend):
         }
         self._angles = {t: beam_angles(cfg, t == "sonar") for t in self._grids}
         self._cone = 0.5 * np.deg2rad(cfg.sonar_fov_deg) / cfg.sonar_beams
+        # plain floats read at every step (config attribute lookups add up per robot)
+        self.config_fields = {k: float(getattr(cfg, k)) for k in (
+            "sonar_max_range", "laser_max_range", "compass_std")}
         n = cfg.n_particles
         # Motion-noise floors are per prediction (one per env step): scale them with dt.
         motion = ParticleMotionNoise(min_xy=0.02 * cfg.dt / 0.1, min_heading=0.01 * cfg.dt / 0.1)
@@ -268,6 +278,7 @@ class MCLBackend(EstimatorBackend):
         check_extra("mcl_random_every_step", self.resample_every_step)
         self.init_factor = global_init_factor(cfg)
         self.filters: list[ParticleFilter] = []
+        self._origins = np.zeros((0, 2))  # each filter's state origin (world x, y)
         self.rng = np.random.default_rng(0)
         self.transfers_applied = np.zeros(len(self.robots), dtype=int)
         self._t = 0
@@ -301,6 +312,7 @@ class MCLBackend(EstimatorBackend):
             else:
                 pf.init_gaussian(start[i], cov)
             self.filters.append(pf)
+        self._origins = np.array([pf.state_origin for pf in self.filters]).reshape(-1, 2)
         self.transfer.reset()
         self.transfers_applied[:] = 0
         self._t = 0
@@ -322,31 +334,21 @@ class MCLBackend(EstimatorBackend):
         self._t += 1
         self._summary = None
         live = [i for i, g in enumerate(self.robots) if active[g]]
-        for i in live:
-            pf = self.filters[i]
-            # Resample only when the weights degenerate (not on every step, as
-            # ParticleFilter.resample_if_needed does while injection is on): every
-            # resampling lets symmetric modes drift, so fewer keep them alive longer.
-            # Random particles are injected at these resamplings.
-            if self.resample_every_step or (
-                pf.ess < pf.config.resample_ess_fraction * pf.n_particles
-            ):
-                pf.resample()
+        team = [self.filters[i] for i in live]
+        # Resample only when the weights degenerate (not on every step, as
+        # ParticleFilter.resample_if_needed does while injection is on): every
+        # resampling lets symmetric modes drift, so fewer keep them alive longer.
+        # Random particles are injected at these resamplings.
+        which = [self.resample_every_step
+                 or pf.ess < pf.config.resample_ess_fraction * pf.n_particles for pf in team]
+        if any(which):
+            flat, ends = team_state(team)
+            resample_filters(team, flat, ends, team_weights(team), which)
         if live:
             odo = readings.odometry[:, self.robots[live]]  # (substeps, robots, 2)
             deltas = compose_odometry_batch(odo[..., 0].T, odo[..., 1].T, dt_sub)
-            for i, delta in zip(live, deltas, strict=True):
-                self.filters[i].predict_delta(delta)
-        stats["range_updates"] = self._range_updates(live, readings)
-        for i in live:
-            g = self.robots[i]
-            pf = self.filters[i]
-            gps = self._has_gps[i] and readings.gps_mask[g]
-            compass = self._has_compass[i] and readings.compass_mask[g]
-            if gps or compass:
-                pf.update_fix(readings.gps_xy[g] if gps else None,
-                              float(readings.gps_var[g]) if gps else 1.0,
-                              float(readings.compass[g]) if compass else None, cfg.compass_std)
+            predict_batch(team, deltas)
+        stats["range_updates"] = self._measurement_updates(live, readings)
         det = readings.detections
         if cfg.cooperative_updates and len(det):
             for k in range(len(det)):
@@ -449,37 +451,83 @@ class MCLBackend(EstimatorBackend):
             self._conflicts[ib] = []
         return confirmed
 
-    def _range_updates(self, live: list[int], readings: Readings) -> int:
-        """Weight the live robots' particles by their range scans; returns how many scans.
+    def _measurement_updates(self, live: list[int], readings: Readings) -> int:
+        """Weight the live robots' particles by their range scans, DGPS fixes and compass
+        readings; returns how many scans.
 
         Robots sharing a beam model (sonars; lasers with ``mcl_laser_model="beam"``)
-        are updated together (:func:`estimators.mcl_batch.update_beam_batch`); the
-        likelihood-field laser robot by robot.
+        are weighted by their scans together (:func:`estimators.mcl_batch.update_beam_batch`);
+        then the likelihood-field laser scans and all fixes in one pass
+        (:func:`estimators.mcl_batch.weigh_batch`).
         """
-        cfg = self.cfg
-        groups: dict[str, list[int]] = {}
-        scans = 0
-        for i in live:
-            g = self.robots[i]
-            if not (self._has_range[i] and readings.range_mask[g]):
-                continue
-            scans += 1
-            t = self._sensor(i)
-            if np.isfinite(readings.ranges[g][: len(self._angles[t])]).any():
-                groups.setdefault(t, []).append(i)  # a scan without a reading carries nothing
-        for t, members in groups.items():
+        if not live:
+            return 0
+        cfg = self.config_fields
+        idx = np.asarray(live)
+        g = self.robots[idx]
+        scanned = self._has_range[idx] & readings.range_mask[g]
+        sonar = self._sonar[idx]
+        lf_rows = None
+        lf_scan = np.zeros(idx.size, dtype=bool)
+        for t in self._grids:
             angles = self._angles[t]
-            rows = readings.ranges[self.robots[members], : len(angles)]
-            filters = [self.filters[i] for i in members]
+            member = scanned & (sonar if t == "sonar" else ~sonar)
+            if not member.any():
+                continue
+            rows = readings.ranges[g[member], : len(angles)]
+            carry = np.isfinite(rows).any(axis=1)  # a scan without a reading carries nothing
+            if not carry.any():
+                continue
+            rows = rows[carry]
+            sel = np.flatnonzero(member)[carry]
+            if t == "laser" and not self._laser_beam:
+                lf_scan[sel] = True
+                lf_rows = np.where(np.isfinite(rows), rows, np.inf)
+                continue
+            filters = [self.filters[live[k]] for k in sel.tolist()]
             if t == "sonar":
-                update_beam_batch(filters, rows, angles, cfg.sonar_max_range, self._cone)
-            elif self._laser_beam:
-                update_beam_batch(filters, rows, angles, cfg.laser_max_range)
+                update_beam_batch(filters, rows, angles, cfg["sonar_max_range"], self._cone)
             else:
-                for pf, row in zip(filters, rows, strict=True):
-                    ok = np.isfinite(row)
-                    pf.update_likelihood_field(row[ok], angles[ok], cfg.laser_max_range)
-        return scans
+                update_beam_batch(filters, rows, angles, cfg["laser_max_range"])
+        gps = self._has_gps[idx] & readings.gps_mask[g]
+        compass = self._has_compass[idx] & readings.compass_mask[g]
+        weigh = lf_scan | gps | compass
+        if weigh.any():
+            fixes = self._fix_rows(idx, gps, compass, readings)[weigh]
+            team = [self.filters[live[k]] for k in np.flatnonzero(weigh).tolist()]
+            ranges = None
+            angles = self._angles.get("laser")
+            if lf_rows is not None:
+                ranges = np.full((len(team), len(angles)), np.nan)
+                ranges[lf_scan[weigh]] = lf_rows
+            weigh_batch(team, ranges, angles, cfg["laser_max_range"], fixes)
+        return int(scanned.sum())
+
+    def _fix_rows(self, idx: np.ndarray, gps: np.ndarray, compass: np.ndarray,
+                  readings: Readings) -> np.ndarray:
+        """:meth:`ParticleFilter.fix_row` of robots ``idx`` (backend indices) for their DGPS
+        fixes (where ``gps``) and compass readings (where ``compass``), vectorized."""
+        g = self.robots[idx]
+        fixes = np.zeros((g.size, 7))
+        if gps.any():
+            xy = readings.gps_xy[g[gps]]
+            var = readings.gps_var[g[gps]]
+            if not (np.all(np.isfinite(xy)) and np.all(np.isfinite(var)) and np.all(var > 0)):
+                raise ValueError(f"DGPS fixes must be finite with a positive variance, got "
+                                 f"{xy}, {var}")
+            fixes[gps, 0] = 1.0
+            fixes[gps, 1:3] = xy - self._origins[idx[gps]]
+            fixes[gps, 3] = -0.5 / var
+        if compass.any():
+            c = readings.compass[g[compass]]
+            std = self.config_fields["compass_std"]
+            if not (np.all(np.isfinite(c)) and std > 0):
+                raise ValueError(f"compass readings must be finite with compass_std > 0, got "
+                                 f"{c}, {std}")
+            fixes[compass, 4] = 1.0
+            fixes[compass, 5] = c
+            fixes[compass, 6] = -0.5 / std**2
+        return fixes
 
     # ------------------------------------------------------------------ outputs
     def _summaries(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

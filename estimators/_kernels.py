@@ -12,19 +12,19 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["summary_sums"]
+__all__ = ["summary_features", "summary_sums"]
 
 
 @njit(cache=True)
 def summary_sums(
-    st: np.ndarray, cos_h: np.ndarray, sin_h: np.ndarray, w: np.ndarray, ends: np.ndarray,
+    flat: np.ndarray, w: np.ndarray, ends: np.ndarray,
     hist_cells: int, inv_cell: float, heading_bins: int,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover (compiled)
     """Per-segment weighted sums of particle sets stored back to back.
 
-    ``st`` ``(3, N)`` holds ``x, y, heading`` (``cos_h``, ``sin_h``: the headings'
-    cosines and sines), ``w`` ``(N,)`` the weights (each segment's summing to 1),
-    segment ``r`` ending (exclusive) at ``ends[r]``.
+    ``flat`` holds ``x, y, heading`` in the block layout of
+    :mod:`estimators._team_kernels`, ``w`` ``(N,)`` the weights (each segment's
+    summing to 1), segment ``r`` ending (exclusive) at ``ends[r]``.
     Returns ``sums (R, 5)`` (weighted sums of ``x, y, cos, sin`` and of ``w**2``),
     ``cov (R, 3, 3)`` (about the weighted mean, the heading wrapped about the
     circular mean), ``hist (R, hist_cells**2)`` (weight in the egocentric grid
@@ -47,12 +47,15 @@ def summary_sums(
         sc = 0.0
         ss = 0.0
         s2 = 0.0
-        for i in range(start, end):
-            wi = w[i]
-            sx += wi * st[0, i]
-            sy += wi * st[1, i]
-            sc += wi * cos_h[i]
-            ss += wi * sin_h[i]
+        n = end - start
+        base = 3 * start
+        for j in range(n):
+            wi = w[start + j]
+            h = flat[base + 2 * n + j]
+            sx += wi * flat[base + j]
+            sy += wi * flat[base + n + j]
+            sc += wi * math.cos(h)
+            ss += wi * math.sin(h)
             s2 += wi * wi
         sums[r, 0] = sx
         sums[r, 1] = sy
@@ -68,11 +71,11 @@ def summary_sums(
         c11 = 0.0
         c12 = 0.0
         c22 = 0.0
-        for i in range(start, end):
-            wi = w[i]
-            dx = st[0, i] - sx
-            dy = st[1, i] - sy
-            dh = st[2, i] - mh
+        for j in range(n):
+            wi = w[start + j]
+            dx = flat[base + j] - sx
+            dy = flat[base + n + j] - sy
+            dh = flat[base + 2 * n + j] - mh
             dh -= two_pi * math.floor(dh / two_pi + 0.5)
             c00 += wi * dx * dx
             c01 += wi * dx * dy
@@ -100,23 +103,89 @@ def summary_sums(
 
 
 @njit(cache=True)
+def summary_features(
+    flat: np.ndarray, w: np.ndarray, ends: np.ndarray, org: np.ndarray, bounds: np.ndarray,
+    count_frac: np.ndarray, hist_cells: int, inv_cell: float, heading_bins: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover (compiled)
+    """Means ``(R, 3)``, covariances ``(R, 3, 3)`` and belief features ``(R, F)`` float32
+    (:func:`estimators.particle_features.belief_features`' layout) of particle sets in the
+    block layout, from :func:`summary_sums`; ``org (R, 2)``: each set's state origin,
+    ``bounds (R, 4)``: its map's extent, ``count_frac (R,)``: its particle-count fraction."""
+    sums, cov, hist, hhist = summary_sums(flat, w, ends, hist_cells, inv_cell, heading_bins)
+    nr = ends.size
+    nh = hist_cells * hist_cells
+    nf = 15 + nh + heading_bins
+    mean = np.empty((nr, 3))
+    feats = np.empty((nr, nf), dtype=np.float32)
+    start = 0
+    for r in range(nr):
+        count = ends[r] - start
+        start = ends[r]
+        mc = sums[r, 2]
+        ms = sums[r, 3]
+        mh = math.atan2(ms, mc)
+        mx = sums[r, 0] + org[r, 0]
+        my = sums[r, 1] + org[r, 1]
+        mean[r, 0] = mx
+        mean[r, 1] = my
+        mean[r, 2] = mh
+        res = math.hypot(mc, ms)
+        sx = math.sqrt(max(cov[r, 0, 0], 0.0))
+        sy = math.sqrt(max(cov[r, 1, 1], 0.0))
+        sh = math.sqrt(max(cov[r, 2, 2], 0.0))
+        circ = math.sqrt(-2.0 * math.log(min(max(res, 1e-300), 1.0)))
+        f = feats[r]
+        f[0] = (mx - bounds[r, 0]) / (bounds[r, 2] - bounds[r, 0]) * 2 - 1
+        f[1] = (my - bounds[r, 1]) / (bounds[r, 3] - bounds[r, 1]) * 2 - 1
+        f[2] = math.cos(mh)
+        f[3] = math.sin(mh)
+        f[4] = min(max(math.log10(max(sx, 1e-12)), -3.0), 2.0)
+        f[5] = min(max(math.log10(max(sy, 1e-12)), -3.0), 2.0)
+        f[6] = min(max(math.log10(max(circ, 1e-12)), -3.0), 2.0)
+        k = 7
+        for a, b, sa, sb in ((0, 1, sx, sy), (0, 2, sx, sh), (1, 2, sy, sh)):
+            d = sa * sb
+            c = cov[r, a, b] / d if d > 0 else 0.0
+            f[k] = min(max(c, -1.0), 1.0)
+            k += 1
+        f[10] = res
+        f[11] = 1.0 / sums[r, 4] / count
+        total = 0.0
+        for j in range(nh):
+            total += hist[r, j]
+        outside = max(0.0, 1.0 - total)
+        ent = 0.0
+        for j in range(nh + 1):
+            m = hist[r, j] if j < nh else outside
+            if m > 0:
+                ent += m * math.log(m)
+        f[12] = -ent / math.log(nh + 1)
+        f[13] = count_frac[r]
+        for j in range(nh):
+            f[14 + j] = hist[r, j]
+        f[14 + nh] = outside
+        for j in range(heading_bins):
+            f[15 + nh + j] = hhist[r, j]
+    return mean, cov, feats
+
+
+@njit(cache=True)
 def beam_loglik(
     rows: np.ndarray, scales: np.ndarray, free_cells: np.ndarray, nx: int, ny: int,
-    res: float, n_bins: int, max_range: float, st: np.ndarray, angles: np.ndarray,
+    res: float, n_bins: int, max_range: float, flat: np.ndarray, angles: np.ndarray,
     lut: np.ndarray, inv_step: float, row_offsets: np.ndarray, ends: np.ndarray,
     occupied_loglik: float,
 ) -> np.ndarray:  # pragma: no cover (compiled)
-    """Scan log-likelihoods ``(N,)`` of particle sets stored back to back (see
-    :meth:`RangeTable.expected` and :meth:`BeamLUT.loglik`, whose float32 steps
-    this repeats in the same order), plus ``occupied_loglik`` for particles
-    outside the map's free cells.
+    """Scan log-likelihoods ``(N,)`` of particle sets in the block layout of
+    :mod:`estimators._team_kernels` (see :meth:`RangeTable.expected` and
+    :meth:`BeamLUT.loglik`, whose float32 steps this repeats in the same order), plus
+    ``occupied_loglik`` for particles outside the map's free cells.
 
     ``row_offsets (R, B)``: the likelihood-table row of robot ``r``'s reading of
     beam ``b``; segment ``r`` of the particles ends (exclusive) at ``ends[r]``.
     """
-    n = st.shape[1]
     nb = angles.size
-    out = np.empty(n)
+    out = np.empty(ends[-1] if ends.size else 0)
     inv = np.float32(1.0 / res)
     res32 = np.float32(res)
     scale = np.float32(n_bins / (2.0 * math.pi))
@@ -131,43 +200,52 @@ def beam_loglik(
     for b in range(nb):
         a_bins[b] = np.float32(angles[b]) * scale
     pow2 = (n_bins & (n_bins - 1)) == 0
-    r_i = 0
-    for i in range(n):
-        while i >= ends[r_i]:
-            r_i += 1
-        x = st[0, i]
-        y = st[1, i]
-        ux = np.float32(np.rint(x * inv))
-        uy = np.float32(np.rint(y * inv))
-        ix = int(ux)
-        iy = int(uy)
-        dx = x - ux * res32
-        dy = y - uy * res32
-        inside = 0 <= ix < nx and 0 <= iy < ny
-        cell = iy * nx + ix if inside else 0
-        hb = st[2, i] * scale + half_bins
-        total = 0.0
-        for b in range(nb):
-            kf = hb + a_bins[b]
-            k = np.float32(math.floor(kf))
-            dphi = ((kf - k) - half) * inv_scale
-            ki = int(k)
-            ki = ki & (n_bins - 1) if pow2 else ki % n_bins
-            j = cell * n_bins + ki
-            if inside:
-                r = np.float32(rows[j, 0]) * s0
-                r += (np.float32(rows[j, 1]) * s1) * dx
-                r += (np.float32(rows[j, 2]) * s2) * dy
-                r += (np.float32(rows[j, 3]) * s3) * dphi
-                r = min(max(r, zero), rmax)
-            else:
-                r = zero
-            q = r * istep
-            q += half
-            total += lut[int(q) + row_offsets[r_i, b]]
-        if not (inside and free_cells[cell]):
-            total += occupied_loglik
-        out[i] = total
+    mask = n_bins - 1
+    kis = np.empty(nb, dtype=np.int64)
+    dphis = np.empty(nb, dtype=np.float32)
+    start = 0
+    for r_i in range(ends.size):
+        end = ends[r_i]
+        n = end - start
+        base = 3 * start
+        for j in range(n):
+            x = flat[base + j]
+            y = flat[base + n + j]
+            ux = np.float32(np.rint(x * inv))
+            uy = np.float32(np.rint(y * inv))
+            ix = int(ux)
+            iy = int(uy)
+            dx = x - ux * res32
+            dy = y - uy * res32
+            inside = 0 <= ix < nx and 0 <= iy < ny
+            cell = iy * nx + ix if inside else 0
+            hb = flat[base + 2 * n + j] * scale + half_bins
+            # the beams' table rows first (vectorizes), then the lookups: one
+            # particle's beams read one cell's rows, close together in memory
+            for b in range(nb):
+                kf = hb + a_bins[b]
+                k = np.float32(math.floor(kf))
+                dphis[b] = ((kf - k) - half) * inv_scale
+                ki = int(k)
+                kis[b] = cell * n_bins + (ki & mask if pow2 else ki % n_bins)
+            total = 0.0
+            for b in range(nb):
+                jr = kis[b]
+                if inside:
+                    r = np.float32(rows[jr, 0]) * s0
+                    r += (np.float32(rows[jr, 1]) * s1) * dx
+                    r += (np.float32(rows[jr, 2]) * s2) * dy
+                    r += (np.float32(rows[jr, 3]) * s3) * dphis[b]
+                    r = min(max(r, zero), rmax)
+                else:
+                    r = zero
+                q = r * istep
+                q += half
+                total += lut[int(q) + row_offsets[r_i, b]]
+            if not (inside and free_cells[cell]):
+                total += occupied_loglik
+            out[start + j] = total
+        start = end
     return out
 
 
@@ -200,62 +278,23 @@ def tree_density(
 
 
 @njit(cache=True)
-def kld_bins(
-    st: np.ndarray, org_x: float, org_y: float, inv_bx: float, inv_by: float, inv_bt: float,
-    n_t: int,
-) -> tuple[np.ndarray, int]:  # pragma: no cover (compiled)
-    """KLD histogram bin of every particle of ``st (3, n)`` (state coordinates, heading in
-    ``[-pi, pi]``): keys ``0 .. size - 1`` and ``size``, the number of possible keys."""
-    n = st.shape[1]
-    kx = np.empty(n, dtype=np.int64)
-    ky = np.empty(n, dtype=np.int64)
-    kx_min = ky_min = np.int64(2**62)
-    ky_max = np.int64(-(2**62))
-    kx_max = ky_max
-    for i in range(n):
-        a = np.int64(math.floor((np.float64(st[0, i]) + org_x) * inv_bx))
-        b = np.int64(math.floor((np.float64(st[1, i]) + org_y) * inv_by))
-        kx[i] = a
-        ky[i] = b
-        kx_min = min(kx_min, a)
-        ky_min = min(ky_min, b)
-        kx_max = max(kx_max, a)
-        ky_max = max(ky_max, b)
-    ny_b = ky_max - ky_min + 1
-    key = np.empty(n, dtype=np.int64)
-    for i in range(n):
-        t = np.int64(math.floor((st[2, i] + np.float32(math.pi)) * np.float32(inv_bt)))
-        t = min(max(t, 0), n_t - 1)
-        key[i] = ((kx[i] - kx_min) * ny_b + (ky[i] - ky_min)) * n_t + t
-    return key, (kx_max - kx_min + 1) * ny_b * n_t
-
-
-@njit(cache=True)
-def first_occurrences(key: np.ndarray, size: int) -> np.ndarray:  # pragma: no cover
-    """Whether each entry of ``key`` (in ``0 .. size - 1``) is its value's first occurrence."""
-    seen = np.zeros(size, dtype=np.bool_)
-    out = np.empty(key.size, dtype=np.bool_)
-    for i in range(key.size):
-        k = key[i]
-        out[i] = not seen[k]
-        seen[k] = True
-    return out
-
-
-@njit(cache=True)
 def weighted_distances(
-    st: np.ndarray, w: np.ndarray, ends: np.ndarray, targets: np.ndarray,
+    flat: np.ndarray, w: np.ndarray, ends: np.ndarray, targets: np.ndarray,
 ) -> np.ndarray:  # pragma: no cover (compiled)
-    """Per segment ``r``: the weighted mean distance of the particles' positions
-    ``st[:2]`` from ``targets[r]`` (same coordinates)."""
+    """Per segment ``r`` of particles in the block layout: the weighted mean distance of
+    the particles' positions from ``targets[r]`` (same coordinates)."""
     out = np.zeros(ends.size)
     start = 0
     for r in range(ends.size):
+        n = ends[r] - start
+        base = 3 * start
         tx = targets[r, 0]
         ty = targets[r, 1]
         acc = 0.0
-        for i in range(start, ends[r]):
-            acc += w[i] * math.hypot(st[0, i] - tx, st[1, i] - ty)
+        for j in range(n):
+            dx = flat[base + j] - tx
+            dy = flat[base + n + j] - ty
+            acc += w[start + j] * math.sqrt(dx * dx + dy * dy)
         out[r] = acc
         start = ends[r]
     return out

@@ -1,9 +1,12 @@
-"""The likelihood-field laser model's table and kernel (used by :class:`ParticleFilter`).
+"""The likelihood-field laser model's table (used by :class:`ParticleFilter`).
 
 :func:`build_lf_field` turns a map and an :class:`~estimators.particle_config.MCLConfig`
-into one flat ``float32`` table; :func:`lf_loglik` scores every particle's scan with
-one matrix product and one gather from it. The filter caches the tables and the
-work arrays (:func:`beam_matrix`, :func:`lf_buffers`) and applies the result.
+into one flat ``float32`` table; :func:`lf_endpoints` turns a scan into the beam
+endpoints the filter's compiled weighting reads
+(:func:`estimators._team_kernels.weigh_blocks`). :func:`lf_loglik` is the same
+score in numpy (one matrix product and one gather, with its work arrays from
+:func:`beam_matrix` and :func:`lf_buffers`), kept as the reference the compiled
+kernel is tested against.
 """
 
 from __future__ import annotations
@@ -16,7 +19,10 @@ import numpy as np
 from estimators.occupancy import OccupancyGrid
 from estimators.particle_config import MCLConfig
 
-__all__ = ["LF_POWER", "LFField", "beam_matrix", "build_lf_field", "lf_buffers", "lf_loglik"]
+__all__ = [
+    "LF_POWER", "LFField", "beam_matrix", "build_lf_field", "lf_buffers", "lf_endpoints",
+    "lf_loglik",
+]
 
 _LOG_SQRT_2PI = 0.5 * np.log(2.0 * np.pi)
 # For float32 0 <= x < 2**23, x + _MAGIC rounds x to an integer k (ties to even) and
@@ -28,6 +34,7 @@ assert _MAGIC_BITS * 256 % 2**32 == 0
 # The likelihood-field table holds log-likelihoods divided by this: a scan's sum then
 # stays within float32 exp's range for common scans (powered back in float64).
 LF_POWER = 4
+_UNITS: dict[tuple[bytes, float], tuple[np.ndarray, np.ndarray]] = {}  # beam directions
 
 
 class LFField(NamedTuple):
@@ -89,6 +96,28 @@ def build_lf_field(grid: OccupancyGrid, cfg: MCLConfig, max_range: float) -> LFF
     hi = (np.array([[nx], [ny]]) * res).astype(np.float32)
     return LFField(table, pad, nxp, nyp, nxp * nyp, lo, hi, 1.0 / res, reach,
                    np.float32(_MAGIC + pad), lmax, span)
+
+
+def lf_endpoints(lf: LFField, ranges: np.ndarray, angles: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Beam endpoints ``(ux, uy)`` float32 in cells, in the robot frame, of readings
+    ``ranges`` (``(..., B)``, below the maximum range; clipped here to ``lf.reach``; NaN
+    gives NaN) at ``angles (B,)``: the scan as the compiled weighting
+    (:func:`estimators._team_kernels.weigh_blocks`) reads it, rounded as
+    :func:`lf_loglik` rounds it."""
+    key = (angles.tobytes(), lf.inv_res)
+    unit = _UNITS.get(key)
+    if unit is None:
+        if len(_UNITS) > 64:  # scanners repeat their angles: a few entries suffice
+            _UNITS.clear()
+        unit = _UNITS[key] = (np.cos(angles) * lf.inv_res).astype(np.float32), (
+            np.sin(angles) * lf.inv_res).astype(np.float32)
+    r = np.minimum(ranges, lf.reach)
+    ux = np.empty(r.shape, dtype=np.float32)
+    uy = np.empty(r.shape, dtype=np.float32)
+    np.multiply(unit[0], r, out=ux, casting="unsafe")  # in float64, rounded once
+    np.multiply(unit[1], r, out=uy, casting="unsafe")
+    return ux, uy
 
 
 def lf_loglik(

@@ -1,14 +1,21 @@
 """Several robots' particle filters updated together in flat arrays.
 
-A team of :class:`~estimators.particle_filter.ParticleFilter` objects that share
-a map and a model can be stepped with one numpy call per operation instead of
-one per robot:
+A team of :class:`~estimators.particle_filter.ParticleFilter` objects can be
+stepped with one compiled call per operation instead of one per robot:
 
+* :func:`team_state` gathers the filters' states into one flat array (each
+  filter's state becomes a view of it, so later team calls reuse it as long as
+  no filter replaced its state);
 * :func:`compose_odometry_batch` composes every robot's odometry sub-steps at once;
+* :func:`predict_batch` moves every robot's particles (each filter draws its
+  noise from its own generator; the result equals
+  :meth:`ParticleFilter.predict_delta` robot by robot, bit for bit);
 * :func:`update_beam_batch` weights all robots' particles by their scans with
   one lookup in the shared :class:`~estimators.beam_table.RangeTable` and
   :class:`~estimators.beam_table.BeamLUT` (the result equals calling
   :meth:`ParticleFilter.update_beam` robot by robot, bit for bit);
+* :func:`weigh_batch` weights all robots' particles by their likelihood-field
+  laser scans and their DGPS / compass fixes in one pass;
 * :func:`belief_summaries` computes every robot's mean, covariance and
   :meth:`ParticleFilter.belief_features` embedding with segment reductions.
 
@@ -23,13 +30,152 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from estimators._kernels import summary_sums, weighted_distances
+from estimators._kernels import summary_features, weighted_distances
+from estimators._team_kernels import FIX_COLUMNS, compose_rows, predict_blocks
 from estimators.beam_table import scan_loglik
+from estimators.likelihood_field import LF_POWER, lf_endpoints
 from estimators.particle_filter import ParticleFilter
+from estimators.particle_weighting import weigh_filters
 
 __all__ = [
-    "belief_summaries", "compose_odometry_batch", "particle_spreads", "update_beam_batch",
+    "belief_summaries", "compose_odometry_batch", "particle_spreads", "predict_batch",
+    "team_state", "team_weights", "update_beam_batch", "weigh_batch",
 ]
+
+
+_ENDS: dict[tuple[int, ...], np.ndarray] = {}  # segment ends by particle counts (not written)
+
+
+def team_state(filters: Sequence[ParticleFilter]) -> tuple[np.ndarray, np.ndarray]:
+    """The filters' states in one flat float32 array (block layout, see
+    :mod:`estimators._team_kernels`) and the particle segments' ends ``(R,)``.
+
+    Each filter's state is made a view of the array, so a later call finds it
+    in place (no copy) unless a filter replaced its state meanwhile.
+    """
+    if not filters:
+        return np.zeros(0, dtype=np.float32), np.zeros(0, dtype=np.intp)
+    flat = filters[0]._state.base
+    valid = flat is not None
+    counts = []
+    start = 0
+    for pf in filters:
+        n = pf._weights.size
+        counts.append(n)
+        if valid and (pf._state.base is not flat or pf._block_start != start):
+            valid = False
+        start += n
+    key = tuple(counts)
+    ends = _ENDS.get(key)
+    if ends is None:
+        if len(_ENDS) > 256:  # adaptive counts vary: keep the cache small
+            _ENDS.clear()
+        ends = _ENDS[key] = np.cumsum(np.array(counts, dtype=np.intp))
+    if valid and flat.size == 3 * start:
+        return flat, ends
+    flat = np.concatenate([pf._flat_state() for pf in filters])
+    start = 0
+    for pf, n in zip(filters, counts, strict=True):
+        pf._state = flat[3 * start:3 * (start + n)].reshape(3, n)
+        pf._block_start = start
+        start += n
+    return flat, ends
+
+
+def team_weights(filters: Sequence[ParticleFilter]) -> np.ndarray:
+    """The filters' weights in one ``(N,)`` array (a view of the last
+    :func:`weigh_batch`'s output when no filter changed its weights since)."""
+    if not filters:
+        return np.zeros(0)
+    w = filters[0]._weights.base
+    start = 0
+    for pf in filters:
+        if w is None or pf._weights.base is not w or pf._wblock_start != start:
+            break
+        start += pf._weights.size
+    else:
+        if w.size == start:
+            return w
+    return np.concatenate([pf._weights for pf in filters])
+
+
+def predict_batch(filters: Sequence[ParticleFilter], deltas: np.ndarray) -> None:
+    """:meth:`ParticleFilter.predict_delta` of every filter with its row of ``deltas (R, 3)``,
+    in one compiled pass (each filter draws its noise from its own generator)."""
+    deltas = np.asarray(deltas, dtype=float)
+    if deltas.shape != (len(filters), 3) or not np.all(np.isfinite(deltas)):
+        raise ValueError(f"deltas must be ({len(filters)}, 3) finite, got {deltas}")
+    if not filters:
+        return
+    flat, ends = team_state(filters)
+    params = np.empty((len(filters), 6), dtype=np.float32)
+    z = np.empty(flat.size, dtype=np.float32)
+    start = 0
+    for r, (pf, d) in enumerate(zip(filters, deltas.tolist(), strict=True)):
+        params[r] = pf._motion_draw(*d, out=z[3 * start:3 * ends[r]])[0]
+        start = ends[r]
+    predict_blocks(flat, z, params, ends)
+    for pf in filters:
+        pf._after_motion()
+
+
+def weigh_batch(
+    filters: Sequence[ParticleFilter],
+    ranges: np.ndarray | None,
+    angles: np.ndarray | None,
+    max_range: float | None,
+    fixes: np.ndarray,
+) -> np.ndarray:
+    """Weight every filter by its likelihood-field laser scan and its fixes in one pass.
+
+    ``ranges (R, B)``: robot ``r``'s readings at robot-frame ``angles (B,)``; a row of
+    NaN is no scan (the filter is not weighted by a scan), other non-finite readings
+    or readings at or beyond ``max_range`` carry no endpoint. ``fixes (R, 7)``: rows
+    of :meth:`ParticleFilter.fix_row` (zeros: no fix). The filters that have a scan
+    must share one map and one model. Same result as
+    :meth:`ParticleFilter.update_likelihood_field` then :meth:`ParticleFilter.update_fix`
+    robot by robot, up to float rounding (the fixes multiply the weights before, not
+    after, they are normalized). Returns the scans' log evidences (NaN: no scan).
+    """
+    nr = len(filters)
+    fixes = np.asarray(fixes, dtype=float)
+    if fixes.shape != (nr, FIX_COLUMNS):
+        raise ValueError(f"fixes must have shape ({nr}, {FIX_COLUMNS}), got {fixes.shape}")
+    if not nr:
+        return np.zeros(0)
+    flat, ends = team_state(filters)
+    n = int(ends[-1])
+    w_prev = team_weights(filters)
+    if ranges is None:
+        nb = np.full(nr, -1, dtype=np.intp)
+        return weigh_filters(filters, flat, ends, w_prev, fixes, nb, np.empty(n), False,
+                             np.zeros(nr), np.zeros(nr))
+    ranges = np.asarray(ranges, dtype=float)
+    angles = np.asarray(angles, dtype=float).ravel()
+    if ranges.shape != (nr, angles.size):
+        raise ValueError(f"ranges must have shape ({nr}, {angles.size}), got {ranges.shape}")
+    if (ranges < 0).any():
+        raise ValueError(f"ranges must be >= 0, got {ranges}")
+    ok = ranges < max_range  # NaN and inf compare False
+    has = (ranges == ranges).any(axis=1)  # a row of NaN is no scan
+    lead = None
+    for r in np.flatnonzero(has).tolist():
+        pf = filters[r]
+        if lead is None:
+            lead = pf
+        elif pf.grid is not lead.grid or (pf.config is not lead.config
+                                          and pf.config != lead.config):
+            raise ValueError("weigh_batch needs the filters with scans to share one map "
+                             "and one config")
+    if lead is None:
+        return weigh_batch(filters, None, None, None, fixes)
+    lf = lead._lf_field(max_range)
+    k = ok.sum(axis=1)
+    nb = np.where(has, k, -1)
+    ux, uy = lf_endpoints(lf, np.where(ok, ranges, np.nan), angles)
+    return weigh_filters(filters, flat, ends, w_prev, fixes, nb, np.empty(n), False,
+                         k * lf.lmax, k * lead.config.likelihood_exponent,
+                         lead.lf_kernel_args(max_range), ux, uy, float(LF_POWER))
 
 
 def compose_odometry_batch(v: np.ndarray, w: np.ndarray, dt: float) -> np.ndarray:
@@ -41,18 +187,12 @@ def compose_odometry_batch(v: np.ndarray, w: np.ndarray, dt: float) -> np.ndarra
     w = np.asarray(w, dtype=float)
     if v.shape != w.shape or v.ndim != 2:
         raise ValueError(f"v and w must be (R, K) of equal shape, got {v.shape} and {w.shape}")
-    if not (np.all(np.isfinite(v)) and np.all(np.isfinite(w)) and math.isfinite(dt)) or dt < 0:
+    if not math.isfinite(dt) or dt < 0:
         raise ValueError(f"odometry must be finite with dt >= 0, got dt={dt}")
-    dth = w * dt
-    start = np.zeros_like(dth)
-    np.cumsum(dth[:, :-1], axis=1, out=start[:, 1:])
-    turning = np.abs(dth) > 1e-9
-    safe_w = np.where(turning, w, 1.0)
-    lx = np.where(turning, v / safe_w * np.sin(dth), v * dt)
-    ly = np.where(turning, v / safe_w * (1.0 - np.cos(dth)), 0.0)
-    c, s = np.cos(start), np.sin(start)
-    return np.stack([np.sum(c * lx - s * ly, axis=1), np.sum(s * lx + c * ly, axis=1),
-                     np.sum(dth, axis=1)], axis=1)
+    out = compose_rows(np.ascontiguousarray(v), np.ascontiguousarray(w), float(dt))
+    if np.isnan(out[:, 0]).any():
+        raise ValueError(f"odometry must be finite, got v={v}, w={w}")
+    return out
 
 
 def update_beam_batch(
@@ -94,17 +234,13 @@ def update_beam_batch(
         raise ValueError(f"cone_half_width must be finite and >= 0, got {cone_half_width}")
     ok = np.isfinite(ranges)
     table, lut = pf0.beam_tables(max_range, cone_half_width)
-    counts = [pf.n_particles for pf in filters]
-    st = np.concatenate([pf._state for pf in filters], axis=1)
+    flat, ends = team_state(filters)
     rows = lut.rows(np.where(ok, ranges, np.nan))
-    loglik = scan_loglik(table, lut, st, angles, rows, np.cumsum(counts), cfg.occupied_loglik)
-    n_beams = ok.sum(axis=1) * cfg.likelihood_exponent
-    out = np.zeros(len(filters))
-    start = 0
-    for r, (pf, n) in enumerate(zip(filters, counts, strict=True)):
-        out[r] = pf._apply_loglik(loglik[start:start + n], n_beams[r])
-        start += n
-    return out
+    loglik = scan_loglik(table, lut, flat, angles, rows, ends, cfg.occupied_loglik)
+    n_beams = ok.sum(axis=1)
+    nr = len(filters)
+    return weigh_filters(filters, flat, ends, team_weights(filters), np.zeros((nr, FIX_COLUMNS)),
+                         n_beams, loglik, True, np.zeros(nr), n_beams * cfg.likelihood_exponent)
 
 
 def belief_summaries(
@@ -124,44 +260,15 @@ def belief_summaries(
                          f"{heading_bins}")
     if not np.isfinite(cell_size) or cell_size <= 0:
         raise ValueError(f"cell_size must be positive, got {cell_size}")
-    nr = len(filters)
-    counts = np.fromiter((pf.n_particles for pf in filters), np.intp, nr)
-    ends = np.cumsum(counts)
-    w = np.concatenate([pf._weights for pf in filters])
     # positions relative to each filter's cell (0, 0) centre (small numbers)
-    st = np.concatenate([pf._state for pf in filters], axis=1)
-    org = np.array([[pf._org[0, 0], pf._org[1, 0]] for pf in filters])
-    # float32 trigonometry in numpy (vectorized): several times faster, ~1e-7
-    sums, cov, hist, hhist = summary_sums(st, np.cos(st[2]), np.sin(st[2]), w, ends,
-                                          hist_cells, 1.0 / cell_size, heading_bins)
-    mc, ms, w2 = sums[:, 2], sums[:, 3], sums[:, 4]
-    mh = np.arctan2(ms, mc)
-    mean = np.column_stack([sums[:, :2] + org, mh])
-    resultant = np.hypot(mc, ms)
-    std = np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2), 0.0))
-    denom = std[:, :, None] * std[:, None, :]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        corr = np.where(denom > 0, cov / np.where(denom > 0, denom, 1.0), 0.0)
-    circ_std = np.sqrt(-2.0 * np.log(np.clip(resultant, 1e-300, 1.0)))
-    cm, sm = np.cos(mh), np.sin(mh)
-    outside = np.maximum(0.0, 1.0 - hist.sum(axis=1))
-    mass = np.concatenate([hist, outside[:, None]], axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        plogp = np.where(mass > 0, mass * np.log(np.where(mass > 0, mass, 1.0)), 0.0)
-    entropy = -plogp.sum(axis=1) / np.log(mass.shape[1]) if mass.shape[1] > 1 else np.zeros(nr)
+    flat, ends = team_state(filters)
+    w = team_weights(filters)
+    org = np.array([[pf._org[0, 0], pf._org[1, 0]] for pf in filters]).reshape(-1, 2)
+    bounds = np.array([pf.grid.bounds for pf in filters], dtype=float).reshape(-1, 4)
     count_frac = np.array([min(pf.n_particles / pf.config.n_max, 1.0) if pf.config.adaptive
                            else 1.0 for pf in filters])
-    bounds = np.array([pf.grid.bounds for pf in filters])
-    log_std = np.clip(np.log10(np.maximum(
-        np.column_stack([std[:, 0], std[:, 1], circ_std]), 1e-12)), -3.0, 2.0)
-    feats = np.column_stack([
-        (mean[:, 0] - bounds[:, 0]) / (bounds[:, 2] - bounds[:, 0]) * 2 - 1,
-        (mean[:, 1] - bounds[:, 1]) / (bounds[:, 3] - bounds[:, 1]) * 2 - 1,
-        cm, sm, log_std,
-        np.clip(np.column_stack([corr[:, 0, 1], corr[:, 0, 2], corr[:, 1, 2]]), -1.0, 1.0),
-        resultant, 1.0 / w2 / counts, entropy, count_frac, hist, outside, hhist,
-    ]).astype(np.float32)
-    return mean, cov, feats
+    return summary_features(flat, w, ends, org, bounds, count_frac, int(hist_cells),
+                            1.0 / cell_size, int(heading_bins))
 
 
 def particle_spreads(filters: Sequence[ParticleFilter], true_xy: np.ndarray) -> np.ndarray:
@@ -172,8 +279,7 @@ def particle_spreads(filters: Sequence[ParticleFilter], true_xy: np.ndarray) -> 
         raise ValueError(f"true_xy must be ({len(filters)}, 2) finite, got {true_xy.shape}")
     if not filters:
         return np.zeros(0)
-    st = np.concatenate([pf._state for pf in filters], axis=1)
-    w = np.concatenate([pf._weights for pf in filters])
-    ends = np.cumsum([pf.n_particles for pf in filters])
+    flat, ends = team_state(filters)
+    w = team_weights(filters)
     org = np.array([pf._org[:2, 0] for pf in filters])
-    return weighted_distances(st, w, ends, true_xy - org)
+    return weighted_distances(flat, w, ends, true_xy - org)

@@ -20,18 +20,21 @@ weighted particle set and offers
   (:meth:`ParticleFilter.belief_features`, layout in
   :func:`belief_feature_names`).
 
-One class in one file on purpose (about 800 lines): every method of
+One class in one file on purpose (about 750 lines): every method of
 :class:`ParticleFilter` works on the same private state layout (float32 poses
-relative to the centre of map cell (0, 0), lazily wrapped headings, reused work
-buffers), which splitting the class would expose. What does not touch that state
-lives beside it: parameters in :mod:`estimators.particle_config`, the
-likelihood-field table and kernel in :mod:`estimators.likelihood_field`,
-resampling helpers in :mod:`estimators.particle_sampling`, the belief embedding in
+relative to the centre of map cell (0, 0), lazily wrapped headings, a state
+that may be a view of a team array), which splitting the class would expose.
+What does not touch that state lives beside it: parameters in
+:mod:`estimators.particle_config`, the likelihood-field table in
+:mod:`estimators.likelihood_field`, resampling and motion-noise draws in
+:mod:`estimators.particle_sampling`, the compiled weighting in
+:mod:`estimators.particle_weighting`, the belief embedding in
 :mod:`estimators.particle_features` (their public names are importable from here
 too), per-map beam tables in :mod:`estimators.beam_table`, team-level batching in
-:mod:`estimators.mcl_batch`, compiled loops in :mod:`estimators._kernels`.
+:mod:`estimators.mcl_batch`, compiled loops in :mod:`estimators._kernels` and
+:mod:`estimators._team_kernels` (one filter is a team of one).
 
-Numerics use numpy/scipy, plus the few numba loops there. All randomness comes from the
+Numerics use numpy/scipy, plus the numba loops there. All randomness comes from the
 ``numpy.random.Generator`` given to the constructor, so two filters built with
 equal seeds and fed equal data produce identical particles.
 """
@@ -42,7 +45,7 @@ import math
 
 import numpy as np
 
-from estimators._kernels import first_occurrences, kld_bins
+from estimators._team_kernels import FIX_COLUMNS, predict_blocks
 from estimators.beam_table import (
     BeamLUT,
     RangeTable,
@@ -51,17 +54,18 @@ from estimators.beam_table import (
     range_table,
     scan_loglik,
 )
-from estimators.geometry import wrap_angle, wrap_angle_in_place
-from estimators.likelihood_field import LF_POWER, LFField, build_lf_field, lf_loglik
+from estimators.geometry import PI_BELOW, wrap_angle, wrap_angle_in_place
+from estimators.likelihood_field import LF_POWER, LFField, build_lf_field, lf_endpoints
 from estimators.occupancy import OccupancyGrid
 from estimators.particle_config import MCLConfig, ParticleBelief, ParticleMotionNoise
 from estimators.particle_features import belief_feature_names, belief_features, check_feature_args
 from estimators.particle_sampling import (
-    kld_need,
     kld_sample_bound,
-    low_variance_from_cumulative,
     low_variance_indices,
+    resample_filters,
+    standard_normals,
 )
+from estimators.particle_weighting import NO_FIELD, weigh_filters
 
 __all__ = [
     "MCLConfig",
@@ -141,14 +145,10 @@ class ParticleFilter:
         self.w_fast = 0.0
         self._unwrapped_steps = 0
         self._lf_cache: dict[float, LFField] = {}
+        self._lf_args: dict[float, tuple] = {}  # compiled-kernel arguments by max range
         self._beam_tabs: dict[tuple[float, float], tuple[RangeTable, BeamLUT]] = {}
-        self._mats: dict[bytes, tuple] = {}  # reusable beam matrices by beam angles
-        self._lfb: dict[tuple[int, int], tuple] = {}  # likelihood-field work arrays
         self._angles_ok = b""  # bytes of the last beam angles found finite
         self._uniform_w = np.zeros(0)
-        self._cum: tuple[np.ndarray, np.ndarray] = (self._uniform_w, self._uniform_w)
-        self._motion_work: tuple = ()  # reusable motion buffers
-        self._sd = np.zeros((3, 4), dtype=np.float32)  # motion noise scales and means
         # The state is float32 (x, y, heading) with positions relative to the centre of
         # map cell (0, 0): float32 keeps ~1e-6 m there even for maps at UTM-size
         # coordinates, and the likelihood field finds cells by rounding.
@@ -156,13 +156,16 @@ class ParticleFilter:
         self._org = np.array([[grid.origin[0] + 0.5 * res], [grid.origin[1] + 0.5 * res], [0.0]])
         self._state = np.zeros((3, 0), dtype=np.float32)
         self._weights = np.zeros(0)
+        # where the state / weights start in a team array they are views of
+        # (estimators.mcl_batch.team_state / weigh_batch)
+        self._block_start = self._wblock_start = -1
+        self._ess: tuple[np.ndarray, float] = (self._weights, 0.0)  # weights and their ESS
         self.init_uniform()
 
     def __getstate__(self) -> dict:
-        # The work arrays are views into each other; pickling or deep-copying them
-        # would break them apart, so they are rebuilt instead.
+        # The tables are shared per map: rebuilt (from the module caches) instead of copied.
         state = self.__dict__.copy()
-        state.update(_lfb={}, _mats={}, _motion_work=(), _beam_tabs={})
+        state.update(_beam_tabs={}, _lf_args={})
         return state
 
     # ---------------------------------------------------------------- state
@@ -197,6 +200,12 @@ class ParticleFilter:
         return state
 
     @property
+    def state_origin(self) -> np.ndarray:
+        """World ``(x, y)`` of the internal state's origin (the centre of map cell (0, 0));
+        :meth:`fix_row` positions are measured from it."""
+        return self._org[:2, 0].copy()
+
+    @property
     def weights(self) -> np.ndarray:
         """``(N,)`` normalized weights (a read-only view)."""
         view = self._weights.view()
@@ -211,7 +220,11 @@ class ParticleFilter:
     @property
     def ess(self) -> float:
         """Effective sample size ``1 / sum(w^2)``."""
-        return float(1.0 / np.dot(self._weights, self._weights))
+        w, ess = self._ess
+        if w is not self._weights:  # weights are replaced, never changed in place
+            ess = float(1.0 / np.dot(self._weights, self._weights))
+            self._ess = (self._weights, ess)
+        return ess
 
     @property
     def inject_probability(self) -> float:
@@ -317,6 +330,15 @@ class ParticleFilter:
 
     def _predict(self, dx: float, dy: float, dth: float) -> None:
         """:meth:`predict_delta` for a checked, finite motion."""
+        params, z = self._motion_draw(dx, dy, dth)
+        predict_blocks(self._flat_state(), z, params[None, :], np.array([z.size // 3]))
+        self._after_motion()
+
+    def _motion_draw(self, dx: float, dy: float, dth: float, out: np.ndarray | None = None
+                     ) -> tuple[np.ndarray, np.ndarray]:
+        """The motion's parameters (:meth:`_motion_params`) and ``3 N`` float32 standard
+        normals from this filter's generator (into ``out`` if given): the inputs of one
+        motion update."""
         trans = math.hypot(dx, dy)
         if trans < 1e-9:
             rot1 = 0.0
@@ -325,44 +347,34 @@ class ParticleFilter:
         else:  # reversing: negative translation, not a half-turn
             rot1 = math.atan2(-dy, -dx)
             trans = -trans
-        rot2 = float(wrap_angle(dth - rot1))
+        rot2 = min((dth - rot1 + math.pi) % (2.0 * math.pi) - math.pi, PI_BELOW)
+        params = self._motion_params(trans, rot1, rot2)
+        if out is None:
+            out = np.empty(3 * self._weights.size, dtype=np.float32)
+        return params, standard_normals(self.rng, out)
+
+    def _motion_params(self, trans: float, rot1: float, rot2: float) -> np.ndarray:
+        """``(6,)`` float32 ``rot1, trans, rot2`` and their noise standard deviations
+        (:class:`ParticleMotionNoise`); adds the translation to :attr:`odometer`."""
         at = abs(trans)
         self.odometer += at
         mn = self.config.motion
         sd_r1 = mn.rot_rot * abs(rot1) + mn.rot_trans * at + mn.min_heading
         sd_t = mn.trans_trans * at + mn.trans_rot * (abs(rot1) + abs(rot2)) + mn.min_xy
         sd_r2 = mn.rot_rot * abs(rot2) + mn.rot_trans * at + mn.min_heading
-        n = self._weights.size
-        bufs = self._motion_work
-        if not bufs or bufs[1].shape[1] != n:
-            bufs = self._motion_buffers(n)
-        z1, noise, cs = bufs
-        # float32 noise and trigonometry: ~1e-7 relative error, several times faster
-        self.rng.standard_normal(out=z1[:3], dtype=np.float32)
-        # noise = [[sd_r1, 0, 0, rot1], [0, sd_t, 0, trans], [0, 0, sd_r2, rot2]] @ [z; 1]
-        a = self._sd
-        a[0, 0], a[1, 1], a[2, 2] = sd_r1, sd_t, sd_r2
-        a[0, 3], a[1, 3], a[2, 3] = rot1, trans, rot2
-        np.matmul(a, z1, out=noise)
-        st = self._state
-        h = st[2]
-        h += noise[0]  # heading after the first turn
-        np.cos(h, out=cs[0])
-        np.sin(h, out=cs[1])
-        cs *= noise[1]  # translation along that heading
-        st[:2] += cs
-        h += noise[2]
+        return np.array([rot1, trans, rot2, sd_r1, sd_t, sd_r2], dtype=np.float32)
+
+    def _flat_state(self) -> np.ndarray:
+        """The state as a flat view (``(3, N)`` C order; made contiguous if it is not)."""
+        if not self._state.flags.c_contiguous:
+            self._state = np.ascontiguousarray(self._state)
+        return self._state.reshape(-1)
+
+    def _after_motion(self) -> None:
         # Headings are wrapped lazily (every few steps): consumers wrap as needed.
         self._unwrapped_steps += 1
         if self._unwrapped_steps >= 8:
             self._wrap_headings()
-
-    def _motion_buffers(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """New ``(z1, noise, cs)`` float32 work arrays: ``(4, n)`` normals over a row of
-        ones, ``(3, n)`` motion noise, ``(2, n)`` translation."""
-        self._motion_work = (np.ones((4, n), dtype=np.float32), np.empty((3, n), dtype=np.float32),
-                    np.empty((2, n), dtype=np.float32))
-        return self._motion_work
 
     def _wrap_headings(self) -> None:
         wrap_angle_in_place(self._state[2])
@@ -433,27 +445,36 @@ class ParticleFilter:
         ``ranges`` and robot-frame beam ``angles`` are ``(B,)``; readings at or
         beyond ``max_range`` (including ``inf``) carry no endpoint and are
         skipped. Beam endpoints are precomputed in the robot frame (in cell
-        units) and moved to every particle with one ``float32`` matrix product;
-        the particle's own cell rides along as an extra zero-range "beam" that
-        gathers the occupied-position penalty. One ``take`` from a flat table
-        then scores everything. Returns ``log sum_i w_i p(z | x_i)`` with the
-        tempered likelihood and the position penalty included.
+        units); one compiled pass moves them to every particle, reads the field
+        there and the position penalty at the particle's own cell, and weights
+        (:func:`estimators.particle_weighting.weigh_filters`). Returns
+        ``log sum_i w_i p(z | x_i)`` with the tempered likelihood and the
+        position penalty included.
         """
         ranges, angles, max_range, hi = self._scan_input(ranges, angles, max_range)
         lf = self._lf_field(max_range)
         if hi >= max_range:
             keep = ranges < max_range
             ranges, angles = ranges[keep], angles[keep]
-        if max_range > lf.reach:
-            ranges = np.minimum(ranges, lf.reach)
-        loglik = lf_loglik(lf, self._state, ranges, angles, self._mats, self._lfb)
         nb = ranges.size
-        # The scan's log-likelihood is LF_POWER * loglik + nb * lmax, with loglik
-        # between -bound and 0.
-        cfg = self.config
-        bound = (nb * lf.span - cfg.occupied_loglik) / LF_POWER
-        return self._apply_loglik(loglik, nb * cfg.likelihood_exponent, nb * lf.lmax, bound,
-                                  LF_POWER)
+        ux, uy = lf_endpoints(lf, ranges, angles)
+        return self._weigh_self(np.zeros(FIX_COLUMNS), nb, None, nb * lf.lmax, nb,
+                                self.lf_kernel_args(max_range), ux, uy)
+
+    def _weigh_self(self, fix: np.ndarray, nb: int, loglik: np.ndarray | None,
+                    offset: float = 0.0, n_beams: int = 0, lf_args: tuple = NO_FIELD,
+                    ux: np.ndarray | None = None, uy: np.ndarray | None = None) -> float:
+        """:func:`estimators.particle_weighting.weigh_filters` of this filter alone: a scan
+        of ``nb`` beams (-1: none) scored before (``loglik``) or by the likelihood field,
+        and the fixes ``fix``. Returns the scan's log evidence."""
+        n = self._weights.size
+        scored = loglik is not None
+        return float(weigh_filters(
+            [self], self._flat_state(), np.array([n]), self._weights, fix.reshape(1, -1),
+            np.array([nb]), loglik if scored else np.empty(n), scored, np.array([offset]),
+            np.array([n_beams * self.config.likelihood_exponent]), lf_args,
+            None if ux is None else ux.reshape(1, -1), None if uy is None else uy.reshape(1, -1),
+            float(LF_POWER))[0])
 
     def expected_ranges(
         self, angles: np.ndarray, max_range: float, cone_half_width: float = 0.0
@@ -513,84 +534,33 @@ class ParticleFilter:
         ranges, angles, max_range, _ = self._scan_input(ranges, angles, max_range)
         cfg = self.config
         if ranges.size == 0:
-            return self._apply_loglik(self._position_penalty(), 0)
+            return self._weigh_self(np.zeros(FIX_COLUMNS), 0, self._position_penalty())
         if cfg.beam_lookup_bins:
             if not np.isfinite(cone_half_width) or cone_half_width < 0:
                 raise ValueError(f"cone_half_width must be finite and >= 0, "
                                  f"got {cone_half_width}")
             table, lut = self.beam_tables(max_range, cone_half_width)
-            loglik = scan_loglik(table, lut, self._state, angles, lut.rows(ranges)[None, :],
+            loglik = scan_loglik(table, lut, self._flat_state(), angles, lut.rows(ranges)[None, :],
                                  np.array([self.n_particles]), cfg.occupied_loglik)
-            return self._apply_loglik(loglik, ranges.size * cfg.likelihood_exponent)
+            return self._weigh_self(np.zeros(FIX_COLUMNS), ranges.size, loglik,
+                                    n_beams=ranges.size)
         zexp = self.expected_ranges(angles, max_range, cone_half_width)
         z = np.minimum(ranges, max_range)[None, :]
         p = beam_probability(z, zexp, max_range, cfg.beam_sigma, cfg.beam_z_hit, cfg.beam_z_short,
                              cfg.beam_z_max, cfg.beam_z_rand, cfg.beam_lambda_short)
         loglik = cfg.likelihood_exponent * np.log(p).sum(axis=1) + self._position_penalty()
-        return self._apply_loglik(loglik, ranges.size * cfg.likelihood_exponent)
+        return self._weigh_self(np.zeros(FIX_COLUMNS), ranges.size, loglik, n_beams=ranges.size)
 
-    def _apply_loglik(
-        self, loglik: np.ndarray, n_eff_beams: float, offset: float = 0.0,
-        bound: float = math.inf, power: int = 1,
-    ) -> float:
-        """Multiply weights by ``exp(power * loglik + offset)``; update the slow/fast averages.
-
-        ``power * loglik + offset`` is the tempered scan log-likelihood plus the
-        position penalty (``power`` 1, 2 or 4 and the constant ``offset`` taken
-        out by the caller). ``bound``: the caller guarantees
-        ``-bound <= loglik <= 0``; within float32's or float64's normal range
-        ``exp(loglik)`` needs no maximum subtracted. Returns the log evidence
-        ``log sum_i w_i p(z | x_i)``. The augmented-MCL averages track
-        ``exp(log_evidence / n_eff_beams)``, the per-beam geometric-mean
-        likelihood, which does not depend on how many beams a scan has.
-        """
-        cfg = self.config
-        mx = 0.0
-        p = power
-        if bound < 80.0:  # exp(loglik) >= 2e-35 is a normal float32 (float64 after powering)
-            e = np.exp(loglik)
-            w = np.square(e, dtype=np.float64) if p > 1 else e.astype(np.float64)
-            p //= 2
-        elif bound * power < 600.0:  # exp(power * loglik) >= 3e-261 is a normal float64
-            w = np.exp(loglik, dtype=np.float64)
-        else:
-            mx = float(loglik.max())
-            if not math.isfinite(mx):
-                raise ValueError(f"scan log-likelihood is not finite (max {mx})")
-            # float64 from here on: weight ratios far below float32's range must survive
-            w = np.subtract(loglik, mx, dtype=np.float64)
-            np.exp(w, out=w)
-        while p > 1:
-            w *= w
-            p //= 2
-        uniform = self._weights is self._uniform_w  # just resampled: no need to multiply
-        if not uniform:
-            w *= self._weights
-        cum = np.add.accumulate(w)  # the total, and what resampling needs next
-        total = float(cum[-1])
-        if total > 0 and math.isfinite(total):
-            log_evidence = offset + power * mx + math.log(total)
-            if uniform:
-                log_evidence -= math.log(w.size)
-            w *= 1.0 / total
-            self._weights = w
-            self._cum = (w, cum)
-        else:  # underflow: redo in log space
-            with np.errstate(divide="ignore"):
-                lw = np.log(self._weights) + power * loglik.astype(np.float64)
-            m2 = lw.max()
-            e = np.exp(lw - m2)
-            total = e.sum()
-            log_evidence = float(offset + m2 + np.log(total))
-            self._weights = e / total
+    def _track_evidence(self, log_evidence: float, n_eff_beams: float) -> None:
+        """Update the augmented-MCL slow / fast averages of the per-beam evidence."""
         if n_eff_beams > 0:
+            cfg = self.config
             w_avg = math.exp(log_evidence / n_eff_beams)
             if self.w_slow == 0.0:
                 self.w_slow = self.w_fast = w_avg
             else:
                 self.w_slow += cfg.alpha_slow * (w_avg - self.w_slow)
                 self.w_fast += cfg.alpha_fast * (w_avg - self.w_fast)
-        return log_evidence
 
     def apply_weight_factors(self, factors: np.ndarray) -> None:
         """Multiply the weights by non-negative ``factors`` ``(N,)`` and renormalize.
@@ -622,46 +592,51 @@ class ParticleFilter:
         weight by ``exp(-|p - xy|^2 / (2 xy_var)) + 1e-12``; a heading (rad) with
         standard deviation ``heading_std`` by ``exp(-e^2 / (2 heading_std^2)) + 1e-12``
         with ``e`` the wrapped difference (the floors keep a wrong fix from zeroing
-        every weight). Computed in float32 on the internal state.
+        every weight).
         """
-        st = self._state
-        factor = None
+        fix = self.fix_row(xy, xy_var, heading, heading_std)
+        if fix[0] or fix[4]:
+            self._weigh_self(fix, -1, None)
+
+    def fix_row(
+        self,
+        xy: np.ndarray | None = None,
+        xy_var: float = 1.0,
+        heading: float | None = None,
+        heading_std: float = 1.0,
+    ) -> np.ndarray:
+        """The checked parameters of :meth:`update_fix` as the compiled update reads them:
+        ``[gps?, x, y, -0.5 / xy_var, compass?, heading, -0.5 / heading_std**2]``
+        (positions in state coordinates)."""
+        fix = np.zeros(FIX_COLUMNS)
         if xy is not None:
             t = np.asarray(xy, dtype=float)
             if t.shape != (2,) or not np.all(np.isfinite(t)):
                 raise ValueError(f"xy must be 2 finite numbers, got {xy}")
             if not (math.isfinite(xy_var) and xy_var > 0):
                 raise ValueError(f"xy_var must be finite and > 0, got {xy_var}")
-            t = t - self._org[:2, 0]
-            dx = st[0] - np.float32(t[0])
-            dy = st[1] - np.float32(t[1])
-            dx *= dx
-            dy *= dy
-            dx += dy
-            dx *= np.float32(-0.5 / xy_var)
-            factor = np.exp(dx)
-            factor += np.float32(1e-12)
+            org = self._org
+            fix[:4] = (1.0, t[0] - org[0, 0], t[1] - org[1, 0], -0.5 / xy_var)
         if heading is not None:
             if not math.isfinite(heading):
                 raise ValueError(f"heading must be finite, got {heading}")
             if not (math.isfinite(heading_std) and heading_std > 0):
                 raise ValueError(f"heading_std must be finite and > 0, got {heading_std}")
-            e = st[2] - np.float32(heading)
-            turns = np.rint(e * np.float32(0.5 / np.pi))
-            turns *= np.float32(2.0 * np.pi)
-            e -= turns
-            e *= e
-            e *= np.float32(-0.5 / heading_std**2)
-            g = np.exp(e)
-            g += np.float32(1e-12)
-            factor = g if factor is None else factor * g
-        if factor is None:
-            return
-        w = self._weights * factor
-        total = w.sum()
-        if total > 0 and np.isfinite(total):
-            w *= 1.0 / total
-            self._weights = w
+            fix[4:] = (1.0, heading, -0.5 / heading_std**2)
+        return fix
+
+    def lf_kernel_args(self, max_range: float | None) -> tuple:
+        """The likelihood field's arguments of the compiled weighting (:meth:`_weigh`);
+        placeholders for ``max_range=None`` (no scan)."""
+        if max_range is None:
+            return NO_FIELD
+        lf = self._lf_field(max_range)
+        args = self._lf_args.get(float(max_range))
+        if args is None:
+            args = self._lf_args[float(max_range)] = (
+                lf.table, lf.nxp, lf.offset, np.float32(lf.pad), np.float32(lf.inv_res),
+                lf.lo[0, 0], lf.lo[1, 0], lf.hi[0, 0], lf.hi[1, 0])
+        return args
 
     # ----------------------------------------------------------- resampling
     def resample(self) -> None:
@@ -670,34 +645,18 @@ class ParticleFilter:
         A fraction :attr:`inject_probability` (in expectation) of the new set is
         drawn uniformly over free space; the rest by low-variance resampling.
         With ``config.adaptive`` the new size is chosen by KLD sampling between
-        ``n_min`` and ``n_max`` (:meth:`_kld_draw`); otherwise the size is kept.
+        ``n_min`` and ``n_max``: ``n_max`` particles are drawn by low-variance
+        resampling and shuffled, and the shortest prefix whose size reaches the
+        KLD bound for the number of histogram bins (``kld_bin``) it occupies is
+        kept; otherwise the size is kept. Random draws, in order: adaptive: the
+        resampling offset, ``n_max`` 64-bit words for the shuffle, the injected count
+        (binomial); fixed size:
+        the injected count, the offset; then the injected positions
+        (:meth:`OccupancyGrid.sample_free`) and headings.
+        (:func:`estimators.particle_sampling.resample_filters` does it for a team.)
         """
-        cfg = self.config
-        rng = self.rng
-        p_inj = self.inject_probability
-        if cfg.adaptive:
-            state = self._kld_draw()
-            n = state.shape[1]
-            n_inj = int(rng.binomial(n, p_inj)) if p_inj > 0 else 0
-            if n_inj:
-                state = state[:, : n - n_inj]
-        else:
-            n = self._weights.size
-            n_inj = int(rng.binomial(n, p_inj)) if p_inj > 0 else 0
-            idx = low_variance_from_cumulative(self._cumulative_weights(), n - n_inj, rng)
-            state = self._state.take(idx, axis=1)
-        if n_inj:
-            state = np.concatenate([state, self._uniform_poses(n_inj)], axis=1)
-        self._state = state
-        self._weights = self._uniform_weights(n)
-
-    def _cumulative_weights(self) -> np.ndarray:
-        """Cumulative sums of the weights (up to a constant factor): the ones the last
-        measurement update computed while these weights are current."""
-        w, cum = self._cum
-        if w is not self._weights:  # weights are replaced, never changed in place
-            cum = np.add.accumulate(self._weights)
-        return cum
+        resample_filters([self], self._flat_state(), np.array([self._weights.size]),
+                         self._weights, [True])
 
     def _uniform_weights(self, n: int) -> np.ndarray:
         """Weights ``1 / n`` (a shared read-only array: weights are never changed in place)."""
@@ -716,37 +675,6 @@ class ParticleFilter:
             self.resample()
             return True
         return False
-
-    def _kld_draw(self) -> np.ndarray:
-        """KLD sampling (Fox 2003): a ``(3, n)`` resampled set, ``n_min <= n <= n_max``.
-
-        Draws ``n_max`` particles by low-variance resampling, shuffles them, and
-        keeps the shortest prefix whose size reaches the KLD bound for the
-        number of histogram bins (``kld_bin``) that prefix occupies.
-        """
-        cfg = self.config
-        n_max = cfg.n_max
-        idx = low_variance_from_cumulative(self._cumulative_weights(), n_max, self.rng)
-        idx = idx[self.rng.permutation(n_max)]
-        if self._unwrapped_steps:
-            self._wrap_headings()
-        st = np.take(self._state, idx, axis=1)
-        bx, by, bt = cfg.kld_bin
-        n_t = math.ceil(2.0 * math.pi / bt)
-        key, size = kld_bins(st, self._org[0, 0], self._org[1, 0], 1.0 / bx, 1.0 / by,
-                             1.0 / bt, n_t)
-        if size <= 16 * n_max + 2**20:  # a marker array of this size is cheap
-            is_new = first_occurrences(key, size)
-        else:
-            _, first = np.unique(key, return_index=True)
-            is_new = np.zeros(n_max, dtype=bool)
-            is_new[first] = True
-        k = np.cumsum(is_new)  # bins occupied by the first i + 1 particles
-        need = kld_need(cfg.kld_epsilon, cfg.kld_delta, cfg.n_min, n_max)[k]
-        enough = np.flatnonzero(np.arange(1, n_max + 1) >= need)
-        n = int(enough[0]) + 1 if enough.size else n_max
-        n = int(np.clip(n, cfg.n_min, n_max))
-        return st[:, :n].copy()
 
     # --------------------------------------------------------------- output
     def mean_pose(self) -> np.ndarray:

@@ -1,14 +1,49 @@
-"""Resampling helpers of the particle filter: low-variance (systematic) resampling
-and the KLD-sampling bound (Fox 2003) on the number of particles."""
+"""Resampling helpers of the particle filter: low-variance (systematic) resampling,
+the KLD-sampling bound (Fox 2003) on the number of particles, and the compiled
+resampling of one or several filters at once (:func:`resample_filters`)."""
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from functools import lru_cache
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.special import ndtri
 
-__all__ = ["kld_need", "kld_sample_bound", "low_variance_from_cumulative", "low_variance_indices"]
+from estimators._team_kernels import (
+    build_blocks,
+    normals_from_bits,
+    select_blocks,
+    ziggurat_tables,
+)
+
+if TYPE_CHECKING:
+    from estimators.particle_filter import ParticleFilter
+
+__all__ = [
+    "kld_need", "kld_sample_bound", "low_variance_from_cumulative", "low_variance_indices",
+    "resample_filters", "standard_normals",
+]
+
+_ZIGGURAT = ziggurat_tables()
+_NO_BITS = np.zeros(0, dtype=np.uint64)
+_NO_NEED = np.zeros(1)
+_NO_POSES = np.zeros((0, 3))
+
+
+def standard_normals(rng: np.random.Generator, out: np.ndarray) -> np.ndarray:
+    """Fill the float32 array ``out`` with standard normals from ``rng``'s bit stream and
+    return it (the ziggurat method in one compiled pass; about twice as fast as
+    ``rng.standard_normal(dtype=np.float32)``, from a different stream)."""
+    n = out.size
+    extra = 16 + n // 16  # about 1.3 % of the tries need another word
+    while True:
+        raw = rng.bit_generator.random_raw(n + extra)
+        if normals_from_bits(raw, out, *_ZIGGURAT) >= 0:
+            return out
+        extra *= 2
 
 
 def low_variance_indices(weights: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -68,3 +103,95 @@ def kld_need(epsilon: float, delta: float, n_min: int, n_max: int) -> np.ndarray
     need = np.maximum(kld_sample_bound(np.arange(n_max + 1), epsilon, delta), n_min)
     need.flags.writeable = False
     return need
+
+
+def resample_filters(filters: Sequence[ParticleFilter], flat: np.ndarray, ends: np.ndarray,
+                     w: np.ndarray, which: Sequence[bool]) -> np.ndarray:
+    """:meth:`ParticleFilter.resample` of ``filters[r]`` where ``which[r]``, all in two
+    compiled passes over the team's arrays; returns the team's new state (block layout),
+    which every filter's state is then a view of (resampled filters get uniform weights).
+
+    ``flat``, ``ends``, ``w``: the filters' states (block layout, each filter's state a
+    view of ``flat``), segment ends and weights. Each filter draws from its own
+    generator in the order :meth:`ParticleFilter.resample` documents, so resampling a
+    team equals resampling its filters one by one.
+    """
+    nr = len(filters)
+    mode = [0] * nr
+    u = [0.0] * nr
+    m = [0] * nr
+    n_inj = [0] * nr
+    kld = np.zeros((nr, 8))
+    words: list[np.ndarray] = []
+    needs: list[np.ndarray] = []
+    need_off = 0
+    p_inj = [0.0] * nr
+    ends_l = ends.tolist()
+    for r, pf in enumerate(filters):
+        if not which[r]:
+            continue
+        cfg = pf.config
+        rng = pf.rng
+        p_inj[r] = pf.inject_probability
+        if cfg.adaptive:
+            mode[r] = 2
+            m[r] = cfg.n_max
+            u[r] = rng.random()
+            words.append(rng.bit_generator.random_raw(cfg.n_max))  # the shuffle
+            if pf._unwrapped_steps:
+                pf._wrap_headings()
+            bx, by, bt = cfg.kld_bin
+            need = kld_need(cfg.kld_epsilon, cfg.kld_delta, cfg.n_min, cfg.n_max)
+            kld[r] = (pf._org[0, 0], pf._org[1, 0], 1.0 / bx, 1.0 / by, 1.0 / bt,
+                      math.ceil(2.0 * math.pi / bt), need_off, cfg.n_min)
+            needs.append(need)
+            need_off += need.size
+        else:
+            mode[r] = 1
+            n = ends_l[r] - (ends_l[r - 1] if r else 0)
+            n_inj[r] = int(rng.binomial(n, p_inj[r])) if p_inj[r] > 0 else 0
+            u[r] = rng.random()
+            m[r] = n - n_inj[r]
+    if words:  # KLD robots' shuffle words at their offsets
+        bits = np.zeros(sum(m), dtype=np.uint64)
+        it = iter(words)
+        o = 0
+        for r in range(nr):
+            if mode[r] == 2:
+                bits[o:o + m[r]] = next(it)
+            o += m[r]
+        need_all = np.concatenate(needs)
+    else:
+        bits = _NO_BITS
+        need_all = _NO_NEED
+    if not w.flags.writeable:  # one compiled signature: writeable arrays
+        w = w.copy()
+    mode_a = np.array(mode, dtype=np.intp)
+    m_a = np.array(m, dtype=np.intp)
+    idx, counts = select_blocks(flat, w, ends, mode_a, np.array(u), m_a, bits, kld, need_all)
+    keep = counts.tolist()
+    inj: list[np.ndarray] = []
+    for r, pf in enumerate(filters):
+        if mode[r] == 2:
+            n = keep[r]
+            n_inj[r] = int(pf.rng.binomial(n, p_inj[r])) if p_inj[r] > 0 else 0
+            keep[r] = n - n_inj[r]
+        if n_inj[r]:
+            pose = np.empty((n_inj[r], 3))
+            pose[:, :2] = pf.grid.sample_free(n_inj[r], pf.rng)
+            pose[:, 2] = pf.rng.uniform(-np.pi, np.pi, size=n_inj[r])
+            inj.append(pose)
+    org = np.array([pf._org[:2, 0] for pf in filters]).reshape(-1, 2)
+    inj_all = np.concatenate(inj) if inj else _NO_POSES
+    n_inj_a = np.array(n_inj, dtype=np.intp)
+    new, new_ends = build_blocks(flat, ends, mode_a, idx, m_a, np.array(keep, dtype=np.intp),
+                                 inj_all, n_inj_a, org)
+    start = 0
+    for r, pf in enumerate(filters):
+        end = int(new_ends[r])
+        pf._state = new[3 * start:3 * end].reshape(3, end - start)
+        pf._block_start = start
+        if mode[r]:
+            pf._weights = pf._uniform_weights(end - start)
+        start = end
+    return new

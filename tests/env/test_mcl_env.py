@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import numpy as np
@@ -99,6 +100,30 @@ def test_tracking_stays_close_outdoors():
     for info in infos.values():
         assert info["position_error"] < 0.8
         assert info["particle_spread"] < 1.2
+
+
+def test_backend_fix_rows_match_each_filter():
+    """The backend's vectorized DGPS / compass rows equal each filter's own."""
+    env = coop_loc_env.parallel_env("outdoor_terrain", estimator="mcl", n_particles=50,
+                                    n_robots=3)
+    env.reset(seed=2)
+    backend = env.unwrapped.backends[0]
+    u = env.unwrapped
+    readings = u.sensors.read(0, u.world.poses, np.zeros((3, 2)), np.random.default_rng(0),
+                              np.ones(3, dtype=bool))
+    readings = dataclasses.replace(
+        readings, gps_xy=np.array([[3.0, 4.0], [0.0, 0.0], [20.0, 30.0]]),
+        gps_var=np.array([0.5, 1.0, 2.0]), compass=np.array([0.1, -3.0, 0.0]))
+    idx = np.arange(3)
+    gps = np.array([True, False, True])
+    compass = np.array([True, True, False])
+    rows = backend._fix_rows(idx, gps, compass, readings)
+    std = env.unwrapped.config.compass_std
+    for i, pf in enumerate(backend.filters):
+        expected = pf.fix_row(readings.gps_xy[i] if gps[i] else None,
+                              float(readings.gps_var[i]) if gps[i] else 1.0,
+                              float(readings.compass[i]) if compass[i] else None, std)
+        np.testing.assert_allclose(rows[i], expected, rtol=1e-15)
 
 
 def test_team_mixes_ekf_and_mcl():

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 import coop_loc_env
+from coop_loc_env import mcl_backend
 from coop_loc_env.mcl_backend import MCLBackend
 from coop_loc_env.profiles import PAPER_OVERRIDES, PROFILES, with_profile
-from estimators.particle_filter import ParticleFilter
 
 
 def test_default_profile_leaves_the_overrides_alone():
@@ -48,9 +48,13 @@ def test_fox_paper_profile():
 
 def test_random_particles_after_every_step(monkeypatch):
     calls = []
-    original = ParticleFilter.resample
-    monkeypatch.setattr(ParticleFilter, "resample",
-                        lambda self: (calls.append(1), original(self))[1])
+    original = mcl_backend.resample_filters  # the backend resamples its team at once
+
+    def counting(filters, flat, ends, w, which):
+        calls.extend([1] * sum(which))  # one per filter resampled
+        return original(filters, flat, ends, w, which)
+
+    monkeypatch.setattr(mcl_backend, "resample_filters", counting)
     counts = {}
     for every in (False, True):
         calls.clear()

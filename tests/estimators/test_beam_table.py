@@ -43,17 +43,18 @@ def small_map() -> OccupancyGrid:
 def test_table_matches_exact_ray_casts_within_the_beam_noise():
     grid, max_range, cone = hallway_map()
     table = range_table(grid, max_range, 256, cone, 3)
-    err = table_error(grid, table, n=4000, seed=1)
+    err = table_error(grid, table, n=20000, seed=0)
     # Most lookups are exact (same wall face as from the cell centre); the tail comes
     # from rays that pass a corner on the other side than the centre's ray does.
-    assert np.median(err) < 0.01
-    assert np.percentile(err, 90) < 0.05
-    assert np.percentile(err, 99) < 0.5  # the hallway's beam model std (beam_sigma)
+    assert np.median(err) < 0.001
+    assert np.percentile(err, 90) < 0.01
+    # below the simulated sonar's range noise (0.15 m std); 0.14 m with these poses
+    assert np.percentile(err, 99) < 0.15
     # the first-order corrections are what make it so: cell-centre ranges alone are worse
     plain = table._replace(scales=table.scales * np.array([1, 0, 0, 0], dtype=np.float32))
-    err_plain = table_error(grid, plain, n=4000, seed=1)
-    assert np.percentile(err_plain, 90) > 3 * np.percentile(err, 90)
-    assert np.percentile(err_plain, 99) > 1.5 * np.percentile(err, 99)
+    err_plain = table_error(grid, plain, n=20000, seed=0)
+    assert np.percentile(err_plain, 90) > 30 * np.percentile(err, 90)
+    assert np.percentile(err_plain, 99) > 3 * np.percentile(err, 99)
 
 
 def test_tables_are_shared_by_equal_maps():
@@ -195,7 +196,8 @@ def test_compiled_scan_likelihood_repeats_the_table_lookups():
     z[1, 2] = np.nan
     rows = lut.rows(z)
     ends = np.array([1000, n])
-    got = scan_loglik(table, lut, st, angles, rows, ends, -10.0)
+    flat = np.concatenate([st[:, :1000].ravel(), st[:, 1000:].ravel()])  # block layout
+    got = scan_loglik(table, lut, flat, angles, rows, ends, -10.0)
     per_particle_rows = np.repeat(rows, [1000, n - 1000], axis=0)
     ref = lut.loglik(table.expected(st[0], st[1], st[2], angles), per_particle_rows)
     ref += np.where(table.free(st[0], st[1]), 0.0, -10.0)

@@ -1,0 +1,114 @@
+"""Weighting one or several particle filters in one compiled pass.
+
+:func:`weigh_filters` multiplies each filter's weights by its scan likelihood
+(a likelihood-field laser scan scored in the pass, or scan log-likelihoods
+scored before, e.g. by the beam model's tables) and its DGPS / compass fixes
+(:func:`estimators._team_kernels.weigh_blocks`), normalizes them, and updates
+the filters' augmented-MCL averages. :class:`~estimators.particle_filter.ParticleFilter`
+uses it for one filter, :mod:`estimators.mcl_batch` for a team.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from estimators._team_kernels import weigh_blocks
+from estimators.geometry import wrap_angle
+
+if TYPE_CHECKING:
+    from estimators.particle_filter import ParticleFilter
+
+__all__ = ["NO_FIELD", "weigh_filters"]
+
+# placeholders of the likelihood-field arguments of weigh_blocks when no field is read
+NO_FIELD = (np.zeros(1, dtype=np.float32), 1, 0, np.float32(0), np.float32(1), np.float32(0),
+            np.float32(0), np.float32(0), np.float32(0))
+
+
+def weigh_filters(
+    filters: Sequence[ParticleFilter], flat: np.ndarray, ends: np.ndarray, w_prev: np.ndarray,
+    fixes: np.ndarray, nb: np.ndarray, loglik: np.ndarray, scored: bool,
+    offsets: np.ndarray, n_eff: np.ndarray, lf_args: tuple = NO_FIELD,
+    ux: np.ndarray | None = None, uy: np.ndarray | None = None, power: float = 1.0,
+) -> np.ndarray:
+    """Weight ``filters`` (states ``flat`` in the block layout, segment ``ends``, weights
+    ``w_prev``) by their scans and ``fixes`` (rows of :meth:`ParticleFilter.fix_row`).
+
+    Robot ``r`` has a scan when ``nb[r] >= 0``: with ``scored`` its log-likelihoods
+    are ``loglik``'s segment, otherwise ``nb[r]`` likelihood-field endpoints ``ux, uy``
+    scored in the pass (``lf_args``: :meth:`ParticleFilter.lf_kernel_args`, ``power``:
+    the field's power) into ``loglik``. Its scan's log evidence is the pass's plus
+    ``offsets[r]``; the augmented-MCL averages track it over ``n_eff[r]`` beams
+    (none when 0). Returns the log evidences (NaN: no scan).
+    """
+    nr = len(filters)
+    evidence = np.full(nr, np.nan)
+    if not nr:
+        return evidence
+    w = np.empty(w_prev.size)
+    res = np.empty((nr, 3))
+    if ux is None:
+        ux = uy = np.zeros((nr, 0), dtype=np.float32)
+    if not w_prev.flags.writeable:  # one compiled signature: writeable arrays
+        w_prev = w_prev.copy()
+    weigh_blocks(flat, ends, w_prev, *lf_args, ux, uy, nb, float(power), fixes, loglik, scored,
+                 w, res)
+    start = 0
+    ends_l = ends.tolist()
+    nb_l = nb.tolist()
+    res_l = res.tolist()
+    flags = ((fixes[:, 0] != 0) | (fixes[:, 4] != 0)).tolist()
+    offsets_l = np.asarray(offsets, dtype=float).tolist()
+    n_eff_l = np.asarray(n_eff, dtype=float).tolist()
+    for r, pf in enumerate(filters):
+        end = ends_l[r]
+        scan = nb_l[r] >= 0
+        if scan or flags[r]:
+            ev_r, ess, ok = res_l[r]
+            if ok:
+                pf._weights = w[start:end]
+                pf._wblock_start = start
+                pf._ess = (pf._weights, ess)
+                ev = ev_r + offsets_l[r]
+            else:  # the products underflowed: redo this filter in log space
+                pf._weights, ev = _weights_in_logs(pf, w_prev[start:end],
+                                                   loglik[start:end] if scan else None,
+                                                   fixes[r])
+                ev += offsets_l[r]
+            if scan:
+                evidence[r] = ev
+                pf._track_evidence(ev, n_eff_l[r])
+        start = end
+    return evidence
+
+
+def _weights_in_logs(pf: ParticleFilter, w_prev: np.ndarray, loglik: np.ndarray | None,
+                     fix: np.ndarray) -> tuple[np.ndarray, float]:
+    """:func:`weigh_filters` for one filter in log space: normalized weights and the
+    scan's log evidence (less the caller's offset; NaN without a scan)."""
+    st = pf._state
+    with np.errstate(divide="ignore"):
+        lw = np.log(w_prev)
+    log_evidence = math.nan
+    if loglik is not None:
+        lw = lw + loglik
+        m = lw.max()
+        log_evidence = float(m + np.log(np.exp(lw - m).sum()))
+    if fix[0]:
+        d2 = (st[0] - fix[1]) ** 2.0 + (st[1] - fix[2]) ** 2.0
+        lw = lw + np.log(np.exp(fix[3] * d2) + 1e-12)
+    if fix[4]:
+        e = wrap_angle(st[2] - fix[5])
+        lw = lw + np.log(np.exp(fix[6] * e * e) + 1e-12)
+    m = lw.max()
+    if not math.isfinite(m):
+        raise ValueError(f"weights' log-likelihood is not finite (max {m})")
+    e = np.exp(lw - m)
+    e /= e.sum()
+    return e, log_evidence
+
+
