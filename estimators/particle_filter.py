@@ -175,22 +175,25 @@ class ParticleFilter:
 
         A read-only snapshot of the filter's state.
         """
-        world = self._world()
-        h = world[2]
-        # float32 pi lies just beyond float64 pi: wrap what falls outside (a floating
-        # modulo of every heading costs more than the rest of this copy)
-        out = (h < -np.pi) | (h >= np.pi)
-        if out.any():
-            h[out] = wrap_angle(h[out])
-        view = world.T
+        view = self._world().T
         view.flags.writeable = False
         return view
 
     def _world(self) -> np.ndarray:
-        """``(3, N)`` float64 world poses, headings wrapped (to float32 precision)."""
-        if self._unwrapped_steps:
-            self._wrap_headings()
-        return self._state + self._org
+        """``(3, N)`` float64 world poses, headings wrapped to ``[-pi, pi)``.
+
+        Wraps the copy, never the filter's own float32 state: re-wrapping that early
+        would round it differently, so reading a belief would change how it evolves.
+        """
+        world = self._state + self._org
+        h = world[2]
+        # the state's headings drift outside [-pi, pi) for a few steps between wraps (and
+        # float32 pi lies just beyond float64 pi): wrap only those (a floating modulo of
+        # every heading costs more than the rest of this copy)
+        out = (h < -np.pi) | (h >= np.pi)
+        if out.any():
+            h[out] = wrap_angle(h[out])
+        return world
 
     def _from_world(self, poses: np.ndarray) -> np.ndarray:
         """Internal float32 state of ``(3, N)`` world poses (headings wrapped here)."""

@@ -232,3 +232,21 @@ def test_per_sensor_settings_and_the_laser_beam_model():
     env = _make("symmetric_hallway")
     assert not env.backends[0]._laser_beam
     assert env.backends[0].transfer.config.exponent == 1.0
+
+
+def test_reading_the_particles_leaves_the_filter_untouched():
+    """A policy reading a belief must not change how it evolves (the float32 state is not
+    re-wrapped early by a read): two copies, one read at every step, stay bit-identical."""
+    envs = [coop_loc_env.parallel_env("active_hallway", max_cycles=40) for _ in range(2)]
+    for env in envs:
+        env.reset(seed=5)
+    action = np.array([0.6, 1.0], dtype=np.float32)  # circling: headings cross +-pi often
+    for _ in range(30):
+        for k, env in enumerate(envs):
+            env.step({a: action for a in env.agents})
+            if k == 1:
+                for pf in env.backends[0].filters:
+                    assert pf.particles.shape[1] == 3
+    for pa, pb in zip(envs[0].backends[0].filters, envs[1].backends[0].filters, strict=True):
+        assert np.array_equal(pa.particles, pb.particles)
+        assert np.array_equal(pa.weights, pb.weights)
