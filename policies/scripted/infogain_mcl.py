@@ -1,0 +1,466 @@
+"""``infogain`` for particle-filter (MCL) robots: expected entropy reduction over motion primitives.
+
+Active Markov localization (Fox, Burgard and Thrun 1998) chooses the action
+whose expected posterior entropy over poses is least. Here, every
+``replan_every`` env steps and for each live MCL robot:
+
+1. **Hypotheses.** The robot's particles are binned (``cell`` m x ``cell`` m x
+   ``heading_bins`` headings); each bin's weighted mean pose and summed weight
+   is one pose hypothesis. With more bins than ``n_hypotheses``, that many are
+   drawn by deterministic systematic sampling in proportion to weight (their
+   weights are the draw counts): the hypotheses follow the belief's modes.
+2. **Motion.** Each candidate primitive is a closed-loop behaviour in the
+   robot's own frame (the robot does not know its world heading when its
+   belief has several modes): turn in place by ``turn`` rad, then drive at
+   ``speed`` x maximum speed while turning at ``rate`` rad/s, for ``horizon``
+   seconds. Every hypothesis executes it in the known map (steps of
+   ``sim_dt``); one whose path ahead (the range table's forward reading) comes
+   within ``stop_distance`` of a wall stops there for the rest of the horizon
+   and counts as a collision.
+3. **Predicted scans.** Every ``scan_every`` seconds along the way each
+   hypothesis's scan is predicted from the robot's range table (the filter's
+   own tables: :meth:`coop_loc_env.mcl_backend.MCLBackend.beam_model`).
+4. **Expected entropy.** For each hypothesis ``h`` taken as the truth, its
+   predicted (noise-free) scans are scored against every hypothesis ``h'``
+   with the filter's tempered beam model (the same likelihood table, so the
+   planner's posterior sharpens as fast as the filter's would; each predicted
+   scan counts for the scans the sensor takes in ``scan_every``). The
+   posterior over hypotheses is the prior weights times these likelihoods;
+   the score is its entropy averaged over ``h`` with the prior weights.
+   Teammates: when the truth ``h`` passes within ``detect_fraction`` of the
+   detector range of a confident teammate's shared estimate (position std
+   below ``confident_std``), a detection would follow, which rules out the
+   hypotheses farther than ``detect_tolerance`` from ``h`` (their
+   log-likelihood drops by ``detect_loglik``).
+5. **Choice.** The primitive with the least ``expected entropy +
+   collision_cost * P(collision) - progress_weight * expected distance
+   driven`` wins: information first, then safety, then forward progress
+   (a robot whose belief has symmetric modes, where no primitive tells them
+   apart within the horizon, keeps driving at full speed).
+
+Between replans each robot tracks its primitive by its own odometry (the
+heading it turned since the replan) and, like ``wander``, turns in place
+toward the freer side when its own scan shows an obstacle ahead, then keeps
+the new heading. The planner reads the particle beliefs, the team's shared
+estimates, the robot's own readings, the known map and the hardware, never the
+true poses.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from estimators.beam_table import BeamLUT, RangeTable
+from estimators.geometry import wrap_angle
+
+
+@dataclass(frozen=True)
+class Primitive:
+    """A closed-loop motion in the robot frame: turn in place, then drive.
+
+    Attributes:
+        turn: rad turned in place first (+ = left).
+        rate: rad/s turned while driving.
+        speed: fraction of the maximum speed while driving (0 = stand still).
+    """
+
+    turn: float = 0.0
+    rate: float = 0.0
+    speed: float = 1.0
+
+
+def default_primitives(curve_rate: float = 0.4) -> tuple[Primitive, ...]:
+    """Stand, straight, curve left/right, and turn by +-45, +-90, +-135 or 180 deg then drive."""
+    out = [Primitive(speed=0.0), Primitive(), Primitive(rate=curve_rate),
+           Primitive(rate=-curve_rate)]
+    for deg in (45, -45, 90, -90, 135, -135, 180):
+        out.append(Primitive(turn=float(np.deg2rad(deg))))
+    return tuple(out)
+
+
+def belief_hypotheses(particles: np.ndarray, weights: np.ndarray, n: int, cell: float = 1.0,
+                      heading_bins: int = 12) -> tuple[np.ndarray, np.ndarray]:
+    """At most ``n`` pose hypotheses ``(H, 3)`` and their weights ``(H,)`` (summing to 1).
+
+    Particles are binned by position (``cell`` m) and heading (``heading_bins``);
+    each bin gives its weighted mean pose (circular mean heading) and weight.
+    With more than ``n`` bins, ``n`` draws by systematic sampling (a fixed
+    offset: deterministic) pick bins in proportion to weight; a bin drawn ``k``
+    times weighs ``k / n``.
+    """
+    particles = np.asarray(particles, dtype=float)
+    weights = np.asarray(weights, dtype=float)
+    if particles.ndim != 2 or particles.shape[1] != 3 or len(particles) < 1:
+        raise ValueError(f"particles must be (N >= 1, 3), got shape {particles.shape}")
+    if weights.shape != (len(particles),) or not np.all(np.isfinite(weights)) or \
+            np.any(weights < 0) or not weights.sum() > 0:
+        raise ValueError("weights must be finite, >= 0, one per particle and not all zero")
+    if n < 1 or heading_bins < 1 or not cell > 0:
+        raise ValueError(f"need n >= 1, heading_bins >= 1 and cell > 0, got n={n}, "
+                         f"heading_bins={heading_bins}, cell={cell}")
+    w = weights / weights.sum()
+    ix = np.floor(particles[:, 0] / cell).astype(np.int64)
+    iy = np.floor(particles[:, 1] / cell).astype(np.int64)
+    ih = np.floor((wrap_angle(particles[:, 2]) + np.pi) / (2 * np.pi) * heading_bins)
+    ih = np.clip(ih.astype(np.int64), 0, heading_bins - 1)
+    ix -= ix.min()
+    iy -= iy.min()
+    key = (ix * (iy.max() + 1) + iy) * heading_bins + ih
+    uniq, inv = np.unique(key, return_inverse=True)
+    m = len(uniq)
+    mass = np.bincount(inv, w, m)
+    pos = np.stack([np.bincount(inv, w * particles[:, k], m) for k in (0, 1)], 1)
+    c = np.bincount(inv, w * np.cos(particles[:, 2]), m)
+    s = np.bincount(inv, w * np.sin(particles[:, 2]), m)
+    keep = mass > 0
+    poses = np.column_stack([pos[keep] / mass[keep, None], np.arctan2(s[keep], c[keep])])
+    mass = mass[keep]
+    if len(mass) > n:
+        cum = np.cumsum(mass)
+        cum[-1] = 1.0
+        picks = np.searchsorted(cum, (np.arange(n) + 0.5) / n)
+        picks, counts = np.unique(picks, return_counts=True)
+        poses, mass = poses[picks], counts / n
+    return poses, mass / mass.sum()
+
+
+def _forward_range(table: RangeTable, x: np.ndarray, y: np.ndarray, heading: np.ndarray
+                   ) -> np.ndarray:
+    ox, oy = table.origin
+    return table.expected((x - ox).astype(np.float32), (y - oy).astype(np.float32),
+                          heading.astype(np.float32), np.zeros(1))[:, 0]
+
+
+@dataclass(frozen=True)
+class ScanModel:
+    """One robot's scan prediction model and kinematics (what the scorer needs).
+
+    Attributes:
+        table: the map's range table for the robot's beams.
+        lut: the filter's tempered beam log-likelihood table.
+        angles: robot-frame beam angles.
+        scans_per_s: range scans the robot takes per second.
+        max_speed: m/s.
+        max_turn_rate: rad/s.
+    """
+
+    table: RangeTable
+    lut: BeamLUT
+    angles: np.ndarray
+    scans_per_s: float
+    max_speed: float
+    max_turn_rate: float
+
+
+class PrimitiveScorer:
+    """Scores motion primitives by expected posterior entropy (steps 2-5 of the module doc).
+
+    Args:
+        horizon: s of motion simulated per primitive.
+        sim_dt: s per simulation step (collision checks).
+        scan_every: s between predicted scans (the first at ``scan_every``).
+        stop_distance: m: a hypothesis whose way ahead is nearer than this stops.
+        collision_cost: nats per unit probability of a collision.
+        progress_weight: nats per metre of expected distance driven (the tie-break).
+        detect_tolerance: m: a detection rules out hypotheses farther than this.
+        detect_loglik: log-likelihood drop of a ruled-out hypothesis.
+    """
+
+    def __init__(self, horizon: float = 6.0, sim_dt: float = 0.25, scan_every: float = 1.0,
+                 stop_distance: float = 0.6, collision_cost: float = 0.3,
+                 progress_weight: float = 0.01, detect_tolerance: float = 2.0,
+                 detect_loglik: float = 5.0) -> None:
+        for key, value in (("horizon", horizon), ("sim_dt", sim_dt), ("scan_every", scan_every),
+                           ("detect_tolerance", detect_tolerance)):
+            if not (np.isfinite(value) and value > 0):
+                raise ValueError(f"{key} must be > 0, got {value!r}")
+        for key, value in (("stop_distance", stop_distance), ("collision_cost", collision_cost),
+                           ("progress_weight", progress_weight),
+                           ("detect_loglik", detect_loglik)):
+            if not (np.isfinite(value) and value >= 0):
+                raise ValueError(f"{key} must be >= 0, got {value!r}")
+        if scan_every > horizon:
+            raise ValueError(f"scan_every ({scan_every}) must not exceed horizon ({horizon})")
+        self.horizon, self.sim_dt = float(horizon), float(sim_dt)
+        self.scan_every = float(scan_every)
+        self.stop_distance, self.collision_cost = float(stop_distance), float(collision_cost)
+        self.progress_weight = float(progress_weight)
+        self.detect_tolerance, self.detect_loglik = float(detect_tolerance), float(detect_loglik)
+        n_sim = int(round(self.horizon / self.sim_dt))
+        every = max(1, int(round(self.scan_every / self.sim_dt)))
+        self._n_sim = n_sim
+        self._scan_steps = np.arange(every, n_sim + 1, every)  # sim steps with a scan
+
+    def simulate(self, model: ScanModel, poses: np.ndarray, primitives: tuple[Primitive, ...]
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every hypothesis under every primitive, stopping at walls.
+
+        Returns poses at the scan times ``(P, H, K, 3)``, whether each stopped
+        at a wall ``(P, H)`` and the distance each drove ``(P, H)``.
+        """
+        p, h = len(primitives), len(poses)
+        dt = self.sim_dt
+        turn = np.array([q.turn for q in primitives])
+        rate = np.array([q.rate for q in primitives])
+        speed = np.array([q.speed for q in primitives]) * model.max_speed
+        x = np.repeat(poses[None, :, 0], p, 0).ravel()
+        y = np.repeat(poses[None, :, 1], p, 0).ravel()
+        th = np.repeat(poses[None, :, 2], p, 0).ravel()
+        left = np.repeat(turn, h)  # rad still to turn in place
+        rate_ = np.repeat(rate, h)
+        v = np.repeat(speed, h)
+        stopped = v <= 0
+        blocked = np.zeros(p * h, dtype=bool)
+        driven = np.zeros(p * h)
+        out = np.empty((len(self._scan_steps), 3, p * h))
+        k = 0
+        step_turn = model.max_turn_rate * dt
+        for s in range(1, self._n_sim + 1):
+            spin = np.clip(left, -step_turn, step_turn)
+            left -= spin
+            th = th + spin
+            driving = (np.abs(left) < 1e-9) & ~stopped
+            if driving.any():
+                idx = np.flatnonzero(driving)
+                ahead = _forward_range(model.table, x[idx], y[idx], th[idx])
+                step = v[idx] * dt
+                hit = ahead - step < self.stop_distance
+                go = idx[~hit]
+                stopped[idx[hit]] = True
+                blocked[idx[hit]] = True
+                x[go] += step[~hit] * np.cos(th[go])
+                y[go] += step[~hit] * np.sin(th[go])
+                th[go] += rate_[go] * dt
+                driven[go] += step[~hit]
+            if k < len(self._scan_steps) and s == self._scan_steps[k]:
+                out[k] = x, y, th
+                k += 1
+        scan_poses = out.reshape(len(self._scan_steps), 3, p, h).transpose(2, 3, 0, 1)
+        return scan_poses, blocked.reshape(p, h), driven.reshape(p, h)
+
+    def loglik(self, model: ScanModel, scan_poses: np.ndarray) -> np.ndarray:
+        """``(P, H, H)``: log-likelihood of hypothesis ``h'`` (last axis) given the scans
+        hypothesis ``h`` (middle axis) would take, summed over the predicted scans."""
+        p, h, k, _ = scan_poses.shape
+        table, lut = model.table, model.lut
+        flat = scan_poses.reshape(-1, 3)
+        ox, oy = table.origin
+        e = table.expected((flat[:, 0] - ox).astype(np.float32),
+                           (flat[:, 1] - oy).astype(np.float32),
+                           flat[:, 2].astype(np.float32), model.angles)  # (P*H*K, B)
+        rows = lut.rows(e).reshape(p, h, -1)  # measured: the truth's predicted scan
+        cols = (e * np.float32(1.0 / lut.step) + np.float32(0.5)).astype(np.intp)
+        cols = cols.reshape(p, h, -1)
+        ll = np.empty((p, h, h))
+        for q in range(p):
+            idx = rows[q][:, None, :] + cols[q][None, :, :]
+            ll[q] = lut.table.take(idx).sum(axis=2, dtype=np.float64)
+        return ll * (model.scans_per_s * self.scan_every)
+
+    def detection_loglik(self, scan_poses: np.ndarray, teammates: np.ndarray,
+                         reach: float) -> np.ndarray:
+        """``(P, H, H)`` log-likelihood terms of the detections by confident teammates at
+        ``teammates (m, 2)`` within ``reach`` m (see the module doc); zeros without any."""
+        p, h = scan_poses.shape[:2]
+        out = np.zeros((p, h, h))
+        if len(teammates) == 0:
+            return out
+        xy = scan_poses[..., :2]  # (P, H, K, 2)
+        d = xy[:, :, :, None, :] - teammates[None, None, None]
+        near = (np.hypot(d[..., 0], d[..., 1]) < reach).any(axis=3)  # (P, H, K)
+        if not near.any():
+            return out
+        gap = xy[:, :, None] - xy[:, None, :]  # (P, H, H, K, 2)
+        far = np.hypot(gap[..., 0], gap[..., 1]) > self.detect_tolerance
+        ruled_out = (near[:, :, None, :] & far).any(axis=3)
+        out[ruled_out] = -self.detect_loglik
+        return out
+
+    def scores(self, model: ScanModel, poses: np.ndarray, weights: np.ndarray,
+               primitives: tuple[Primitive, ...], teammates: np.ndarray | None = None,
+               reach: float = 0.0) -> dict[str, np.ndarray]:
+        """Per primitive: ``score`` (lower is better), ``entropy`` (expected posterior
+        entropy, nats), ``collision`` (probability) and ``progress`` (expected m driven)."""
+        poses = np.asarray(poses, dtype=float)
+        weights = np.asarray(weights, dtype=float)
+        if poses.ndim != 2 or poses.shape[1] != 3 or len(poses) < 1:
+            raise ValueError(f"poses must be (H >= 1, 3), got shape {poses.shape}")
+        if weights.shape != (len(poses),) or not np.isclose(weights.sum(), 1.0) or \
+                np.any(weights < 0):
+            raise ValueError("weights must be >= 0, one per pose and sum to 1")
+        if not primitives:
+            raise ValueError("primitives must not be empty")
+        scan_poses, blocked, driven = self.simulate(model, poses, primitives)
+        ll = self.loglik(model, scan_poses) if model.scans_per_s > 0 else np.zeros(
+            (len(primitives), len(poses), len(poses)))
+        if teammates is not None and reach > 0:
+            ll += self.detection_loglik(scan_poses, np.asarray(teammates, float).reshape(-1, 2),
+                                        reach)
+        with np.errstate(divide="ignore"):
+            logw = np.log(weights)
+        post = logw[None, None, :] + ll
+        post -= post.max(axis=2, keepdims=True)
+        prob = np.exp(post)
+        prob /= prob.sum(axis=2, keepdims=True)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ent = -np.where(prob > 0, prob * np.log(prob), 0.0).sum(axis=2)  # (P, H)
+        entropy = ent @ weights
+        collision = blocked.astype(float) @ weights
+        progress = driven @ weights
+        score = entropy + self.collision_cost * collision - self.progress_weight * progress
+        return {"score": score, "entropy": entropy, "collision": collision,
+                "progress": progress}
+
+
+FRONT = 0.7  # rad: half-width of the sector of the own scan checked ahead
+AVOID = 1.2  # m: a return nearer than this ahead makes the robot turn in place
+TURNED = 0.1  # rad: the in-place turn of a primitive is done within this
+
+
+class MCLInfoGainPlanner:
+    """Plans and tracks motion primitives for a team's MCL robots (see the module docstring).
+
+    Args:
+        n_hypotheses: most pose hypotheses per robot.
+        replan_every: env steps between replans.
+        primitives: the candidates (:func:`default_primitives` when ``None``).
+        scorer: the :class:`PrimitiveScorer` (its defaults when ``None``).
+        cell: m, position bin of the hypotheses.
+        heading_bins: heading bins of the hypotheses.
+        confident_std: m, a teammate whose shared position std is below this can
+            inform a robot it detects.
+        detect_fraction: fraction of the detector range within which a detection
+            is expected.
+    """
+
+    def __init__(self, n_hypotheses: int = 40, replan_every: int = 4,
+                 primitives: tuple[Primitive, ...] | None = None,
+                 scorer: PrimitiveScorer | None = None, cell: float = 1.0,
+                 heading_bins: int = 12, confident_std: float = 1.0,
+                 detect_fraction: float = 0.8) -> None:
+        for key, value in (("n_hypotheses", n_hypotheses), ("replan_every", replan_every),
+                           ("heading_bins", heading_bins)):
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{key} must be a positive integer, got {value!r}")
+        for key, value in (("cell", cell), ("confident_std", confident_std)):
+            if not (np.isfinite(value) and value > 0):
+                raise ValueError(f"{key} must be > 0, got {value!r}")
+        if not 0 <= detect_fraction <= 1:
+            raise ValueError(f"detect_fraction must be in [0, 1], got {detect_fraction!r}")
+        self.primitives = tuple(primitives) if primitives is not None else default_primitives()
+        if not self.primitives or not all(isinstance(q, Primitive) for q in self.primitives):
+            raise ValueError("primitives must be a non-empty sequence of Primitive")
+        self.n_hypotheses, self.replan_every = n_hypotheses, replan_every
+        self.scorer = scorer if scorer is not None else PrimitiveScorer()
+        self.cell, self.heading_bins = float(cell), heading_bins
+        self.confident_std, self.detect_fraction = float(confident_std), float(detect_fraction)
+        self.env = None
+
+    def reset(self, env, robots: dict[int, tuple[object, int]]) -> None:
+        """Bind to ``env``; ``robots`` maps each MCL robot to ``(its backend, local index)``."""
+        self.env = env
+        cfg = env.config
+        self.robots = dict(robots)
+        n = cfg.n_robots
+        self.choice = np.zeros(n, dtype=int)  # index into primitives
+        self.turned = np.zeros(n)  # rad turned since the last replan (own odometry)
+        self.target = np.zeros(n)  # rad: heading to hold, relative to the one at the replan
+        self.in_place = np.zeros(n, dtype=bool)  # still in the primitive's in-place turn
+        self._count = 0
+        self._angles = [np.asarray(a, dtype=float) for a in env.sensors.beam_angles]
+        self._rmax = np.asarray(env.sensors.range_max, dtype=float)
+        self._scans = [np.full(len(a), r) for a, r in zip(self._angles, self._rmax, strict=True)]
+        self._dt_sub = cfg.dt / cfg.odometry_substeps
+        self._scans_per_s = min(cfg.laser_rate, 1.0 / cfg.dt)
+        specs = [cfg.robot_spec(i) for i in range(n)]
+        self._has_range = np.array([s.has_range_sensor for s in specs])
+        self._has_det = np.array([s.has_detector for s in specs])
+        self._speed = np.array([s.max_speed for s in specs], dtype=float)
+        self._turn_rate = np.array([s.max_turn_rate for s in specs], dtype=float)
+
+    def model(self, i: int) -> ScanModel:
+        """Robot ``i``'s :class:`ScanModel` (tables shared with its filter)."""
+        backend, local = self.robots[i]
+        table, lut, angles, _ = backend.beam_model(local)
+        return ScanModel(table, lut, np.asarray(angles, dtype=float),
+                         self._scans_per_s if self._has_range[i] else 0.0,
+                         float(self._speed[i]), float(self._turn_rate[i]))
+
+    def _teammates(self, i: int, live: np.ndarray) -> np.ndarray:
+        """``(m, 2)`` shared estimates of live, confident teammates that could inform ``i``."""
+        env = self.env
+        if not env.config.cooperative_updates:
+            return np.zeros((0, 2))
+        cov = env.estimated_covariances
+        std = np.sqrt(0.5 * (cov[:, 0, 0] + cov[:, 1, 1]))
+        ok = live & (std < self.confident_std) & (self._has_det | self._has_det[i])
+        ok[i] = False
+        return env.estimated_poses[ok, :2]
+
+    def plan_robot(self, i: int, live: np.ndarray) -> dict[str, np.ndarray]:
+        """Score the primitives for robot ``i``; returns :meth:`PrimitiveScorer.scores`."""
+        backend, local = self.robots[i]
+        pf = backend.filters[local]
+        poses, weights = belief_hypotheses(pf.particles, pf.weights, self.n_hypotheses,
+                                           self.cell, self.heading_bins)
+        model = self.model(i)
+        free = model.table.free((poses[:, 0] - model.table.origin[0]).astype(np.float32),
+                                (poses[:, 1] - model.table.origin[1]).astype(np.float32))
+        if free.any() and not free.all():  # hypotheses inside walls are impossible
+            poses, weights = poses[free], weights[free] / weights[free].sum()
+        reach = self.detect_fraction * self.env.config.detector_range
+        return self.scorer.scores(model, poses, weights, self.primitives,
+                                  self._teammates(i, live), reach)
+
+    def _read(self) -> None:
+        """Fold the last step's own odometry and scans into the trackers."""
+        readings = self.env.last_readings
+        if readings is None:
+            return
+        self.turned += readings.odometry[:, :, 1].sum(axis=0) * self._dt_sub
+        for i in self.robots:
+            if readings.range_mask[i]:
+                row = np.asarray(readings.ranges[i][: len(self._angles[i])], dtype=float)
+                self._scans[i] = np.where(np.isfinite(row), row, self._rmax[i])
+
+    def act(self, agents: list[str]) -> dict[str, np.ndarray]:
+        """Actions of the MCL robots among ``agents``: replan when due, then track."""
+        env = self.env
+        self._read()
+        index = [env.agent_name_mapping[a] for a in agents]
+        mine = [i for i in index if i in self.robots]
+        if self._count % self.replan_every == 0:
+            live = np.zeros(env.config.n_robots, dtype=bool)
+            live[index] = True
+            for i in mine:
+                k = int(np.argmin(self.plan_robot(i, live)["score"]))
+                self.choice[i] = k
+                self.turned[i] = 0.0
+                self.target[i] = self.primitives[k].turn
+                self.in_place[i] = abs(self.primitives[k].turn) > TURNED
+        self._count += 1
+        return {env.possible_agents[i]: self._track(i) for i in mine}
+
+    def _track(self, i: int) -> np.ndarray:
+        prim = self.primitives[self.choice[i]]
+        if prim.speed <= 0:
+            return np.zeros(2, dtype=np.float32)
+        err = float(wrap_angle(self.target[i] - self.turned[i]))
+        if self.in_place[i]:
+            if abs(err) > TURNED:
+                return np.array([0.0, np.clip(2.0 * err, -1.0, 1.0)], dtype=np.float32)
+            self.in_place[i] = False
+        self.target[i] += prim.rate * self.env.config.dt
+        sel = np.abs(self._angles[i]) <= FRONT
+        scan = self._scans[i]
+        if sel.any() and scan[sel].min() < AVOID:  # blocked: turn to the freer side, keep it
+            left = scan[(self._angles[i] > FRONT) & (self._angles[i] <= 1.6)]
+            right = scan[(self._angles[i] < -FRONT) & (self._angles[i] >= -1.6)]
+            lmin = left.min() if left.size else self._rmax[i]
+            rmin = right.min() if right.size else self._rmax[i]
+            self.target[i] = self.turned[i]
+            return np.array([0.0, 0.8 if lmin >= rmin else -0.8], dtype=np.float32)
+        turn = np.clip(2.0 * err + prim.rate / self._turn_rate[i], -1.0, 1.0)
+        return np.array([prim.speed * max(0.0, np.cos(err)) ** 2, turn], dtype=np.float32)
