@@ -257,11 +257,11 @@ class InfoGainPolicy:
         return actions
 
 
-def _mcl_robots(env) -> dict[int, tuple[object, int]]:
-    """The robots whose beliefs are particle sets: ``{robot: (its backend, local index)}``."""
+def _mcl_robots(env) -> dict[int, tuple[int, int]]:
+    """The robots whose beliefs are particle sets: ``{robot: (backend index, local index)}``."""
     out = {}
-    for backend in env.backends:
+    for b, backend in enumerate(env.backends):
         if isinstance(backend, MCLBackend):
             for local, g in enumerate(backend.robots):
-                out[int(g)] = (backend, local)
+                out[int(g)] = (b, local)
     return out

@@ -33,8 +33,8 @@ whose expected posterior entropy over poses is least. Here, every
    hypotheses farther than ``detect_tolerance`` from ``h`` (their
    log-likelihood drops by ``detect_loglik``).
 5. **Choice.** The primitive with the least ``expected entropy +
-   collision_cost * P(collision) - progress_weight * expected distance
-   driven`` wins: information first, then safety, then forward progress
+   collision_cost * P(collision) - progress_weight * expected net
+   displacement`` wins: information first, then safety, then forward progress
    (a robot whose belief has symmetric modes, where no primitive tells them
    apart within the horizon, keeps driving at full speed).
 
@@ -52,7 +52,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimators.beam_table import BeamLUT, RangeTable
+from estimators.beam_table import BeamLUT, RangeTable, beam_lut
 from estimators.geometry import wrap_angle
 
 
@@ -126,11 +126,16 @@ def belief_hypotheses(particles: np.ndarray, weights: np.ndarray, n: int, cell: 
     return poses, mass / mass.sum()
 
 
-def _forward_range(table: RangeTable, x: np.ndarray, y: np.ndarray, heading: np.ndarray
-                   ) -> np.ndarray:
-    ox, oy = table.origin
-    return table.expected((x - ox).astype(np.float32), (y - oy).astype(np.float32),
-                          heading.astype(np.float32), np.zeros(1))[:, 0]
+FRONT = 0.7  # rad: half-width of the sector of the scan checked ahead
+SIDE = 1.6  # rad: the side sectors compared to pick the freer side span FRONT..SIDE
+AVOID = 1.2  # m: a return nearer than this ahead makes the robot turn in place
+TURNED = 0.1  # rad: the in-place turn of a primitive is done within this
+
+
+def _sectors(angles: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Masks of the beams ahead, on the left and on the right (robot-frame ``angles``)."""
+    return (np.abs(angles) <= FRONT, (angles > FRONT) & (angles <= SIDE),
+            (angles < -FRONT) & (angles >= -SIDE))
 
 
 @dataclass(frozen=True)
@@ -163,15 +168,20 @@ class PrimitiveScorer:
         scan_every: s between predicted scans (the first at ``scan_every``).
         stop_distance: m: a hypothesis whose way ahead is nearer than this stops.
         collision_cost: nats per unit probability of a collision.
-        progress_weight: nats per metre of expected distance driven (the tie-break).
+        progress_weight: nats per metre of expected progress (the tie-break).
+        progress: ``"displacement"`` (net, from the start to the horizon) or ``"path"``
+            (distance driven).
         detect_tolerance: m: a detection rules out hypotheses farther than this.
         detect_loglik: log-likelihood drop of a ruled-out hypothesis.
     """
 
     def __init__(self, horizon: float = 6.0, sim_dt: float = 0.25, scan_every: float = 1.0,
-                 stop_distance: float = 0.6, collision_cost: float = 0.3,
+                 stop_distance: float = 0.4, collision_cost: float = 0.3,
                  progress_weight: float = 0.01, detect_tolerance: float = 2.0,
-                 detect_loglik: float = 5.0) -> None:
+                 detect_loglik: float = 5.0, progress: str = "displacement") -> None:
+        if progress not in ("displacement", "path"):
+            raise ValueError(f"progress must be 'displacement' or 'path', got {progress!r}")
+        self.progress = progress
         for key, value in (("horizon", horizon), ("sim_dt", sim_dt), ("scan_every", scan_every),
                            ("detect_tolerance", detect_tolerance)):
             if not (np.isfinite(value) and value > 0):
@@ -195,13 +205,24 @@ class PrimitiveScorer:
 
     def simulate(self, model: ScanModel, poses: np.ndarray, primitives: tuple[Primitive, ...]
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Every hypothesis under every primitive, stopping at walls.
+        """Every hypothesis under every primitive, as the robot would execute it.
 
-        Returns poses at the scan times ``(P, H, K, 3)``, whether each stopped
-        at a wall ``(P, H)`` and the distance each drove ``(P, H)``.
+        After the in-place turn a hypothesis drives; when its predicted scan
+        shows a return nearer than ``AVOID`` ahead it turns in place toward the
+        freer side, as the robot's tracker does; a step that would bring it
+        within ``stop_distance`` of what is ahead is not taken (a collision:
+        it stops there for the rest of the horizon).
+        Returns poses at the scan times ``(P, H, K, 3)``, whether each hit a
+        wall ``(P, H)`` and how far each got from its start ``(P, H)`` (the net
+        displacement: driving in circles is no progress).
         """
         p, h = len(primitives), len(poses)
         dt = self.sim_dt
+        ang = np.asarray(model.angles, dtype=float)
+        front, lsec, rsec = _sectors(ang)
+        near = front | lsec | rsec
+        ang_near = ang[near]
+        front, lsec, rsec = front[near], lsec[near], rsec[near]
         turn = np.array([q.turn for q in primitives])
         rate = np.array([q.rate for q in primitives])
         speed = np.array([q.speed for q in primitives]) * model.max_speed
@@ -217,28 +238,45 @@ class PrimitiveScorer:
         out = np.empty((len(self._scan_steps), 3, p * h))
         k = 0
         step_turn = model.max_turn_rate * dt
+        ox, oy = model.table.origin
         for s in range(1, self._n_sim + 1):
             spin = np.clip(left, -step_turn, step_turn)
             left -= spin
             th = th + spin
             driving = (np.abs(left) < 1e-9) & ~stopped
-            if driving.any():
+            if driving.any() and near.any():
                 idx = np.flatnonzero(driving)
-                ahead = _forward_range(model.table, x[idx], y[idx], th[idx])
+                scan = model.table.expected((x[idx] - ox).astype(np.float32),
+                                            (y[idx] - oy).astype(np.float32),
+                                            th[idx].astype(np.float32), ang_near)
+                ahead = scan[:, front].min(axis=1) if front.any() else np.full(len(idx), np.inf)
+                avoid = ahead < AVOID
+                if avoid.any():  # the tracker's reflex: turn in place toward the freer side
+                    lmin = scan[:, lsec].min(axis=1) if lsec.any() else np.full(len(idx), np.inf)
+                    rmin = scan[:, rsec].min(axis=1) if rsec.any() else np.full(len(idx), np.inf)
+                    side = np.where(lmin >= rmin, 1.0, -1.0)
+                    a = idx[avoid]
+                    th[a] += 0.8 * step_turn * side[avoid]
                 step = v[idx] * dt
-                hit = ahead - step < self.stop_distance
-                go = idx[~hit]
+                hit = ~avoid & (ahead - step < self.stop_distance)
+                go = ~avoid & ~hit
                 stopped[idx[hit]] = True
                 blocked[idx[hit]] = True
-                x[go] += step[~hit] * np.cos(th[go])
-                y[go] += step[~hit] * np.sin(th[go])
-                th[go] += rate_[go] * dt
-                driven[go] += step[~hit]
+                g = idx[go]
+                x[g] += step[go] * np.cos(th[g])
+                y[g] += step[go] * np.sin(th[g])
+                th[g] += rate_[g] * dt
+                driven[g] += step[go]
             if k < len(self._scan_steps) and s == self._scan_steps[k]:
                 out[k] = x, y, th
                 k += 1
         scan_poses = out.reshape(len(self._scan_steps), 3, p, h).transpose(2, 3, 0, 1)
-        return scan_poses, blocked.reshape(p, h), driven.reshape(p, h)
+        if self.progress == "displacement":
+            moved = np.hypot(x - np.repeat(poses[None, :, 0], p, 0).ravel(),
+                             y - np.repeat(poses[None, :, 1], p, 0).ravel())
+        else:
+            moved = driven
+        return scan_poses, blocked.reshape(p, h), moved.reshape(p, h)
 
     def loglik(self, model: ScanModel, scan_poses: np.ndarray) -> np.ndarray:
         """``(P, H, H)``: log-likelihood of hypothesis ``h'`` (last axis) given the scans
@@ -282,7 +320,8 @@ class PrimitiveScorer:
                primitives: tuple[Primitive, ...], teammates: np.ndarray | None = None,
                reach: float = 0.0) -> dict[str, np.ndarray]:
         """Per primitive: ``score`` (lower is better), ``entropy`` (expected posterior
-        entropy, nats), ``collision`` (probability) and ``progress`` (expected m driven)."""
+        entropy, nats), ``collision`` (probability) and ``progress`` (expected net
+        displacement at the horizon, m)."""
         poses = np.asarray(poses, dtype=float)
         weights = np.asarray(weights, dtype=float)
         if poses.ndim != 2 or poses.shape[1] != 3 or len(poses) < 1:
@@ -292,7 +331,7 @@ class PrimitiveScorer:
             raise ValueError("weights must be >= 0, one per pose and sum to 1")
         if not primitives:
             raise ValueError("primitives must not be empty")
-        scan_poses, blocked, driven = self.simulate(model, poses, primitives)
+        scan_poses, blocked, moved = self.simulate(model, poses, primitives)
         ll = self.loglik(model, scan_poses) if model.scans_per_s > 0 else np.zeros(
             (len(primitives), len(poses), len(poses)))
         if teammates is not None and reach > 0:
@@ -308,15 +347,11 @@ class PrimitiveScorer:
             ent = -np.where(prob > 0, prob * np.log(prob), 0.0).sum(axis=2)  # (P, H)
         entropy = ent @ weights
         collision = blocked.astype(float) @ weights
-        progress = driven @ weights
+        progress = moved @ weights
         score = entropy + self.collision_cost * collision - self.progress_weight * progress
         return {"score": score, "entropy": entropy, "collision": collision,
                 "progress": progress}
 
-
-FRONT = 0.7  # rad: half-width of the sector of the own scan checked ahead
-AVOID = 1.2  # m: a return nearer than this ahead makes the robot turn in place
-TURNED = 0.1  # rad: the in-place turn of a primitive is done within this
 
 
 class MCLInfoGainPlanner:
@@ -333,18 +368,22 @@ class MCLInfoGainPlanner:
             inform a robot it detects.
         detect_fraction: fraction of the detector range within which a detection
             is expected.
+        plan_sigma: m, the range noise of the planner's beam model (at least the
+            filter's): hypotheses are bin means, a bin wide, so small range
+            differences between them are no evidence.
     """
 
     def __init__(self, n_hypotheses: int = 40, replan_every: int = 4,
                  primitives: tuple[Primitive, ...] | None = None,
                  scorer: PrimitiveScorer | None = None, cell: float = 1.0,
                  heading_bins: int = 12, confident_std: float = 1.0,
-                 detect_fraction: float = 0.8) -> None:
+                 detect_fraction: float = 0.8, plan_sigma: float = 1.0) -> None:
         for key, value in (("n_hypotheses", n_hypotheses), ("replan_every", replan_every),
                            ("heading_bins", heading_bins)):
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"{key} must be a positive integer, got {value!r}")
-        for key, value in (("cell", cell), ("confident_std", confident_std)):
+        for key, value in (("cell", cell), ("confident_std", confident_std),
+                           ("plan_sigma", plan_sigma)):
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"{key} must be > 0, got {value!r}")
         if not 0 <= detect_fraction <= 1:
@@ -356,10 +395,12 @@ class MCLInfoGainPlanner:
         self.scorer = scorer if scorer is not None else PrimitiveScorer()
         self.cell, self.heading_bins = float(cell), heading_bins
         self.confident_std, self.detect_fraction = float(confident_std), float(detect_fraction)
+        self.plan_sigma = float(plan_sigma)
         self.env = None
 
-    def reset(self, env, robots: dict[int, tuple[object, int]]) -> None:
-        """Bind to ``env``; ``robots`` maps each MCL robot to ``(its backend, local index)``."""
+    def reset(self, env, robots: dict[int, tuple[int, int]]) -> None:
+        """Bind to ``env``; ``robots`` maps each MCL robot to ``(index of its backend in
+        env.backends, its index in that backend)``."""
         self.env = env
         cfg = env.config
         self.robots = dict(robots)
@@ -382,8 +423,14 @@ class MCLInfoGainPlanner:
 
     def model(self, i: int) -> ScanModel:
         """Robot ``i``'s :class:`ScanModel` (tables shared with its filter)."""
-        backend, local = self.robots[i]
-        table, lut, angles, _ = backend.beam_model(local)
+        b, local = self.robots[i]
+        backend = self.env.backends[b]
+        table, lut, angles, max_range = backend.beam_model(local)
+        c = backend.filters[local].config
+        if self.plan_sigma > c.beam_sigma:
+            lut = beam_lut(max_range, self.plan_sigma, c.beam_z_hit, c.beam_z_short,
+                           c.beam_z_max, c.beam_z_rand, c.beam_lambda_short,
+                           c.likelihood_exponent)
         return ScanModel(table, lut, np.asarray(angles, dtype=float),
                          self._scans_per_s if self._has_range[i] else 0.0,
                          float(self._speed[i]), float(self._turn_rate[i]))
@@ -401,8 +448,8 @@ class MCLInfoGainPlanner:
 
     def plan_robot(self, i: int, live: np.ndarray) -> dict[str, np.ndarray]:
         """Score the primitives for robot ``i``; returns :meth:`PrimitiveScorer.scores`."""
-        backend, local = self.robots[i]
-        pf = backend.filters[local]
+        b, local = self.robots[i]
+        pf = self.env.backends[b].filters[local]
         poses, weights = belief_hypotheses(pf.particles, pf.weights, self.n_hypotheses,
                                            self.cell, self.heading_bins)
         model = self.model(i)
@@ -453,13 +500,11 @@ class MCLInfoGainPlanner:
                 return np.array([0.0, np.clip(2.0 * err, -1.0, 1.0)], dtype=np.float32)
             self.in_place[i] = False
         self.target[i] += prim.rate * self.env.config.dt
-        sel = np.abs(self._angles[i]) <= FRONT
+        front, lsec, rsec = _sectors(self._angles[i])
         scan = self._scans[i]
-        if sel.any() and scan[sel].min() < AVOID:  # blocked: turn to the freer side, keep it
-            left = scan[(self._angles[i] > FRONT) & (self._angles[i] <= 1.6)]
-            right = scan[(self._angles[i] < -FRONT) & (self._angles[i] >= -1.6)]
-            lmin = left.min() if left.size else self._rmax[i]
-            rmin = right.min() if right.size else self._rmax[i]
+        if front.any() and scan[front].min() < AVOID:  # blocked: turn to the freer side
+            lmin = scan[lsec].min() if lsec.any() else np.inf
+            rmin = scan[rsec].min() if rsec.any() else np.inf
             self.target[i] = self.turned[i]
             return np.array([0.0, 0.8 if lmin >= rmin else -0.8], dtype=np.float32)
         turn = np.clip(2.0 * err + prim.rate / self._turn_rate[i], -1.0, 1.0)
