@@ -121,7 +121,8 @@ def _infogain(arg: str) -> Policy:
 register_policy("gather", _gather,
                 "drive toward the teammates that can inform you (by the shared estimates)")
 register_policy("infogain", _infogain,
-                "greedy team information seeking over motion primitives (EKF beliefs)")
+                "greedy information seeking over motion primitives: least expected log det "
+                "(EKF beliefs) or posterior entropy (MCL particle beliefs)")
 POLICY_NAMES = tuple(_POLICIES)  # the built-in names
 
 
