@@ -31,8 +31,12 @@ whose expected posterior entropy over poses is least. Here, every
    detector range of a confident teammate's shared estimate (position std
    below ``confident_std``), a detection would follow, which rules out the
    hypotheses farther than ``detect_tolerance`` from ``h`` (their
-   log-likelihood drops by ``detect_loglik``).
-5. **Choice.** The primitive with the least ``expected entropy +
+   log-likelihood drops by ``detect_loglik``). The other way round, a
+   confident robot subtracts from its score the entropy its lost teammates
+   would expect to lose by meeting it: for each of their hypotheses within
+   reach of its path, the hypothesis's weight times that teammate's entropy
+   (times ``seek_weight``). Localized robots go and find the lost ones.
+5. **Choice.** The primitive with the least ``expected entropy - team term +
    collision_cost * P(collision) - progress_weight * expected net
    displacement`` wins: information first, then safety, then forward progress
    (a robot whose belief has symmetric modes, where no primitive tells them
@@ -318,10 +322,18 @@ class PrimitiveScorer:
 
     def scores(self, model: ScanModel, poses: np.ndarray, weights: np.ndarray,
                primitives: tuple[Primitive, ...], teammates: np.ndarray | None = None,
-               reach: float = 0.0) -> dict[str, np.ndarray]:
+               reach: float = 0.0, seek: tuple[np.ndarray, np.ndarray] | None = None
+               ) -> dict[str, np.ndarray]:
         """Per primitive: ``score`` (lower is better), ``entropy`` (expected posterior
-        entropy, nats), ``collision`` (probability) and ``progress`` (expected net
-        displacement at the horizon, m)."""
+        entropy, nats), ``collision`` (probability), ``progress`` (expected net
+        displacement at the horizon, m) and ``team`` (the teammates' expected entropy
+        reduction, nats).
+
+        ``teammates (m, 2)``: confident teammates' positions, whose detections inform
+        this robot within ``reach`` m. ``seek = (points (q, 2), nats (q,))``: where
+        lost teammates may be and the entropy each would lose if this robot detected
+        it there (weighted by how likely it is there); the team term sums those
+        within ``reach`` of the path."""
         poses = np.asarray(poses, dtype=float)
         weights = np.asarray(weights, dtype=float)
         if poses.ndim != 2 or poses.shape[1] != 3 or len(poses) < 1:
@@ -348,9 +360,16 @@ class PrimitiveScorer:
         entropy = ent @ weights
         collision = blocked.astype(float) @ weights
         progress = moved @ weights
-        score = entropy + self.collision_cost * collision - self.progress_weight * progress
+        team = np.zeros(len(primitives))
+        if seek is not None and len(seek[0]) and reach > 0:
+            points, nats = np.asarray(seek[0], float).reshape(-1, 2), np.asarray(seek[1], float)
+            d = scan_poses[..., None, :2] - points  # (P, H, K, q, 2)
+            met = (np.hypot(d[..., 0], d[..., 1]) < reach).any(axis=2)  # (P, H, q)
+            team = (met.astype(float) @ nats) @ weights
+        score = (entropy - team + self.collision_cost * collision
+                 - self.progress_weight * progress)
         return {"score": score, "entropy": entropy, "collision": collision,
-                "progress": progress}
+                "progress": progress, "team": team}
 
 
 
@@ -371,13 +390,16 @@ class MCLInfoGainPlanner:
         plan_sigma: m, the range noise of the planner's beam model (at least the
             filter's): hypotheses are bin means, a bin wide, so small range
             differences between them are no evidence.
+        seek_weight: weight of the team term of a confident robot: the entropy its
+            lost teammates would lose if it met them (0: no seeking).
     """
 
     def __init__(self, n_hypotheses: int = 40, replan_every: int = 4,
                  primitives: tuple[Primitive, ...] | None = None,
                  scorer: PrimitiveScorer | None = None, cell: float = 1.0,
                  heading_bins: int = 12, confident_std: float = 1.0,
-                 detect_fraction: float = 0.8, plan_sigma: float = 1.0) -> None:
+                 detect_fraction: float = 0.8, plan_sigma: float = 1.0,
+                 seek_weight: float = 1.0) -> None:
         for key, value in (("n_hypotheses", n_hypotheses), ("replan_every", replan_every),
                            ("heading_bins", heading_bins)):
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
@@ -396,6 +418,9 @@ class MCLInfoGainPlanner:
         self.cell, self.heading_bins = float(cell), heading_bins
         self.confident_std, self.detect_fraction = float(confident_std), float(detect_fraction)
         self.plan_sigma = float(plan_sigma)
+        if not (np.isfinite(seek_weight) and seek_weight >= 0):
+            raise ValueError(f"seek_weight must be >= 0, got {seek_weight!r}")
+        self.seek_weight = float(seek_weight)
         self.env = None
 
     def reset(self, env, robots: dict[int, tuple[int, int]]) -> None:
@@ -446,20 +471,48 @@ class MCLInfoGainPlanner:
         ok[i] = False
         return env.estimated_poses[ok, :2]
 
-    def plan_robot(self, i: int, live: np.ndarray) -> dict[str, np.ndarray]:
-        """Score the primitives for robot ``i``; returns :meth:`PrimitiveScorer.scores`."""
+    def hypotheses(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """Robot ``i``'s pose hypotheses and weights (those inside walls left out)."""
         b, local = self.robots[i]
         pf = self.env.backends[b].filters[local]
         poses, weights = belief_hypotheses(pf.particles, pf.weights, self.n_hypotheses,
                                            self.cell, self.heading_bins)
-        model = self.model(i)
-        free = model.table.free((poses[:, 0] - model.table.origin[0]).astype(np.float32),
-                                (poses[:, 1] - model.table.origin[1]).astype(np.float32))
+        table = self.env.backends[b].beam_model(local)[0]
+        free = table.free((poses[:, 0] - table.origin[0]).astype(np.float32),
+                          (poses[:, 1] - table.origin[1]).astype(np.float32))
         if free.any() and not free.all():  # hypotheses inside walls are impossible
             poses, weights = poses[free], weights[free] / weights[free].sum()
+        return poses, weights
+
+    def _confident(self) -> np.ndarray:
+        cov = self.env.estimated_covariances
+        return np.sqrt(0.5 * (cov[:, 0, 0] + cov[:, 1, 1])) < self.confident_std
+
+    def plan_robot(self, i: int, live: np.ndarray,
+                   hyps: dict[int, tuple[np.ndarray, np.ndarray]] | None = None
+                   ) -> dict[str, np.ndarray]:
+        """Score the primitives for robot ``i``; returns :meth:`PrimitiveScorer.scores`.
+
+        ``hyps``: the robots' hypotheses when already drawn (:meth:`hypotheses`).
+        """
+        hyps = hyps if hyps is not None else {}
+        poses, weights = hyps[i] if i in hyps else self.hypotheses(i)
         reach = self.detect_fraction * self.env.config.detector_range
-        return self.scorer.scores(model, poses, weights, self.primitives,
-                                  self._teammates(i, live), reach)
+        seek = None
+        confident = self._confident()
+        if self.seek_weight > 0 and confident[i] and self.env.config.cooperative_updates:
+            points, nats = [], []
+            for k in np.flatnonzero(live & ~confident):
+                if k == i or k not in self.robots or not (self._has_det[i] or self._has_det[k]):
+                    continue
+                pk, wk = hyps[k] if k in hyps else self.hypotheses(k)
+                ent = float(-(wk * np.log(np.maximum(wk, 1e-300))).sum())
+                points.append(pk[:, :2])
+                nats.append(self.seek_weight * ent * wk)
+            if points:
+                seek = (np.concatenate(points), np.concatenate(nats))
+        return self.scorer.scores(self.model(i), poses, weights, self.primitives,
+                                  self._teammates(i, live), reach, seek)
 
     def _read(self) -> None:
         """Fold the last step's own odometry and scans into the trackers."""
@@ -481,8 +534,9 @@ class MCLInfoGainPlanner:
         if self._count % self.replan_every == 0:
             live = np.zeros(env.config.n_robots, dtype=bool)
             live[index] = True
+            hyps = {i: self.hypotheses(i) for i in mine}
             for i in mine:
-                k = int(np.argmin(self.plan_robot(i, live)["score"]))
+                k = int(np.argmin(self.plan_robot(i, live, hyps)["score"]))
                 self.choice[i] = k
                 self.turned[i] = 0.0
                 self.target[i] = self.primitives[k].turn

@@ -72,6 +72,23 @@ def test_a_teammate_ahead_informs_by_detection():
     assert alone > 0.6 and 0.3 < met < 0.4
 
 
+def test_a_confident_robot_seeks_where_a_lost_teammate_likely_is():
+    """The lost teammate is at x = 12 (weight 0.8) or x = 3 (0.2), with entropy 0.5 nats:
+    meeting it is worth 0.8 * 0.5 ahead and 0.2 * 0.5 behind."""
+    model = _corridor_model()
+    scorer = PrimitiveScorer(horizon=6.0)
+    prims = (Primitive(), Primitive(turn=np.pi))
+    seek = (np.array([[12.0, 1.0], [3.0, 1.0]]), 0.5 * np.array([0.8, 0.2]))
+    out = scorer.scores(model, np.array([[7.0, 1.0, 0.0]]), np.ones(1), prims, reach=2.0,
+                        seek=seek)
+    np.testing.assert_allclose(out["team"], [0.4, 0.1])
+    assert int(np.argmin(out["score"])) == 0
+    seek = (seek[0], seek[1][::-1])  # now more likely behind: worth turning round
+    out = scorer.scores(model, np.array([[7.0, 1.0, 0.0]]), np.ones(1), prims, reach=2.0,
+                        seek=seek)
+    assert int(np.argmin(out["score"])) == 1
+
+
 def test_walls_stop_hypotheses_and_count_as_collisions():
     model = _corridor_model()
     scorer = PrimitiveScorer(horizon=3.0, collision_cost=1.0)
@@ -115,6 +132,8 @@ def test_bad_inputs_name_the_value():
         MCLInfoGainPlanner(plan_sigma=-1.0)
     with pytest.raises(ValueError, match="primitives"):
         MCLInfoGainPlanner(primitives=())
+    with pytest.raises(ValueError, match="seek_weight"):
+        MCLInfoGainPlanner(seek_weight=float("nan"))
     with pytest.raises(ValueError, match="weights"):
         belief_hypotheses(np.zeros((3, 3)), np.array([1.0, -1.0, 1.0]), 4)
     with pytest.raises(ValueError, match="particles"):
