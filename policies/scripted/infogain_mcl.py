@@ -26,7 +26,10 @@ whose expected posterior entropy over poses is least. Here, every
    planner's posterior sharpens as fast as the filter's would; each predicted
    scan counts for the scans the sensor takes in ``scan_every``). The
    posterior over hypotheses is the prior weights times these likelihoods;
-   the score is its entropy averaged over ``h`` with the prior weights.
+   the score is the entropy of the posterior over regions (``region`` m
+   squares x ``region_headings`` heading sectors holding the hypotheses now:
+   telling apart hypotheses of one mode, a bin apart, is not localizing),
+   averaged over ``h`` with the prior weights.
    Teammates: when the truth ``h`` passes within ``detect_fraction`` of the
    detector range of a confident teammate's shared estimate (position std
    below ``confident_std``), a detection would follow, which rules out the
@@ -136,6 +139,17 @@ AVOID = 1.2  # m: a return nearer than this ahead makes the robot turn in place
 TURNED = 0.1  # rad: the in-place turn of a primitive is done within this
 
 
+def region_labels(poses: np.ndarray, size: float, headings: int) -> np.ndarray:
+    """``(H,)`` labels ``0..G-1`` of the regions (``size`` m squares x ``headings`` sectors)
+    that hold ``poses (H, 3)``."""
+    ix = np.floor(poses[:, 0] / size).astype(np.int64)
+    iy = np.floor(poses[:, 1] / size).astype(np.int64)
+    ih = np.floor((wrap_angle(poses[:, 2]) + np.pi) / (2 * np.pi) * headings).astype(np.int64)
+    ih = np.clip(ih, 0, headings - 1)
+    key = ((ix - ix.min()) * (iy.max() - iy.min() + 1) + iy - iy.min()) * headings + ih
+    return np.unique(key, return_inverse=True)[1].ravel()
+
+
 def _sectors(angles: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Masks of the beams ahead, on the left and on the right (robot-frame ``angles``)."""
     return (np.abs(angles) <= FRONT, (angles > FRONT) & (angles <= SIDE),
@@ -175,6 +189,11 @@ class PrimitiveScorer:
         progress_weight: nats per metre of expected progress (the tie-break).
         progress: ``"displacement"`` (net, from the start to the horizon) or ``"path"``
             (distance driven).
+        region: m, the entropy is that of the posterior over regions (squares of this
+            size times ``region_headings`` heading sectors holding the hypotheses now),
+            not over the hypotheses themselves (0): telling apart two hypotheses of
+            one mode, a bin apart, is not localizing.
+        region_headings: heading sectors of a region.
         detect_tolerance: m: a detection rules out hypotheses farther than this.
         detect_loglik: log-likelihood drop of a ruled-out hypothesis.
     """
@@ -182,7 +201,15 @@ class PrimitiveScorer:
     def __init__(self, horizon: float = 6.0, sim_dt: float = 0.25, scan_every: float = 1.0,
                  stop_distance: float = 0.4, collision_cost: float = 0.3,
                  progress_weight: float = 0.01, detect_tolerance: float = 2.0,
-                 detect_loglik: float = 5.0, progress: str = "displacement") -> None:
+                 detect_loglik: float = 5.0, progress: str = "displacement",
+                 region: float = 3.0, region_headings: int = 4) -> None:
+        if not (np.isfinite(region) and region >= 0):
+            raise ValueError(f"region must be >= 0, got {region!r}")
+        if isinstance(region_headings, bool) or not isinstance(region_headings, int) or \
+                region_headings < 1:
+            raise ValueError(f"region_headings must be a positive integer, "
+                             f"got {region_headings!r}")
+        self.region, self.region_headings = float(region), region_headings
         if progress not in ("displacement", "path"):
             raise ValueError(f"progress must be 'displacement' or 'path', got {progress!r}")
         self.progress = progress
@@ -355,6 +382,11 @@ class PrimitiveScorer:
         post -= post.max(axis=2, keepdims=True)
         prob = np.exp(post)
         prob /= prob.sum(axis=2, keepdims=True)
+        if self.region > 0:  # the posterior of the regions the hypotheses lie in now
+            label = region_labels(poses, self.region, self.region_headings)
+            onehot = np.zeros((len(poses), label.max() + 1))
+            onehot[np.arange(len(poses)), label] = 1.0
+            prob = prob @ onehot
         with np.errstate(divide="ignore", invalid="ignore"):
             ent = -np.where(prob > 0, prob * np.log(prob), 0.0).sum(axis=2)  # (P, H)
         entropy = ent @ weights
