@@ -55,6 +55,12 @@ def test_expected_entropy_prefers_the_motion_that_tells_two_modes_apart():
     # with one mode only there is nothing to learn: forward progress decides
     one = scorer.scores(model, poses[:1], np.ones(1), (stand, straight, back))
     assert np.allclose(one["entropy"], 0.0) and int(np.argmin(one["score"])) == 1
+    # two hypotheses half a metre apart lie in one region: telling them apart is no gain,
+    # unless the entropy is taken over the hypotheses themselves
+    close = np.array([[7.0, 1.0, 0.0], [7.5, 1.0, 0.0]])
+    assert np.allclose(scorer.scores(model, close, weights, (straight,))["entropy"], 0.0)
+    fine = PrimitiveScorer(horizon=6.0, scan_every=1.0, region=0.0)
+    assert fine.scores(model, close, weights, (straight,))["entropy"][0] > 0.0
 
 
 def test_a_teammate_ahead_informs_by_detection():
@@ -126,6 +132,8 @@ def test_bad_inputs_name_the_value():
         PrimitiveScorer(horizon=2.0, scan_every=3.0)
     with pytest.raises(ValueError, match="progress"):
         PrimitiveScorer(progress="speed")
+    with pytest.raises(ValueError, match="region_headings"):
+        PrimitiveScorer(region_headings=0)
     with pytest.raises(ValueError, match="n_hypotheses"):
         MCLInfoGainPlanner(n_hypotheses=0)
     with pytest.raises(ValueError, match="plan_sigma"):
