@@ -198,9 +198,9 @@ class PrimitiveScorer:
         detect_loglik: log-likelihood drop of a ruled-out hypothesis.
     """
 
-    def __init__(self, horizon: float = 6.0, sim_dt: float = 0.25, scan_every: float = 1.0,
+    def __init__(self, horizon: float = 10.0, sim_dt: float = 0.25, scan_every: float = 1.0,
                  stop_distance: float = 0.4, collision_cost: float = 0.3,
-                 progress_weight: float = 0.01, detect_tolerance: float = 2.0,
+                 progress_weight: float = 0.05, detect_tolerance: float = 2.0,
                  detect_loglik: float = 5.0, progress: str = "displacement",
                  region: float = 3.0, region_headings: int = 4) -> None:
         if not (np.isfinite(region) and region >= 0):
