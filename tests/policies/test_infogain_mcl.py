@@ -177,3 +177,9 @@ def test_infogain_on_mcl_never_reads_the_truth_and_drives():
         speeds.append(max(float(v[0]) for v in actions.values()))
         obs, *_ = env.step(actions)
     assert max(speeds) > 0.5
+    # the planner predicts scans with the filter's own tables
+    backend = env.backends[0]
+    table, lut, angles, rmax = backend.beam_model(1)
+    assert rmax == env.config.sonar_max_range and len(angles) == env.config.sonar_beams
+    own = backend.filters[1].beam_tables(rmax, table.cone_half_width)
+    assert own[0] is table and own[1] is lut
