@@ -511,7 +511,7 @@ class MCLInfoGainPlanner:
             return np.zeros((0, 2))
         cov = env.estimated_covariances
         std = np.sqrt(0.5 * (cov[:, 0, 0] + cov[:, 1, 1]))
-        ok = live & (std < self.confident_std) & (self._has_det | self._has_det[i])
+        ok = live & (std < self.confident_std) & self._has_det  # the teammate detects ``i``
         ok[i] = False
         return env.estimated_poses[ok, :2]
 
@@ -547,7 +547,7 @@ class MCLInfoGainPlanner:
         if self.seek_weight > 0 and confident[i] and self.env.config.cooperative_updates:
             points, nats = [], []
             for k in np.flatnonzero(live & ~confident):
-                if k == i or k not in self.robots or not (self._has_det[i] or self._has_det[k]):
+                if k == i or k not in self.robots or not self._has_det[i]:  # ``i`` detects ``k``
                     continue
                 pk, wk = hyps[k] if k in hyps else self.hypotheses(k)
                 ent = float(-(wk * np.log(np.maximum(wk, 1e-300))).sum())
