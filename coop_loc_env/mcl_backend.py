@@ -70,6 +70,7 @@ from coop_loc_env.estimation import EstimatorBackend, noisy_start
 from coop_loc_env.extras import check_extra
 from coop_loc_env.sensors import Readings, beam_angles
 from coop_loc_env.world import World
+from estimators.beam_table import BeamLUT, RangeTable
 from estimators.detection_transfer import (
     DetectionTransfer,
     RobotDetection,
@@ -528,6 +529,20 @@ class MCLBackend(EstimatorBackend):
             fixes[compass, 5] = c
             fixes[compass, 6] = -0.5 / std**2
         return fixes
+
+    def beam_model(self, i: int) -> tuple[RangeTable, BeamLUT, np.ndarray, float]:
+        """What a planner needs to predict local robot ``i``'s scans in the known map.
+
+        Returns its range table (sonar cones included), the tempered per-beam
+        log-likelihood table of its beam model, its robot-frame beam angles and
+        its maximum range. A likelihood-field laser robot gets the beam model of
+        its :class:`MCLConfig` (tables built on first use, then shared).
+        """
+        t = self._sensor(i)
+        sonar = t == "sonar"
+        max_range = self.cfg.sonar_max_range if sonar else self.cfg.laser_max_range
+        table, lut = self.filters[i].beam_tables(max_range, self._cone if sonar else 0.0)
+        return table, lut, self._angles[t], float(max_range)
 
     # ------------------------------------------------------------------ outputs
     def _summaries(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

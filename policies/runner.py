@@ -134,7 +134,8 @@ def _corridor(arg: str) -> Policy:
 register_policy("gather", _gather,
                 "drive toward the teammates that can inform you (by the shared estimates)")
 register_policy("infogain", _infogain,
-                "greedy team information seeking over motion primitives (EKF beliefs)")
+                "greedy information seeking over motion primitives: least expected log det "
+                "(EKF beliefs) or posterior entropy (MCL particle beliefs)")
 register_policy("corridor", _corridor,
                 "follow the free space ahead at full speed by the own scan; corridor:SPEED")
 POLICY_NAMES = tuple(_POLICIES)  # the built-in names

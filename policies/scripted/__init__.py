@@ -5,15 +5,18 @@
   ones for a robot without GPS, and the other way round).
 * :class:`~policies.scripted.infogain.InfoGainPolicy` (``infogain``): greedy
   information seeking over a few motion primitives, minimizing the team's
-  expected posterior log det covariance over a short horizon.
-
+  expected posterior log det covariance over a short horizon; robots that run
+  MCL minimize instead the expected posterior entropy over pose hypotheses
+  drawn from their particles
+  (:class:`~policies.scripted.infogain_mcl.MCLInfoGainPlanner`, active Markov
+  localization).
 * :class:`~policies.scripted.corridor.CorridorPolicy` (``corridor``): follow
   the free space ahead at full speed by the robot's own scan (exploration for
   global localization; needs no belief).
 
-They read only beliefs (means and covariances the team shares), the robot's
-own laser bins, the static map (obstacles, tree canopies) and the robots'
-hardware (which ones carry GPS); never the true poses.
+They read only beliefs (means and covariances the team shares, particle sets),
+the robot's own range readings and odometry, the static map (obstacles, tree
+canopies) and the robots' hardware (which ones carry GPS); never the true poses.
 """
 
 from policies.scripted.corridor import CorridorPolicy

@@ -27,14 +27,21 @@ replans each robot tracks its primitive's heading by its own estimate and
 turns away from obstacles its laser sees ahead. The planner reads the beliefs,
 the static map (canopies, world bounds) and the robots' hardware, never the
 true poses.
+
+Robots that run MCL (particle beliefs) are planned instead by
+:class:`~policies.scripted.infogain_mcl.MCLInfoGainPlanner`: expected entropy
+reduction over pose hypotheses drawn from their particles, as in active Markov
+localization (Fox, Burgard and Thrun); see :mod:`policies.scripted.infogain_mcl`.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from coop_loc_env.mcl_backend import MCLBackend
 from estimators.geometry import wrap_angle
 from policies.scripted.common import Steering, gps_flags
+from policies.scripted.infogain_mcl import MCLInfoGainPlanner
 from policies.view import ViewBuilder
 
 STOP = -1
@@ -129,6 +136,8 @@ class InfoGainPolicy:
         q_per_m: position variance (m^2) dead reckoning adds per metre driven.
         fusion_rate: fraction of the gap to ``P_j + R`` one relative update closes.
         tie_cost: cost per metre from a candidate's end to the nearest informative teammate.
+        mcl: the planner of the robots that run MCL (a default
+            :class:`~policies.scripted.infogain_mcl.MCLInfoGainPlanner` when ``None``).
     """
 
     name = "infogain"
@@ -143,6 +152,7 @@ class InfoGainPolicy:
         q_per_m: float = 0.003,
         fusion_rate: float = 0.5,
         tie_cost: float = 1e-3,
+        mcl: MCLInfoGainPlanner | None = None,
     ) -> None:
         for key, value in (("horizon", horizon), ("plan_dt", plan_dt), ("q_per_m", q_per_m),
                            ("fusion_rate", fusion_rate)):
@@ -160,6 +170,9 @@ class InfoGainPolicy:
             raise ValueError(f"fusion_rate must be < 1, got {fusion_rate!r}")
         self.q_per_m, self.fusion_rate, self.tie_cost = q_per_m, fusion_rate, tie_cost
         self.headings = 2 * np.pi * np.arange(n_headings) / n_headings
+        if mcl is not None and not isinstance(mcl, MCLInfoGainPlanner):
+            raise ValueError(f"mcl must be an MCLInfoGainPlanner, got {type(mcl).__name__}")
+        self.mcl = mcl if mcl is not None else MCLInfoGainPlanner()
         self.env = None
 
     def reset(self, env, seed: int | None = None) -> None:
@@ -172,6 +185,9 @@ class InfoGainPolicy:
         self.choice = np.full(env.config.n_robots, STOP)
         self._count = 0
         self._steer = Steering(env.config.n_robots)
+        self._mcl_robots = _mcl_robots(env)
+        if self._mcl_robots:
+            self.mcl.reset(env, self._mcl_robots)
 
     # ------------------------------------------------------------------ planning
     def _paths(self, i: int, est: np.ndarray, options: np.ndarray) -> np.ndarray:
@@ -221,11 +237,17 @@ class InfoGainPolicy:
 
     def act(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         """One action per live agent: replan when due, then track the chosen primitive."""
+        mcl = self.mcl.act(self.env.agents) if self._mcl_robots else {}
+        if len(self._mcl_robots) == self.env.config.n_robots:
+            return mcl
         if self._count % self.replan_every == 0:
             self.plan()
         self._count += 1
         actions = {}
         for agent in self.env.agents:
+            if agent in mcl:
+                actions[agent] = mcl[agent]
+                continue
             view = self._views.view(agent, obs[agent])
             k = self.choice[view.index]
             if k == STOP:
@@ -233,3 +255,13 @@ class InfoGainPolicy:
             else:
                 actions[agent] = self._steer.heading(view, float(self.headings[k]))
         return actions
+
+
+def _mcl_robots(env) -> dict[int, tuple[int, int]]:
+    """The robots whose beliefs are particle sets: ``{robot: (backend index, local index)}``."""
+    out = {}
+    for b, backend in enumerate(env.backends):
+        if isinstance(backend, MCLBackend):
+            for local, g in enumerate(backend.robots):
+                out[int(g)] = (b, local)
+    return out
