@@ -10,7 +10,9 @@ Figures per episode are those of :mod:`policies.runner` plus
 from the truth; otherwise ``sqrt(var_x + var_y)`` of the belief), averaged
 over the robots; a robot that never gets there counts the episode length (a
 censored, optimistic value, flagged by ``localized_fraction``, the fraction
-of robots that got there).
+of robots that got there), and ``localized_at_end``, the fraction of robots
+whose spread is below 1.5 m at the last step (a robot that localized and then
+lost its belief counts in the first two, not in this one).
 
 The 95 % interval of a mean over ``n`` episodes is ``mean +/- t(0.975, n-1) *
 s / sqrt(n)`` (Student t, ``s`` the sample standard deviation).
@@ -29,7 +31,7 @@ from policies.fox import LOCALIZED_M
 from policies.fox import time_to_localize as robot_times_to_localize
 from policies.runner import FIGURES, episode_figures, make_policy, run_episode
 
-COMPARE_FIGURES = FIGURES + ("time_to_localize_s", "localized_fraction")
+COMPARE_FIGURES = FIGURES + ("time_to_localize_s", "localized_fraction", "localized_at_end")
 LABELS = {
     "localization_error_m": "team loc. error (m)",
     "coverage": "coverage",
@@ -38,6 +40,7 @@ LABELS = {
     "tip_overs": "tip-overs",
     "time_to_localize_s": "time to localize (s)",
     "localized_fraction": "localized",
+    "localized_at_end": "localized at end",
 }
 SPREAD_THRESHOLD = LOCALIZED_M
 # The range each figure can take: its confidence interval is clipped to it (a
@@ -45,6 +48,7 @@ SPREAD_THRESHOLD = LOCALIZED_M
 FIGURE_BOUNDS = {
     "coverage": (0.0, 1.0),
     "localized_fraction": (0.0, 1.0),
+    "localized_at_end": (0.0, 1.0),
 }
 
 
@@ -71,12 +75,22 @@ def time_to_localize(ep: dict[str, Any], dt: float, threshold: float = SPREAD_TH
     (MCL: weighted mean particle distance from the truth, Fox et al.'s measure),
     else ``sqrt(var_x + var_y)`` of the belief covariance.
     """
-    if "particle_spread_m" in ep["series"]:
-        spread = np.asarray(ep["series"]["particle_spread_m"], dtype=float)
-    else:  # position_std_m is sqrt(0.5 (var_x + var_y))
-        spread = np.sqrt(2.0) * np.asarray(ep["series"]["position_std_m"], dtype=float)
-    times, done = robot_times_to_localize(spread, dt, threshold)
+    times, done = robot_times_to_localize(_spread(ep), dt, threshold)
     return float(times.mean()), float(done.mean())
+
+
+def localized_at_end(ep: dict[str, Any], threshold: float = SPREAD_THRESHOLD) -> float:
+    """Fraction of the robots whose spread (as in :func:`time_to_localize`) is below
+    ``threshold`` at the episode's last step."""
+    return float((_spread(ep)[-1] < threshold).mean())
+
+
+def _spread(ep: dict[str, Any]) -> np.ndarray:
+    """``(T, n)`` spread per step and robot: the particle spread when the episode has it."""
+    if "particle_spread_m" in ep["series"]:
+        return np.asarray(ep["series"]["particle_spread_m"], dtype=float)
+    # position_std_m is sqrt(0.5 (var_x + var_y))
+    return np.sqrt(2.0) * np.asarray(ep["series"]["position_std_m"], dtype=float)
 
 
 def mean_ci(
@@ -134,6 +148,7 @@ def compare(
             rec = episode_figures(ep)
             rec["time_to_localize_s"] = t_loc
             rec["localized_fraction"] = frac
+            rec["localized_at_end"] = localized_at_end(ep)
             records.append(rec)
         episodes[spec] = records
         summary[spec] = {}

@@ -131,7 +131,8 @@ def _compare(args: argparse.Namespace, overrides: dict) -> int:
     panels = ("localization_error_m", "coverage", "time_to_localize_s", "collisions")
     paired = "time_to_localize_s"
     if localized_from_the_start(data, make_config(args.scenario, **overrides).dt):
-        table = tuple(f for f in table if f not in ("time_to_localize_s", "localized_fraction"))
+        table = tuple(f for f in table if f not in ("time_to_localize_s", "localized_fraction",
+                                                     "localized_at_end"))
         panels = tuple(f for f in panels if f != "time_to_localize_s")
         paired = "localization_error_m"
         print(f"(time to localize left out: every robot's spread was below "

@@ -92,6 +92,16 @@ def test_particle_spread_is_used_when_present():
     assert time_to_localize(ep, dt=0.5) == (pytest.approx(1.5), 1.0)
 
 
+def test_localized_at_end_counts_a_lost_belief_out():
+    from policies.compare import localized_at_end
+
+    # robot 0 localizes and stays; robot 1 localizes at step 2 and loses it again
+    spread = np.array([[3.0, 3.0], [1.0, 1.0], [0.5, 9.0]])
+    ep = {"series": {"position_std_m": np.zeros((3, 2)), "particle_spread_m": spread}}
+    assert time_to_localize(ep, dt=0.5) == (pytest.approx(1.0), 1.0)
+    assert localized_at_end(ep) == 0.5
+
+
 def test_compare_records_mcl_particle_spread_and_runs_wander():
     data = compare("symmetric_hallway", ["wander"], 1, seed=0,
                    overrides={"max_cycles": 3, "n_robots": 2, "n_particles": 200},
@@ -100,6 +110,7 @@ def test_compare_records_mcl_particle_spread_and_runs_wander():
     assert rec["steps"] == 3
     # global localization from a uniform belief: not localized after 1.5 s
     assert rec["localized_fraction"] == 0.0 and rec["time_to_localize_s"] == pytest.approx(1.5)
+    assert rec["localized_at_end"] == 0.0
 
 
 def test_still_policy_covers_less_than_random():
