@@ -4,10 +4,11 @@
 1000 particles each and a 120 s horizon. The ring of corridors is symmetric
 under quarter turns; only the open bay off the left corridor breaks the
 symmetry, so a robot knows where it is only after its sonar has seen the bay,
-or after a detection by a teammate that has. A robot that stands still never
-localizes, one that wanders slowly takes most of the episode, and one that
-drives the corridors at full speed without stalling against the walls sees the
-bay sooner and meets its teammates more often.
+or after a detection by a teammate that has. A robot that stands still
+localizes only if it starts in sight of the bay (or is detected by one that
+does), one that wanders slowly takes longer, and one that drives the
+corridors at full speed without stalling against the walls sees the bay
+sooner and meets its teammates more often.
 
 The figure of merit is the time to localize (:mod:`policies.compare`: the first
 time a robot's particle spread -- the mean particle distance from the true
