@@ -5,9 +5,10 @@ Example::
     python scripts/plot_trajectories.py --scenario rendezvous --policies gather,infogain \\
         --seed 1000 --set layout_seed=11 --out docs/figures/rendezvous_trajectories.png
 
-Each panel shows the tree canopies (where DGPS fails), the robots' true paths
-(robots with GPS in blue, without in orange; a circle marks the start, a cross
-the end) and the episode's team localization error in its title.
+Each panel shows the walls (grey), the tree canopies (where DGPS fails, green),
+the robots' true paths (robots with GPS in blue, without in orange; a circle
+marks the start, a cross the end) and the episode's team localization error
+in its title.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 import coop_loc_env
-from policies.compare import parse_policy_list, resolve_policy
+from policies.compare import parse_policy_list, policy_label, resolve_policy
 from policies.runner import parse_overrides, run_episode
 
 
@@ -63,6 +64,9 @@ def main(argv: list[str] | None = None) -> int:
     fig, axes = plt.subplots(1, len(runs), figsize=(4.6 * len(runs), 4.6), squeeze=False)
     for ax, spec, (paths, ep) in zip(axes[0], specs, runs, strict=True):
         layout = ep["layout"]
+        for obstacle in layout.obstacles:
+            if obstacle.shape == "polygon" and obstacle.solid:
+                ax.add_patch(plt.Polygon(obstacle.vertices, color="grey", alpha=0.5, lw=0))
         for c, r in zip(layout.canopy_centers, layout.canopy_radii, strict=True):
             ax.add_patch(plt.Circle(c, r, color="green", alpha=0.25, lw=0))
         for i, gps in enumerate(ep["gps"]):
@@ -72,9 +76,12 @@ def main(argv: list[str] | None = None) -> int:
             ax.plot(*paths[-1, i, :2], "x", color=color, ms=8, mew=2)
         w, h = ep["world_size"]
         ax.set(xlim=(0, w), ylim=(0, h), aspect="equal", xlabel="x (m)", ylabel="y (m)",
-               title=f"{Path(spec).stem}: team error {ep['localization_error_m']:.2f} m")
-    fig.suptitle(f"{args.scenario}, seed {args.seed} (blue: GPS, orange: no GPS, "
-                 "green: canopy)", fontsize=9)
+               title=f"{policy_label(spec)}: team error {ep['localization_error_m']:.2f} m")
+    _, ep = runs[0]
+    legend = ["blue: GPS" if any(ep["gps"]) else "", "orange: no GPS" if not all(ep["gps"]) else "",
+              "green: canopy" if len(ep["layout"].canopy_radii) else "", "grey: walls"]
+    fig.suptitle(f"{args.scenario}, seed {args.seed} ({', '.join(t for t in legend if t)})",
+                 fontsize=9)
     fig.tight_layout()
     args.out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(args.out, dpi=80)
