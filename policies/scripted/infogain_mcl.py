@@ -14,17 +14,20 @@ whose expected posterior entropy over poses is least. Here, every
    belief has several modes): turn in place by ``turn`` rad, then drive at
    ``speed`` x maximum speed while turning at ``rate`` rad/s, for ``horizon``
    seconds. Every hypothesis executes it in the known map (steps of
-   ``sim_dt``); one whose path ahead (the range table's forward reading) comes
-   within ``stop_distance`` of a wall stops there for the rest of the horizon
-   and counts as a collision.
+   ``sim_dt``) as the robot would: when its predicted scan shows a return
+   nearer than ``AVOID`` ahead it turns in place toward the freer side (the
+   tracker's reflex); a step that would bring it within ``stop_distance`` of
+   what is ahead is not taken: it stops there for the rest of the horizon and
+   counts as a collision.
 3. **Predicted scans.** Every ``scan_every`` seconds along the way each
    hypothesis's scan is predicted from the robot's range table (the filter's
    own tables: :meth:`coop_loc_env.mcl_backend.MCLBackend.beam_model`).
 4. **Expected entropy.** For each hypothesis ``h`` taken as the truth, its
    predicted (noise-free) scans are scored against every hypothesis ``h'``
-   with the filter's tempered beam model (the same likelihood table, so the
-   planner's posterior sharpens as fast as the filter's would; each predicted
-   scan counts for the scans the sensor takes in ``scan_every``). The
+   with the filter's tempered beam model (its range noise widened to
+   ``plan_sigma``, as hypotheses are bin means; tempered like the filter's, so
+   the planner's posterior sharpens about as fast as the filter's would; each
+   predicted scan counts for the scans the sensor takes in ``scan_every``). The
    posterior over hypotheses is the prior weights times these likelihoods;
    the score is the entropy of the posterior over regions (``region`` m
    squares x ``region_headings`` heading sectors holding the hypotheses now:
@@ -54,9 +57,9 @@ Between replans each robot tracks its primitive by its own odometry (the
 heading it turned since the replan) and, like ``wander``, turns in place
 toward the freer side when its own scan shows an obstacle ahead, then keeps
 the new heading (optionally it also veers away from a wall close beside it,
-``side_guard``). The planner reads
-the particle beliefs, the team's shared estimates, the robot's own readings,
-the known map and the hardware, never the true poses.
+``side_guard``). The planner reads the particle beliefs, the team's shared
+estimates, the robot's own readings, the known map and the hardware, never
+the true poses.
 """
 
 from __future__ import annotations
