@@ -144,6 +144,8 @@ def test_bad_inputs_name_the_value():
         MCLInfoGainPlanner(seek_weight=float("nan"))
     with pytest.raises(ValueError, match="straight_bonus"):
         MCLInfoGainPlanner(straight_bonus=-0.1)
+    with pytest.raises(ValueError, match="side_guard"):
+        MCLInfoGainPlanner(side_guard=float("inf"))
     with pytest.raises(ValueError, match="weights"):
         belief_hypotheses(np.zeros((3, 3)), np.array([1.0, -1.0, 1.0]), 4)
     with pytest.raises(ValueError, match="particles"):
