@@ -121,3 +121,23 @@ def steep_and_flat():
     s = steep[np.argmin(np.hypot(*(steep - (cx, cy)).T))]
     f = flat[np.argmax(np.hypot(*(flat - s).T))]
     return (float(s[0]), float(s[1]), 0.0), (float(f[0]), float(f[1]), 0.0)
+
+
+@pytest.fixture(scope="session")
+def actions_with_shifted_truth():
+    """``f(env, policy, obs, rng, shift=5.0) -> (before, after)``: the actions of copies of
+    ``policy`` on ``obs``, before and after the true poses are shifted by up to ``shift`` m
+    and 1 rad (then restored). A policy that never reads the truth gives equal ones."""
+    import copy
+
+    def actions(env, policy, obs, rng, shift: float = 5.0):
+        before = copy.deepcopy(policy, memo={id(env): env}).act(obs)
+        saved = env.world.poses.copy()
+        n = env.config.n_robots
+        env.world.poses[:, :2] += rng.uniform(-shift, shift, size=(n, 2))
+        env.world.poses[:, 2] += rng.uniform(-1.0, 1.0, size=n)
+        after = copy.deepcopy(policy, memo={id(env): env}).act(obs)
+        env.world.poses[:] = saved
+        return before, after
+
+    return actions

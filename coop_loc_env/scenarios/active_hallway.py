@@ -21,7 +21,11 @@ the reward is minus the time to localize
 
 from __future__ import annotations
 
-from coop_loc_env.scenarios import register_scenario, register_training_defaults
+from coop_loc_env.scenarios import (
+    register_scenario,
+    register_training_defaults,
+    scenario_from_base,
+)
 from coop_loc_env.scenarios.fox import symmetric_hallway
 
 #: ``scripts/train.py`` option defaults for this scenario (option dest -> value).
@@ -57,10 +61,5 @@ def active_hallway():
     )
 
 
-def _factory(overrides: dict):
-    return active_hallway().replace(**overrides)
-
-
-_factory.__doc__ = active_hallway.__doc__
-register_scenario("active_hallway", _factory)
+register_scenario("active_hallway", scenario_from_base(active_hallway))
 register_training_defaults("active_hallway", TRAINING_DEFAULTS)

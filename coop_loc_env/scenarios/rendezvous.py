@@ -23,7 +23,11 @@ The scenario also carries the training defaults of ``scripts/train.py
 from __future__ import annotations
 
 from coop_loc_env.config import RobotSpec
-from coop_loc_env.scenarios import register_scenario, register_training_defaults
+from coop_loc_env.scenarios import (
+    register_scenario,
+    register_training_defaults,
+    scenario_from_base,
+)
 from coop_loc_env.scenarios.outdoor import outdoor_terrain
 
 #: ``scripts/train.py`` option defaults for this scenario (option dest -> value): clone
@@ -65,10 +69,5 @@ def rendezvous():
     )
 
 
-def _factory(overrides: dict):
-    return rendezvous().replace(**overrides)
-
-
-_factory.__doc__ = rendezvous.__doc__
-register_scenario("rendezvous", _factory)
+register_scenario("rendezvous", scenario_from_base(rendezvous))
 register_training_defaults("rendezvous", TRAINING_DEFAULTS)

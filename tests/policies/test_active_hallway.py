@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import copy
-
 import numpy as np
 import pytest
 
@@ -44,7 +42,7 @@ def test_follow_steers_toward_the_open_side_and_turns_in_place_when_blocked():
 
 
 @pytest.mark.parametrize("spec", ["corridor", "wander:1.0"])
-def test_exploration_baselines_never_read_the_truth(spec):
+def test_exploration_baselines_never_read_the_truth(spec, actions_with_shifted_truth):
     """Shifting the true poses (nothing a robot could know) leaves the actions unchanged."""
     env = coop_loc_env.parallel_env("active_hallway", max_cycles=30)
     policy = make_policy(spec)
@@ -52,12 +50,7 @@ def test_exploration_baselines_never_read_the_truth(spec):
     policy.reset(env, seed=2)
     rng = np.random.default_rng(0)
     for _ in range(20):
-        before = copy.deepcopy(policy, memo={id(env): env}).act(obs)
-        saved = env.world.poses.copy()
-        env.world.poses[:, :2] += rng.uniform(-3.0, 3.0, size=(env.config.n_robots, 2))
-        env.world.poses[:, 2] += rng.uniform(-1.0, 1.0, size=env.config.n_robots)
-        after = copy.deepcopy(policy, memo={id(env): env}).act(obs)
-        env.world.poses[:] = saved
+        before, after = actions_with_shifted_truth(env, policy, obs, rng, shift=3.0)
         assert all(np.array_equal(before[a], after[a]) for a in env.agents)
         obs, *_ = env.step(policy.act(obs))
 

@@ -3,8 +3,6 @@ and the uncertainty reward shaping."""
 
 from __future__ import annotations
 
-import copy
-
 import numpy as np
 import pytest
 
@@ -38,7 +36,7 @@ class _TruthReader:
 
 
 @pytest.mark.parametrize("spec", ["gather", "infogain", "seek", "cheat"])
-def test_baselines_never_read_the_truth(spec):
+def test_baselines_never_read_the_truth(spec, actions_with_shifted_truth):
     """Shifting the true poses (nothing a robot could know) leaves the actions unchanged."""
     env = coop_loc_env.parallel_env("rendezvous", **FAST)
     policy = _TruthReader() if spec == "cheat" else make_policy(spec)
@@ -50,12 +48,7 @@ def test_baselines_never_read_the_truth(spec):
         if t % 10 == 0:  # infogain replans on these steps
             for agent in env.agents:
                 env.camera_readings(agent)  # the camera's lazily built records, taken now
-            before = copy.deepcopy(policy, memo={id(env): env}).act(obs)
-            saved = env.world.poses.copy()
-            env.world.poses[:, :2] += rng.uniform(-5.0, 5.0, size=(env.config.n_robots, 2))
-            env.world.poses[:, 2] += rng.uniform(-1.0, 1.0, size=env.config.n_robots)
-            after = copy.deepcopy(policy, memo={id(env): env}).act(obs)
-            env.world.poses[:] = saved
+            before, after = actions_with_shifted_truth(env, policy, obs, rng)
             differs.append(any(not np.array_equal(before[a], after[a]) for a in env.agents))
         obs, *_ = env.step(policy.act(obs))
     assert any(differs) == (spec == "cheat")

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import copy
-
 import numpy as np
 import pytest
 
@@ -157,7 +155,7 @@ def test_bad_inputs_name_the_value():
         PrimitiveScorer().scores(model, np.zeros((2, 3)), np.array([0.2, 0.2]), (Primitive(),))
 
 
-def test_infogain_on_mcl_never_reads_the_truth_and_drives():
+def test_infogain_on_mcl_never_reads_the_truth_and_drives(actions_with_shifted_truth):
     """Shifting the true poses before ``act`` (at replans) leaves the MCL robots' actions
     unchanged; the team drives (the planner is not idle)."""
     env = coop_loc_env.parallel_env("active_hallway", max_cycles=20)
@@ -168,12 +166,7 @@ def test_infogain_on_mcl_never_reads_the_truth_and_drives():
     speeds = []
     for t in range(13):
         if t % 4 == 0:  # the MCL planner replans on these steps
-            before = copy.deepcopy(policy, memo={id(env): env}).act(obs)
-            saved = env.world.poses.copy()
-            env.world.poses[:, :2] += rng.uniform(-5.0, 5.0, size=(env.config.n_robots, 2))
-            env.world.poses[:, 2] += rng.uniform(-1.0, 1.0, size=env.config.n_robots)
-            after = copy.deepcopy(policy, memo={id(env): env}).act(obs)
-            env.world.poses[:] = saved
+            before, after = actions_with_shifted_truth(env, policy, obs, rng)
             for a in env.agents:
                 np.testing.assert_array_equal(before[a], after[a])
         actions = policy.act(obs)
