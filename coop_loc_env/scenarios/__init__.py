@@ -44,6 +44,25 @@ def scenario_from_base(base: Callable[[], ScenarioConfig]) -> ScenarioFactory:
     return factory
 
 
+#: The training recipe both active-localization scenarios start from (``scripts/train.py``
+#: option dest -> value): clone a scripted teacher (``bc_from``, set by the scenario) with
+#: DAgger, then fine-tune with a cautious PPO (small steps, critic pre-fitted on the
+#: clone's returns, so no reward normalization) until the wall-clock limit.
+CLONE_THEN_PPO: dict[str, Any] = {
+    "timesteps": 50_000_000,  # the wall-clock limit ends the run
+    "bc_episodes": 16,
+    "bc_epochs": 40,
+    "dagger_rounds": 4,
+    "dagger_epochs": 15,
+    "bc_log_std": -1.5,
+    "no_reward_norm": True,
+    "learning_rate": 1e-4,
+    "clip_range": 0.1,
+    "eval_freq": 100_000,
+    "checkpoint_freq": 200_000,
+}
+
+
 def register_training_defaults(name: str, defaults: dict[str, Any]) -> None:
     """Record ``scripts/train.py`` option defaults (option dest -> value) for scenario ``name``."""
     _TRAINING_DEFAULTS[name] = dict(defaults)

@@ -22,32 +22,25 @@ the reward is minus the time to localize
 from __future__ import annotations
 
 from coop_loc_env.scenarios import (
+    CLONE_THEN_PPO,
     register_scenario,
     register_training_defaults,
     scenario_from_base,
 )
 from coop_loc_env.scenarios.fox import symmetric_hallway
 
-#: ``scripts/train.py`` option defaults for this scenario (option dest -> value).
+#: ``scripts/train.py`` option defaults for this scenario (option dest -> value): the
+#: cloning recipe of ``CLONE_THEN_PPO`` with the ``corridor`` teacher, on minus the time to
+#: localize (per robot, half its own, half the team's; minus 0.1 per new contact).
 TRAINING_DEFAULTS: dict = {
-    "timesteps": 50_000_000,  # the wall-clock limit ends the run
+    **CLONE_THEN_PPO,
     "bc_from": "corridor",
-    "bc_episodes": 16,
-    "bc_epochs": 40,
-    "dagger_rounds": 4,
-    "dagger_epochs": 15,
-    "bc_log_std": -1.5,
-    "no_reward_norm": True,
-    "learning_rate": 1e-4,
-    "clip_range": 0.1,
     "reward_mode": "localize",
     "localize_step_reward": 0.1,
     "localize_team_weight": 0.5,
     "localize_collision_weight": 0.1,
-    "eval_freq": 100_000,
     "eval_episodes": 4,
     "eval_baseline": "wander:1.0",
-    "checkpoint_freq": 200_000,
 }
 
 

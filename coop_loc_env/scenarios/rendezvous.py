@@ -24,6 +24,7 @@ from __future__ import annotations
 
 from coop_loc_env.config import RobotSpec
 from coop_loc_env.scenarios import (
+    CLONE_THEN_PPO,
     register_scenario,
     register_training_defaults,
     scenario_from_base,
@@ -35,19 +36,9 @@ from coop_loc_env.scenarios.outdoor import outdoor_terrain
 #: critic pre-fitted on the clone's returns, so no reward normalization), until the
 #: wall-clock limit. Chosen by the ablations in docs/learning.md.
 TRAINING_DEFAULTS: dict = {
-    "timesteps": 50_000_000,  # the wall-clock limit ends the run
+    **CLONE_THEN_PPO,
     "bc_from": "gather",
-    "bc_episodes": 16,
-    "bc_epochs": 40,
-    "dagger_rounds": 4,
-    "dagger_epochs": 15,
-    "bc_log_std": -1.5,
-    "no_reward_norm": True,
-    "learning_rate": 1e-4,
-    "clip_range": 0.1,
-    "eval_freq": 100_000,
     "eval_episodes": 3,
-    "checkpoint_freq": 200_000,
 }
 
 
