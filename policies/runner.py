@@ -86,15 +86,20 @@ def _no_argument(cls: Callable[[], Policy], name: str) -> PolicyFactory:
     return factory
 
 
+def _with_speed(cls: Callable[..., Policy], name: str, arg: str) -> Policy:
+    """``cls()``, or ``cls(float(arg))`` for a spec ``NAME:SPEED``."""
+    if not arg:
+        return cls()
+    try:
+        return cls(float(arg))
+    except ValueError as err:
+        raise ValueError(f"policy '{name}:{arg}': {name}:SPEED needs a speed in (0, 1]") from err
+
+
 def _wander(arg: str) -> Policy:
     from policies.fox import WanderPolicy
 
-    if not arg:
-        return WanderPolicy()
-    try:
-        return WanderPolicy(float(arg))
-    except ValueError as err:
-        raise ValueError(f"policy 'wander:{arg}': wander:SPEED needs a speed in (0, 1]") from err
+    return _with_speed(WanderPolicy, "wander", arg)
 
 
 register_policy("fsm", _no_argument(FSMPolicy, "fsm"),
@@ -121,14 +126,7 @@ def _infogain(arg: str) -> Policy:
 def _corridor(arg: str) -> Policy:
     from policies.scripted import CorridorPolicy
 
-    if not arg:
-        return CorridorPolicy()
-    try:
-        return CorridorPolicy(float(arg))
-    except ValueError as err:
-        raise ValueError(
-            f"policy 'corridor:{arg}': corridor:SPEED needs a speed in (0, 1]"
-        ) from err
+    return _with_speed(CorridorPolicy, "corridor", arg)
 
 
 register_policy("gather", _gather,
