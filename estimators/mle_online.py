@@ -51,6 +51,7 @@ from estimators.pose_graph import (
     DEFAULT_MIN_RANGE,
     PoseGraph,
     SolveResult,
+    check_observation,
     compose,
     marginal_covariances,
     marginalize,
@@ -410,14 +411,8 @@ class TeamMLE:
         b = self._check_robot(target, "target")
         if a == b:
             raise ValueError(f"a robot cannot observe itself (observer = target = {a})")
-        if not components or any(ch not in COMPONENTS for ch in components) or len(
-            set(components)
-        ) != len(components):
-            raise ValueError(f"components must be a non-empty subset of 'rbo', got {components!r}")
+        meas = check_observation(components, measurement)
         k = len(components)
-        meas = np.asarray(measurement, dtype=float).reshape(-1)
-        if meas.shape != (k,) or not np.all(np.isfinite(meas)):
-            raise ValueError(f"measurement must be {k} finite numbers, got {measurement!r}")
         if (std is None) == (cov is None):
             raise ValueError("give exactly one of std and cov")
         if std is not None:

@@ -56,6 +56,7 @@ from estimators.pose_graph.graph import (
     FactorSelection,
     LinearPrior,
     PoseGraph,
+    check_observation,
 )
 from estimators.pose_graph.se2 import (
     DEFAULT_MIN_RANGE,
@@ -87,6 +88,7 @@ __all__ = [
     "SyntheticTeam",
     "between",
     "between_residual",
+    "check_observation",
     "compose",
     "marginal_covariances",
     "marginalize",

@@ -31,6 +31,21 @@ DENSE_FILL_MAX_VARIABLES = 3000
 """...unless ``H`` is more than 5 % full and has at most this many variables."""
 
 
+def check_observation(components: str, measurement) -> np.ndarray:
+    """``measurement`` as a float array after checking it against ``components`` (a
+    non-empty subset of :data:`COMPONENTS`, one finite number each); ``ValueError`` naming
+    the bad value otherwise."""
+    if not components or any(ch not in COMPONENTS for ch in components) or len(
+        set(components)
+    ) != len(components):
+        raise ValueError(f"components must be a non-empty subset of 'rbo', got {components!r}")
+    k = len(components)
+    meas = np.asarray(measurement, dtype=float).reshape(-1)
+    if meas.shape != (k,) or not np.all(np.isfinite(meas)):
+        raise ValueError(f"measurement must be {k} finite numbers, got {measurement!r}")
+    return meas
+
+
 def _cat(parts: list[np.ndarray], dtype: type) -> np.ndarray:
     return np.concatenate(parts) if parts else np.zeros(0, dtype)
 
@@ -228,14 +243,8 @@ class PoseGraph:
         a, b = self._check_node(a), self._check_node(b)
         if a == b:
             raise ValueError(f"a robot observation needs two distinct nodes, got a = b = {a}")
-        if not components or any(ch not in COMPONENTS for ch in components) or len(
-            set(components)
-        ) != len(components):
-            raise ValueError(f"components must be a non-empty subset of 'rbo', got {components!r}")
+        meas = check_observation(components, measurement)
         k = len(components)
-        meas = np.asarray(measurement, dtype=float).reshape(-1)
-        if meas.shape != (k,) or not np.all(np.isfinite(meas)):
-            raise ValueError(f"measurement must be {k} finite numbers, got {measurement!r}")
         if "r" in components and meas[components.index("r")] < 0:
             raise ValueError(f"measured range must be >= 0, got {measurement!r}")
         if (std is None) == (cov is None):
