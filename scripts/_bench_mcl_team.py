@@ -30,8 +30,10 @@ Run ``python scripts/_bench_mcl_team.py --help`` for the options.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -174,26 +176,13 @@ def table_accuracy(n: int = 20000) -> dict[str, float]:
 def ppo_hallway_steps_per_second(timesteps: int = 4096, seed: int = 0) -> float:
     """PPO agent steps per wall-clock second on ``symmetric_hallway`` (4 robots x 1000
     particles, 4 env copies in this process, ``scripts/_bench_training.py``'s settings)."""
-    import torch
-    from stable_baselines3 import PPO
-
-    from policies.vec_env import ParallelEnvVecEnv, make_env_fn
-
-    torch.set_num_threads(1)
-    venv = ParallelEnvVecEnv(
-        make_env_fn("symmetric_hallway", n_robots=4, n_particles=1000, max_cycles=500),
-        n_envs=4, n_procs=1,
-    )
-    try:
-        model = PPO("MlpPolicy", venv, n_steps=128, batch_size=256, n_epochs=5, seed=seed,
-                    device="cpu", verbose=0)
-        model.learn(total_timesteps=128 * venv.num_envs)  # warm-up rollout and update
-        start_steps = model.num_timesteps
-        start = time.perf_counter()
-        model.learn(total_timesteps=timesteps, reset_num_timesteps=False)
-        return (model.num_timesteps - start_steps) / (time.perf_counter() - start)
-    finally:
-        venv.close()
+    path = Path(__file__).with_name("_bench_training.py")
+    spec = importlib.util.spec_from_file_location("_bench_training", path)
+    training = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(training)
+    return training.ppo_steps_per_second(
+        1, timesteps, seed, "symmetric_hallway",
+        {"n_robots": 4, "n_particles": 1000, "max_cycles": 500})
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -24,8 +24,14 @@ N_ENVS = 4
 N_ROBOTS = 3
 
 
-def ppo_steps_per_second(n_procs: int, timesteps: int = 6144, seed: int = 0) -> float:
-    """Agent steps per wall-clock second of PPO training with ``n_procs`` processes."""
+OUTDOOR = {"estimator": "ekf", "n_robots": N_ROBOTS, "max_cycles": 500}
+
+
+def ppo_steps_per_second(n_procs: int, timesteps: int = 6144, seed: int = 0,
+                         scenario: str = "outdoor_terrain", overrides: dict | None = None
+                         ) -> float:
+    """Agent steps per wall-clock second of PPO training with ``n_procs`` processes on
+    ``N_ENVS`` copies of ``scenario`` (``overrides``, by default :data:`OUTDOOR`)."""
     import torch
     from stable_baselines3 import PPO
 
@@ -33,7 +39,7 @@ def ppo_steps_per_second(n_procs: int, timesteps: int = 6144, seed: int = 0) -> 
 
     torch.set_num_threads(1)
     venv = ParallelEnvVecEnv(
-        make_env_fn("outdoor_terrain", estimator="ekf", n_robots=N_ROBOTS, max_cycles=500),
+        make_env_fn(scenario, **(OUTDOOR if overrides is None else overrides)),
         n_envs=N_ENVS, n_procs=n_procs,
     )
     try:
