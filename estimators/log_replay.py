@@ -1,34 +1,5 @@
 """Replay of logged multi-robot data: the names of :mod:`estimators.replay`, importable
 from their former module (see that package for the protocol)."""
 
-from estimators.replay import (
-    DEFAULT_NOISE_PATH,
-    ESTIMATORS,
-    PER_ROBOT_KEYS,
-    TUNING_GRID,
-    NoiseParameters,
-    ReplayResult,
-    evaluate,
-    fit_noise_parameters,
-    load_noise_parameters,
-    replay,
-    save_noise_parameters,
-    scale_noise,
-    tune_inflation,
-)
-
-__all__ = [
-    "ESTIMATORS",
-    "DEFAULT_NOISE_PATH",
-    "PER_ROBOT_KEYS",
-    "TUNING_GRID",
-    "NoiseParameters",
-    "ReplayResult",
-    "evaluate",
-    "fit_noise_parameters",
-    "load_noise_parameters",
-    "replay",
-    "save_noise_parameters",
-    "scale_noise",
-    "tune_inflation",
-]
+from estimators.replay import *  # noqa: F403 (the package's public names, re-exported)
+from estimators.replay import __all__  # noqa: F401
