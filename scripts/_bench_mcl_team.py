@@ -15,8 +15,10 @@ count):
   with a 2**20-entry table (8 MiB, the size class of a map's lookup table);
 * ``outdoor_mcl_extra_us_per_robot``: in ``outdoor_terrain`` with 4 robots,
   1000 particles and 30 laser beams, the CPU time per robot and step that
-  ``estimator="mcl"`` adds over ``estimator="ekf"`` (fixed particle count), and
-  ``outdoor_ratio``, that over a 30,000-value gather of the same kind;
+  ``estimator="mcl"`` adds over ``estimator="ekf"`` (fixed particle count; the two
+  are stepped in alternating blocks of five steps, twice the hallway's step count
+  each, so both see the same machine load), and ``outdoor_ratio``, that over a
+  30,000-value gather of the same kind;
 * with ``training=True``, ``ppo_hallway_agent_steps_per_s``: PPO agent steps
   per wall-clock second on ``symmetric_hallway`` with 4 robots and 1000
   particles (``scripts/_bench_training.py``'s settings otherwise);
@@ -39,10 +41,67 @@ import numpy as np
 
 import coop_loc_env
 
-__all__ = ["bench_mcl_team", "step_ms", "table_accuracy", "table_memory_mb"]
+__all__ = ["bench_mcl_team", "paired_step_ms", "step_ms", "table_accuracy", "table_memory_mb"]
 
 TABLE_ENTRIES = 2**20
 SMALL_TABLE_ENTRIES = 2**16  # 512 KiB: stays in cache, the strictest floor
+
+
+def _gather_arrays(rng: np.random.Generator, gather_n: int, tables: tuple[int, ...]) -> list:
+    """A random table of each size in ``tables`` and ``gather_n`` random indices into it."""
+    return [(rng.random(size), rng.integers(0, size, max(gather_n, 1))) for size in tables]
+
+
+def _time_gathers(arrays: list, best: list[float]) -> None:
+    """Gather from each table three times (the first refills the cache), keeping in
+    ``best`` the least CPU seconds per table."""
+    for k, (table, idx) in enumerate(arrays):
+        for _ in range(3):
+            t = time.process_time()
+            table.take(idx)
+            best[k] = min(best[k], time.process_time() - t)
+
+
+def paired_step_ms(scenario: str, cases: dict[str, dict], steps: int, warmup: int = 10,
+                   gather_n: int = 0, block: int = 5, **shared) -> dict[str, float]:
+    """Mean CPU milliseconds per env step of ``scenario`` under each of ``cases``
+    (overrides by label, on top of ``shared``), with random actions, timed in
+    alternating blocks of ``block`` steps so that every case sees the same machine
+    load; plus ``"gather_us"``: the least CPU microseconds of ``numpy.take`` of
+    ``gather_n`` float64 values at random indices of a 2**20-entry table, timed three
+    times after every step."""
+    rng = np.random.default_rng(0)
+    envs = {}
+    for label, overrides in cases.items():
+        env = coop_loc_env.parallel_env(scenario, max_cycles=10**9, **shared, **overrides)
+        env.reset(seed=0)
+        envs[label] = env
+    arrays = _gather_arrays(rng, gather_n, (TABLE_ENTRIES,))
+    best = [np.inf]
+    total = dict.fromkeys(cases, 0.0)
+
+    def one(env) -> None:
+        if not env.agents:
+            env.reset()
+        env.step({a: rng.uniform(-1, 1, 2).astype(np.float32) for a in env.agents})
+
+    for env in envs.values():
+        for _ in range(warmup):
+            one(env)
+    done = 0
+    while done < steps:
+        n = min(block, steps - done)
+        for label, env in envs.items():
+            for _ in range(n):
+                t = time.process_time()
+                one(env)
+                total[label] += time.process_time() - t
+                if gather_n:
+                    _time_gathers(arrays, best)
+        done += n
+    out = {label: total[label] / steps * 1e3 for label in cases}
+    out["gather_us"] = best[0] * 1e6 if gather_n else 0.0
+    return out
 
 
 def step_ms(scenario: str, steps: int, warmup: int = 10, gather_n: int = 0,
@@ -54,7 +113,7 @@ def step_ms(scenario: str, steps: int, warmup: int = 10, gather_n: int = 0,
     env = coop_loc_env.parallel_env(scenario, max_cycles=10**9, **overrides)
     env.reset(seed=0)
     rng = np.random.default_rng(0)
-    arrays = [(rng.random(size), rng.integers(0, size, max(gather_n, 1))) for size in tables]
+    arrays = _gather_arrays(rng, gather_n, tables)
 
     def one() -> None:
         if not env.agents:
@@ -69,11 +128,8 @@ def step_ms(scenario: str, steps: int, warmup: int = 10, gather_n: int = 0,
         t = time.process_time()
         one()
         total += time.process_time() - t
-        for k, (table, idx) in enumerate(arrays if gather_n else []):
-            for _ in range(3):  # the first one refills the cache
-                t = time.process_time()
-                table.take(idx)
-                best[k] = min(best[k], time.process_time() - t)
+        if gather_n:
+            _time_gathers(arrays, best)
     gathers = [b * 1e6 if gather_n else 0.0 for b in best]
     return (total / steps * 1e3, *gathers)
 
@@ -94,9 +150,10 @@ def bench_mcl_team(steps: int = 60, training: bool = True, timesteps: int = 4096
     outdoor = {"n_robots": 4, "n_particles": 1000, "laser_beams": 30, "start_region": None,
                "extras": {**coop_loc_env.make_config("outdoor_terrain").extras,
                           "mcl": {"adaptive": False}}}
-    ekf, g_ekf = step_ms("outdoor_terrain", steps, gather_n=30_000, estimator="ekf", **outdoor)
-    mcl, g_mcl = step_ms("outdoor_terrain", steps, gather_n=30_000, estimator="mcl", **outdoor)
-    g30 = min(g_ekf, g_mcl)
+    paired = paired_step_ms("outdoor_terrain", {"ekf": {"estimator": "ekf"},
+                                                "mcl": {"estimator": "mcl"}},
+                            2 * steps, gather_n=30_000, **outdoor)
+    ekf, mcl, g30 = paired["ekf"], paired["mcl"], paired["gather_us"]
     extra = (mcl - ekf) * 1e3 / 4
     out["outdoor_ekf_step_ms"] = ekf
     out["outdoor_mcl_step_ms"] = mcl
