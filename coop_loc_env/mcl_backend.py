@@ -280,6 +280,7 @@ class MCLBackend(EstimatorBackend):
         self.init_factor = global_init_factor(cfg)
         self.filters: list[ParticleFilter] = []
         self._origins = np.zeros((0, 2))  # each filter's state origin (world x, y)
+        self._all_local = np.zeros(0, dtype=int)  # local indices of all robots
         self.rng = np.random.default_rng(0)
         self.transfers_applied = np.zeros(len(self.robots), dtype=int)
         self._t = 0
@@ -314,6 +315,7 @@ class MCLBackend(EstimatorBackend):
                 pf.init_gaussian(start[i], cov)
             self.filters.append(pf)
         self._origins = np.array([pf.state_origin for pf in self.filters]).reshape(-1, 2)
+        self._all_local = np.arange(k)
         self.transfer.reset()
         self.transfers_applied[:] = 0
         self._t = 0
@@ -464,44 +466,42 @@ class MCLBackend(EstimatorBackend):
         if not live:
             return 0
         cfg = self.config_fields
-        idx = np.asarray(live)
+        idx = self._all_local if len(live) == len(self.filters) else np.asarray(live)
         g = self.robots[idx]
         scanned = self._has_range[idx] & readings.range_mask[g]
-        sonar = self._sonar[idx]
-        lf_rows = None
-        lf_scan = np.zeros(idx.size, dtype=bool)
-        for t in self._grids:
-            angles = self._angles[t]
-            member = scanned & (sonar if t == "sonar" else ~sonar)
-            if not member.any():
-                continue
-            rows = readings.ranges[g[member], : len(angles)]
-            carry = np.isfinite(rows).any(axis=1)  # a scan without a reading carries nothing
-            if not carry.any():
-                continue
-            rows = rows[carry]
-            sel = np.flatnonzero(member)[carry]
-            if t == "laser" and not self._laser_beam:
-                lf_scan[sel] = True
-                lf_rows = np.where(np.isfinite(rows), rows, np.inf)
-                continue
-            filters = [self.filters[live[k]] for k in sel.tolist()]
-            if t == "sonar":
-                update_beam_batch(filters, rows, angles, cfg["sonar_max_range"], self._cone)
-            else:
-                update_beam_batch(filters, rows, angles, cfg["laser_max_range"])
+        team = [self.filters[i] for i in live]
+        lf_ranges = None  # likelihood-field laser scans (rows of NaN: no scan)
+        if scanned.any():
+            sonar = self._sonar[idx]
+            for t in self._grids:
+                angles = self._angles[t]
+                member = scanned & sonar if t == "sonar" else scanned & ~sonar
+                if not member.any():
+                    continue
+                sel = np.flatnonzero(member)
+                rows = readings.ranges[g[sel], : len(angles)]
+                finite = np.isfinite(rows)
+                carry = finite.any(axis=1)  # a scan without a reading carries nothing
+                if not carry.all():
+                    if not carry.any():
+                        continue
+                    rows, finite, sel = rows[carry], finite[carry], sel[carry]
+                if t == "laser" and not self._laser_beam:
+                    lf_ranges = np.full((len(live), len(angles)), np.nan)
+                    lf_ranges[sel] = np.where(finite, rows, np.inf)
+                    continue
+                filters = [team[k] for k in sel.tolist()]
+                if t == "sonar":
+                    update_beam_batch(filters, rows, angles, cfg["sonar_max_range"], self._cone)
+                else:
+                    update_beam_batch(filters, rows, angles, cfg["laser_max_range"])
         gps = self._has_gps[idx] & readings.gps_mask[g]
         compass = self._has_compass[idx] & readings.compass_mask[g]
-        weigh = lf_scan | gps | compass
-        if weigh.any():
-            fixes = self._fix_rows(idx, gps, compass, readings)[weigh]
-            team = [self.filters[live[k]] for k in np.flatnonzero(weigh).tolist()]
-            ranges = None
-            angles = self._angles.get("laser")
-            if lf_rows is not None:
-                ranges = np.full((len(team), len(angles)), np.nan)
-                ranges[lf_scan[weigh]] = lf_rows
-            weigh_batch(team, ranges, angles, cfg["laser_max_range"], fixes)
+        if lf_ranges is not None or gps.any() or compass.any():
+            # every live robot in one pass: one without a scan or a fix keeps its weights
+            fixes = self._fix_rows(idx, gps, compass, readings)
+            weigh_batch(team, lf_ranges, None if lf_ranges is None else self._angles["laser"],
+                        cfg["laser_max_range"], fixes)
         return int(scanned.sum())
 
     def _fix_rows(self, idx: np.ndarray, gps: np.ndarray, compass: np.ndarray,

@@ -154,6 +154,7 @@ class ParticleFilter:
         # coordinates, and the likelihood field finds cells by rounding.
         res = grid.resolution
         self._org = np.array([[grid.origin[0] + 0.5 * res], [grid.origin[1] + 0.5 * res], [0.0]])
+        self._org_xy = (float(self._org[0, 0]), float(self._org[1, 0]))
         self._state = np.zeros((3, 0), dtype=np.float32)
         self._weights = np.zeros(0)
         # where the state / weights start in a team array they are views of

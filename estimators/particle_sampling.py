@@ -31,6 +31,7 @@ _ZIGGURAT = ziggurat_tables()
 _NO_BITS = np.zeros(0, dtype=np.uint64)
 _NO_NEED = np.zeros(1)
 _NO_POSES = np.zeros((0, 3))
+_NO_KLD = np.zeros((1, 8))
 
 
 def standard_normals(rng: np.random.Generator, out: np.ndarray) -> np.ndarray:
@@ -117,81 +118,78 @@ def resample_filters(filters: Sequence[ParticleFilter], flat: np.ndarray, ends: 
     team equals resampling its filters one by one.
     """
     nr = len(filters)
-    mode = [0] * nr
+    # per robot: mode (0 keep, 1 fixed count, 2 KLD), indices to draw, injected count
+    ints = [(0, 0, 0)] * nr
     u = [0.0] * nr
-    m = [0] * nr
-    n_inj = [0] * nr
-    kld = np.zeros((nr, 8))
-    words: list[np.ndarray] = []
+    p_inj = [0.0] * nr
+    kld: np.ndarray | None = None
+    words: list[tuple[int, np.ndarray]] = []
     needs: list[np.ndarray] = []
     need_off = 0
-    p_inj = [0.0] * nr
-    ends_l = ends.tolist()
-    for r, pf in enumerate(filters):
+    start = 0
+    for r, (pf, end) in enumerate(zip(filters, ends.tolist(), strict=True)):
+        n, start = end - start, end
         if not which[r]:
             continue
         cfg = pf.config
         rng = pf.rng
-        p_inj[r] = pf.inject_probability
+        p = p_inj[r] = pf.inject_probability
         if cfg.adaptive:
-            mode[r] = 2
-            m[r] = cfg.n_max
             u[r] = rng.random()
-            words.append(rng.bit_generator.random_raw(cfg.n_max))  # the shuffle
+            words.append((r, rng.bit_generator.random_raw(cfg.n_max)))  # the shuffle
+            ints[r] = (2, cfg.n_max, 0)
             if pf._unwrapped_steps:
                 pf._wrap_headings()
             bx, by, bt = cfg.kld_bin
             need = kld_need(cfg.kld_epsilon, cfg.kld_delta, cfg.n_min, cfg.n_max)
+            if kld is None:
+                kld = np.zeros((nr, 8))
             kld[r] = (pf._org[0, 0], pf._org[1, 0], 1.0 / bx, 1.0 / by, 1.0 / bt,
                       math.ceil(2.0 * math.pi / bt), need_off, cfg.n_min)
             needs.append(need)
             need_off += need.size
         else:
-            mode[r] = 1
-            n = ends_l[r] - (ends_l[r - 1] if r else 0)
-            n_inj[r] = int(rng.binomial(n, p_inj[r])) if p_inj[r] > 0 else 0
+            k = int(rng.binomial(n, p)) if p > 0 else 0
             u[r] = rng.random()
-            m[r] = n - n_inj[r]
+            ints[r] = (1, n - k, k)
+    per_robot = np.array(ints, dtype=np.intp).reshape(nr, 3)
+    mode_a = per_robot[:, 0]
+    m_a = per_robot[:, 1]
     if words:  # KLD robots' shuffle words at their offsets
-        bits = np.zeros(sum(m), dtype=np.uint64)
-        it = iter(words)
-        o = 0
-        for r in range(nr):
-            if mode[r] == 2:
-                bits[o:o + m[r]] = next(it)
-            o += m[r]
+        offsets = np.cumsum(m_a) - m_a
+        bits = np.zeros(int(m_a.sum()), dtype=np.uint64)
+        for r, word in words:
+            bits[offsets[r]:offsets[r] + m_a[r]] = word
         need_all = np.concatenate(needs)
     else:
         bits = _NO_BITS
         need_all = _NO_NEED
     if not w.flags.writeable:  # one compiled signature: writeable arrays
         w = w.copy()
-    mode_a = np.array(mode, dtype=np.intp)
-    m_a = np.array(m, dtype=np.intp)
-    idx, counts = select_blocks(flat, w, ends, mode_a, np.array(u), m_a, bits, kld, need_all)
-    keep = counts.tolist()
+    idx, counts = select_blocks(flat, w, ends, mode_a, np.array(u), m_a, bits,
+                                _NO_KLD if kld is None else kld, need_all)
+    keep = counts if words else m_a
+    n_inj_a = per_robot[:, 2]
     inj: list[np.ndarray] = []
     for r, pf in enumerate(filters):
-        if mode[r] == 2:
-            n = keep[r]
-            n_inj[r] = int(pf.rng.binomial(n, p_inj[r])) if p_inj[r] > 0 else 0
-            keep[r] = n - n_inj[r]
-        if n_inj[r]:
-            pose = np.empty((n_inj[r], 3))
-            pose[:, :2] = pf.grid.sample_free(n_inj[r], pf.rng)
-            pose[:, 2] = pf.rng.uniform(-np.pi, np.pi, size=n_inj[r])
+        mode, _, k = ints[r]
+        if mode == 2 and p_inj[r] > 0:
+            n = int(counts[r])
+            k = n_inj_a[r] = int(pf.rng.binomial(n, p_inj[r]))
+            keep[r] = n - k
+        if k:
+            pose = np.empty((k, 3))
+            pose[:, :2] = pf.grid.sample_free(k, pf.rng)
+            pose[:, 2] = pf.rng.uniform(-np.pi, np.pi, size=k)
             inj.append(pose)
-    org = np.array([pf._org[:2, 0] for pf in filters]).reshape(-1, 2)
-    inj_all = np.concatenate(inj) if inj else _NO_POSES
-    n_inj_a = np.array(n_inj, dtype=np.intp)
-    new, new_ends = build_blocks(flat, ends, mode_a, idx, m_a, np.array(keep, dtype=np.intp),
-                                 inj_all, n_inj_a, org)
+    org = np.array([pf._org_xy for pf in filters]).reshape(-1, 2)
+    inj_all = np.concatenate(inj) if len(inj) > 1 else (inj[0] if inj else _NO_POSES)
+    new, new_ends = build_blocks(flat, ends, mode_a, idx, m_a, keep, inj_all, n_inj_a, org)
     start = 0
-    for r, pf in enumerate(filters):
-        end = int(new_ends[r])
+    for pf, end, (mode, _, _) in zip(filters, new_ends.tolist(), ints, strict=True):
         pf._state = new[3 * start:3 * end].reshape(3, end - start)
         pf._block_start = start
-        if mode[r]:
+        if mode:
             pf._weights = pf._uniform_weights(end - start)
         start = end
     return new
