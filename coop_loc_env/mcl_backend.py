@@ -71,6 +71,7 @@ from coop_loc_env.extras import check_extra
 from coop_loc_env.sensors import Readings, beam_angles
 from coop_loc_env.world import World
 from estimators.beam_table import BeamLUT, RangeTable
+from estimators.density_tree import load_kernels
 from estimators.detection_transfer import (
     DetectionTransfer,
     RobotDetection,
@@ -321,6 +322,8 @@ class MCLBackend(EstimatorBackend):
         self._t = 0
         self._conflicts = {}
         self._summary = None
+        if cfg.cooperative_updates:  # the first detection would load them inside a step
+            load_kernels()
         # build the shared range tables now, not inside the first step
         for i in range(k):
             if self._sonar[i]:
@@ -573,11 +576,8 @@ class MCLBackend(EstimatorBackend):
         ``n_particles`` and ``detections_used`` (belief transfers received) per robot."""
         spread = particle_spreads(self.filters, np.asarray(true_poses)[self.robots, :2])
         return {
-            int(g): {
-                "particle_spread": float(spread[i]),
-                "n_particles": int(self.filters[i].n_particles),
-                "detections_used": int(self.transfers_applied[i]),
-            }
-            for i, g in enumerate(self.robots)
+            g: {"particle_spread": s, "n_particles": pf.n_particles, "detections_used": used}
+            for g, s, pf, used in zip(self.robots.tolist(), spread.tolist(), self.filters,
+                                      self.transfers_applied.tolist(), strict=True)
         }
 

@@ -12,11 +12,13 @@ density integrates to exactly 1 over the domain.
 
 from __future__ import annotations
 
+from functools import cache
+
 import numpy as np
 
 from estimators._kernels import grow_tree, tree_density
 
-__all__ = ["DensityTree"]
+__all__ = ["DensityTree", "load_kernels"]
 
 
 class DensityTree:
@@ -146,3 +148,11 @@ class DensityTree:
         out = tree_density(flat, self.low, self.high, self._split_dim, self._split_val,
                            self._left, self._density)
         return out.reshape(p.shape[:-1])
+
+
+@cache
+def load_kernels() -> None:
+    """Load the compiled tree kernels now (from numba's disk cache, compiling them the
+    first time): otherwise the first tree of a process pays it, about 10 ms (an env step
+    with the first robot detection would stall). Does nothing after the first call."""
+    DensityTree(np.array([[0.0], [1.0]])).pdf(np.array([[0.5]]))

@@ -35,6 +35,7 @@ from estimators._team_kernels import FIX_COLUMNS, compose_rows, predict_blocks
 from estimators.beam_table import scan_loglik
 from estimators.likelihood_field import LF_POWER, lf_endpoints
 from estimators.particle_filter import ParticleFilter
+from estimators.particle_sampling import standard_normals
 from estimators.particle_weighting import weigh_filters
 
 __all__ = [
@@ -108,13 +109,14 @@ def predict_batch(filters: Sequence[ParticleFilter], deltas: np.ndarray) -> None
     if not filters:
         return
     flat, ends = team_state(filters)
-    params = np.empty((len(filters), 6), dtype=np.float32)
     z = np.empty(flat.size, dtype=np.float32)
+    rows = []
     start = 0
-    for r, (pf, d) in enumerate(zip(filters, deltas.tolist(), strict=True)):
-        params[r] = pf._motion_draw(*d, out=z[3 * start:3 * ends[r]])[0]
-        start = ends[r]
-    predict_blocks(flat, z, params, ends)
+    for pf, d, end in zip(filters, deltas.tolist(), ends.tolist(), strict=True):
+        rows.append(pf._motion_draw(*d))
+        standard_normals(pf.rng, z[3 * start:3 * end])
+        start = end
+    predict_blocks(flat, z, np.array(rows, dtype=np.float32), ends)
     for pf in filters:
         pf._after_motion()
 
@@ -159,8 +161,9 @@ def weigh_batch(
     ok = ranges < max_range  # NaN and inf compare False
     has = (ranges == ranges).any(axis=1)  # a row of NaN is no scan
     lead = None
-    for r in np.flatnonzero(has).tolist():
-        pf = filters[r]
+    for pf, scan in zip(filters, has.tolist(), strict=True):
+        if not scan:
+            continue
         if lead is None:
             lead = pf
         elif pf.grid is not lead.grid or (pf.config is not lead.config
@@ -170,7 +173,7 @@ def weigh_batch(
     if lead is None:
         return weigh_batch(filters, None, None, None, fixes)
     lf = lead._lf_field(max_range)
-    k = ok.sum(axis=1)
+    k = np.count_nonzero(ok, axis=1)
     nb = np.where(has, k, -1)
     ux, uy = lf_endpoints(lf, np.where(ok, ranges, np.nan), angles)
     return weigh_filters(filters, flat, ends, w_prev, fixes, nb, np.empty(n), False,
@@ -263,9 +266,9 @@ def belief_summaries(
     # positions relative to each filter's cell (0, 0) centre (small numbers)
     flat, ends = team_state(filters)
     w = team_weights(filters)
-    org = np.array([[pf._org[0, 0], pf._org[1, 0]] for pf in filters]).reshape(-1, 2)
+    org = np.array([pf._org_xy for pf in filters]).reshape(-1, 2)
     bounds = np.array([pf.grid.bounds for pf in filters], dtype=float).reshape(-1, 4)
-    count_frac = np.array([min(pf.n_particles / pf.config.n_max, 1.0) if pf.config.adaptive
+    count_frac = np.array([min(pf._weights.size / pf.config.n_max, 1.0) if pf.config.adaptive
                            else 1.0 for pf in filters])
     return summary_features(flat, w, ends, org, bounds, count_frac, int(hist_cells),
                             1.0 / cell_size, int(heading_bins))
@@ -281,5 +284,5 @@ def particle_spreads(filters: Sequence[ParticleFilter], true_xy: np.ndarray) -> 
         return np.zeros(0)
     flat, ends = team_state(filters)
     w = team_weights(filters)
-    org = np.array([pf._org[:2, 0] for pf in filters])
+    org = np.array([pf._org_xy for pf in filters])
     return weighted_distances(flat, w, ends, true_xy - org)

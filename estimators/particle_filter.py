@@ -334,15 +334,16 @@ class ParticleFilter:
 
     def _predict(self, dx: float, dy: float, dth: float) -> None:
         """:meth:`predict_delta` for a checked, finite motion."""
-        params, z = self._motion_draw(dx, dy, dth)
-        predict_blocks(self._flat_state(), z, params[None, :], np.array([z.size // 3]))
+        params = np.array([self._motion_draw(dx, dy, dth)], dtype=np.float32)
+        z = standard_normals(self.rng, np.empty(3 * self._weights.size, dtype=np.float32))
+        predict_blocks(self._flat_state(), z, params, np.array([z.size // 3]))
         self._after_motion()
 
-    def _motion_draw(self, dx: float, dy: float, dth: float, out: np.ndarray | None = None
-                     ) -> tuple[np.ndarray, np.ndarray]:
-        """The motion's parameters (:meth:`_motion_params`) and ``3 N`` float32 standard
-        normals from this filter's generator (into ``out`` if given): the inputs of one
-        motion update."""
+    def _motion_draw(self, dx: float, dy: float, dth: float) -> tuple[float, ...]:
+        """The motion's ``rot1, trans, rot2`` and their noise standard deviations
+        (:class:`ParticleMotionNoise`), the parameters of one motion update (its noise:
+        ``3 N`` standard normals drawn next from this filter's generator); adds the
+        translation to :attr:`odometer`."""
         trans = math.hypot(dx, dy)
         if trans < 1e-9:
             rot1 = 0.0
@@ -352,21 +353,13 @@ class ParticleFilter:
             rot1 = math.atan2(-dy, -dx)
             trans = -trans
         rot2 = min((dth - rot1 + math.pi) % (2.0 * math.pi) - math.pi, PI_BELOW)
-        params = self._motion_params(trans, rot1, rot2)
-        if out is None:
-            out = np.empty(3 * self._weights.size, dtype=np.float32)
-        return params, standard_normals(self.rng, out)
-
-    def _motion_params(self, trans: float, rot1: float, rot2: float) -> np.ndarray:
-        """``(6,)`` float32 ``rot1, trans, rot2`` and their noise standard deviations
-        (:class:`ParticleMotionNoise`); adds the translation to :attr:`odometer`."""
         at = abs(trans)
         self.odometer += at
         mn = self.config.motion
         sd_r1 = mn.rot_rot * abs(rot1) + mn.rot_trans * at + mn.min_heading
         sd_t = mn.trans_trans * at + mn.trans_rot * (abs(rot1) + abs(rot2)) + mn.min_xy
         sd_r2 = mn.rot_rot * abs(rot2) + mn.rot_trans * at + mn.min_heading
-        return np.array([rot1, trans, rot2, sd_r1, sd_t, sd_r2], dtype=np.float32)
+        return rot1, trans, rot2, sd_r1, sd_t, sd_r2
 
     def _flat_state(self) -> np.ndarray:
         """The state as a flat view (``(3, N)`` C order; made contiguous if it is not)."""

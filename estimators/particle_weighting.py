@@ -58,30 +58,24 @@ def weigh_filters(
     weigh_blocks(flat, ends, w_prev, *lf_args, ux, uy, nb, float(power), fixes, loglik, scored,
                  w, res)
     start = 0
-    ends_l = ends.tolist()
-    nb_l = nb.tolist()
-    res_l = res.tolist()
-    flags = ((fixes[:, 0] != 0) | (fixes[:, 4] != 0)).tolist()
-    offsets_l = np.asarray(offsets, dtype=float).tolist()
-    n_eff_l = np.asarray(n_eff, dtype=float).tolist()
-    for r, pf in enumerate(filters):
-        end = ends_l[r]
-        scan = nb_l[r] >= 0
-        if scan or flags[r]:
-            ev_r, ess, ok = res_l[r]
+    fixed = (fixes[:, 0] != 0) | (fixes[:, 4] != 0)
+    for r, (pf, end, nb_r, (ev_r, ess, ok), has_fix) in enumerate(
+            zip(filters, ends.tolist(), nb.tolist(), res.tolist(), fixed.tolist(), strict=True)):
+        scan = nb_r >= 0
+        if scan or has_fix:
             if ok:
                 pf._weights = w[start:end]
                 pf._wblock_start = start
                 pf._ess = (pf._weights, ess)
-                ev = ev_r + offsets_l[r]
+                ev = ev_r + float(offsets[r])
             else:  # the products underflowed: redo this filter in log space
                 pf._weights, ev = _weights_in_logs(pf, w_prev[start:end],
                                                    loglik[start:end] if scan else None,
                                                    fixes[r])
-                ev += offsets_l[r]
+                ev += float(offsets[r])
             if scan:
                 evidence[r] = ev
-                pf._track_evidence(ev, n_eff_l[r])
+                pf._track_evidence(ev, float(n_eff[r]))
         start = end
     return evidence
 

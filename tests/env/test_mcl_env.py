@@ -250,3 +250,27 @@ def test_reading_the_particles_leaves_the_filter_untouched():
     for pa, pb in zip(envs[0].backends[0].filters, envs[1].backends[0].filters, strict=True):
         assert np.array_equal(pa.particles, pb.particles)
         assert np.array_equal(pa.weights, pb.weights)
+
+
+def test_reset_loads_the_detection_kernels():
+    # The first robot detection of a process would otherwise load the density-tree
+    # kernels inside an env step (about 10 ms); a fresh interpreter shows whether
+    # reset did it.
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = (
+        "import coop_loc_env\n"
+        "from estimators._kernels import grow_tree, tree_density\n"
+        "env = coop_loc_env.parallel_env('symmetric_hallway', n_robots=2, n_particles=50)\n"
+        "env.reset(seed=0)\n"
+        "print(len(grow_tree.signatures), len(tree_density.signatures))\n"
+    )
+    root = Path(__file__).resolve().parents[2]
+    out = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True,
+                         text=True, check=True, timeout=300,
+                         env={**os.environ, "PYTHONPATH": str(root)})
+    counts = [int(v) for v in out.stdout.split()]
+    assert len(counts) == 2 and min(counts) >= 1, out.stdout
