@@ -2,7 +2,11 @@
 
 ``bench_mcl_team()`` returns, measured in one run with the process CPU clock
 (``time.process_time``, so time spent descheduled on a shared machine does not
-count):
+count). Every env step is timed on three identical copies of the env (same seed,
+same actions) stepped one after the other, and the fastest copy counts, as the
+fastest of the repeated gathers does: on a shared machine another process
+contending for the core slows one copy's step, rarely all three (the
+``*_all_copies`` figures average every copy instead):
 
 * ``hallway_step_ms``: one ``symmetric_hallway`` env step as shipped (8 sonar
   robots, up to 2000 particles each, 16 beams, detections on; random actions,
@@ -41,7 +45,7 @@ import numpy as np
 
 import coop_loc_env
 
-__all__ = ["bench_mcl_team", "paired_step_ms", "step_ms", "table_accuracy", "table_memory_mb"]
+__all__ = ["bench_mcl_team", "table_accuracy", "table_memory_mb", "timed_steps"]
 
 TABLE_ENTRIES = 2**20
 SMALL_TABLE_ENTRIES = 2**16  # 512 KiB: stays in cache, the strictest floor
@@ -62,76 +66,71 @@ def _time_gathers(arrays: list, best: list[float]) -> None:
             best[k] = min(best[k], time.process_time() - t)
 
 
-def paired_step_ms(scenario: str, cases: dict[str, dict], steps: int, warmup: int = 10,
-                   gather_n: int = 0, block: int = 5, **shared) -> dict[str, float]:
-    """Mean CPU milliseconds per env step of ``scenario`` under each of ``cases``
-    (overrides by label, on top of ``shared``), with random actions, timed in
-    alternating blocks of ``block`` steps so that every case sees the same machine
-    load; plus ``"gather_us"``: the least CPU microseconds of ``numpy.take`` of
-    ``gather_n`` float64 values at random indices of a 2**20-entry table, timed three
-    times after every step."""
+def timed_steps(scenario: str, cases: dict[str, dict], steps: int, warmup: int = 10,
+                copies: int = 3, gather_n: int = 0, tables: tuple[int, ...] = (TABLE_ENTRIES,),
+                block: int = 5, **shared) -> dict[str, float]:
+    """CPU milliseconds per env step of ``scenario`` under each of ``cases`` (overrides by
+    label, on top of ``shared``) with random actions, after ``warmup`` steps.
+
+    Each case runs ``copies`` identical envs (same seed, same actions), stepped in turn
+    at every step; the cases alternate in blocks of ``block`` steps, so all see the same
+    machine load. Returns, per case label, the mean over steps of the fastest copy's
+    time (``label``: brief contention from other processes slows one copy, not all)
+    and the mean over every copy (``label + "_all"``); and ``"gather_us_<entries>"`` for
+    each size in ``tables``: the least CPU microseconds of ``numpy.take`` of ``gather_n``
+    float64 values at random indices of a table of that many entries, timed three
+    times after every step (the fastest, cache-warm gather of the run; 0 when
+    ``gather_n`` is 0).
+    """
     rng = np.random.default_rng(0)
-    envs = {}
+    envs: dict[str, list] = {}
     for label, overrides in cases.items():
-        env = coop_loc_env.parallel_env(scenario, max_cycles=10**9, **shared, **overrides)
-        env.reset(seed=0)
-        envs[label] = env
-    arrays = _gather_arrays(rng, gather_n, (TABLE_ENTRIES,))
-    best = [np.inf]
+        envs[label] = []
+        for _ in range(copies):
+            env = coop_loc_env.parallel_env(scenario, max_cycles=10**9, **shared, **overrides)
+            env.reset(seed=0)
+            envs[label].append(env)
+    action_rngs = {label: np.random.default_rng(1) for label in cases}
+    arrays = _gather_arrays(rng, gather_n, tables)
+    best = [np.inf] * len(tables)
+    fastest = dict.fromkeys(cases, 0.0)
     total = dict.fromkeys(cases, 0.0)
 
-    def one(env) -> None:
-        if not env.agents:
-            env.reset()
-        env.step({a: rng.uniform(-1, 1, 2).astype(np.float32) for a in env.agents})
+    def step(label: str, timed: bool) -> None:
+        actions = None
+        times = []
+        for env in envs[label]:
+            if not env.agents:
+                env.reset()
+            if actions is None:
+                draw = action_rngs[label].uniform(-1, 1, (len(env.agents), 2))
+                actions = dict(zip(env.agents, draw.astype(np.float32), strict=True))
+            t = time.process_time()
+            env.step(actions)
+            times.append(time.process_time() - t)
+        if timed:
+            fastest[label] += min(times)
+            total[label] += sum(times) / len(times)
+            if gather_n:
+                _time_gathers(arrays, best)
 
-    for env in envs.values():
+    for label in cases:
         for _ in range(warmup):
-            one(env)
+            step(label, False)
     done = 0
     while done < steps:
         n = min(block, steps - done)
-        for label, env in envs.items():
+        for label in cases:
             for _ in range(n):
-                t = time.process_time()
-                one(env)
-                total[label] += time.process_time() - t
-                if gather_n:
-                    _time_gathers(arrays, best)
+                step(label, True)
         done += n
-    out = {label: total[label] / steps * 1e3 for label in cases}
-    out["gather_us"] = best[0] * 1e6 if gather_n else 0.0
+    out = {}
+    for label in cases:
+        out[label] = fastest[label] / steps * 1e3
+        out[label + "_all"] = total[label] / steps * 1e3
+    for size, b in zip(tables, best, strict=True):
+        out[f"gather_us_{size}"] = b * 1e6 if gather_n else 0.0
     return out
-
-
-def step_ms(scenario: str, steps: int, warmup: int = 10, gather_n: int = 0,
-            tables: tuple[int, ...] = (TABLE_ENTRIES,), **overrides) -> tuple[float, ...]:
-    """Mean CPU milliseconds per env step with random actions (after ``warmup`` steps), then
-    for each size in ``tables`` the least CPU microseconds of ``numpy.take`` of ``gather_n``
-    float64 values at random indices of a table of that many entries (0 when ``gather_n``
-    is 0), timed three times after every step: the fastest, cache-warm gather of the run."""
-    env = coop_loc_env.parallel_env(scenario, max_cycles=10**9, **overrides)
-    env.reset(seed=0)
-    rng = np.random.default_rng(0)
-    arrays = _gather_arrays(rng, gather_n, tables)
-
-    def one() -> None:
-        if not env.agents:
-            env.reset()
-        env.step({a: rng.uniform(-1, 1, 2).astype(np.float32) for a in env.agents})
-
-    for _ in range(warmup):
-        one()
-    total = 0.0
-    best = [np.inf] * len(tables)
-    for _ in range(steps):
-        t = time.process_time()
-        one()
-        total += time.process_time() - t
-        if gather_n:
-            _time_gathers(arrays, best)
-    gathers = [b * 1e6 if gather_n else 0.0 for b in best]
-    return (total / steps * 1e3, *gathers)
 
 
 def bench_mcl_team(steps: int = 60, training: bool = True, timesteps: int = 4096,
@@ -140,26 +139,30 @@ def bench_mcl_team(steps: int = 60, training: bool = True, timesteps: int = 4096
     out: dict[str, float] = {}
     cfg = coop_loc_env.make_config("symmetric_hallway")
     n_values = cfg.n_robots * cfg.n_particles * cfg.sonar_beams
-    hall, gather, gather_big = step_ms("symmetric_hallway", steps, gather_n=n_values,
-                                       tables=(SMALL_TABLE_ENTRIES, TABLE_ENTRIES))
-    out["hallway_step_ms"] = hall
+    hall = timed_steps("symmetric_hallway", {"mcl": {}}, steps, gather_n=n_values,
+                       tables=(SMALL_TABLE_ENTRIES, TABLE_ENTRIES))
+    gather = hall[f"gather_us_{SMALL_TABLE_ENTRIES}"]
+    gather_big = hall[f"gather_us_{TABLE_ENTRIES}"]
+    out["hallway_step_ms"] = hall["mcl"]
     out["hallway_gather_us"] = gather
-    out["hallway_ratio"] = hall * 1e3 / gather
+    out["hallway_ratio"] = hall["mcl"] * 1e3 / gather
+    out["hallway_ratio_all_copies"] = hall["mcl_all"] * 1e3 / gather
     out["hallway_gather_8mib_us"] = gather_big
-    out["hallway_ratio_8mib"] = hall * 1e3 / gather_big
+    out["hallway_ratio_8mib"] = hall["mcl"] * 1e3 / gather_big
     outdoor = {"n_robots": 4, "n_particles": 1000, "laser_beams": 30, "start_region": None,
                "extras": {**coop_loc_env.make_config("outdoor_terrain").extras,
                           "mcl": {"adaptive": False}}}
-    paired = paired_step_ms("outdoor_terrain", {"ekf": {"estimator": "ekf"},
-                                                "mcl": {"estimator": "mcl"}},
-                            2 * steps, gather_n=30_000, **outdoor)
-    ekf, mcl, g30 = paired["ekf"], paired["mcl"], paired["gather_us"]
+    paired = timed_steps("outdoor_terrain", {"ekf": {"estimator": "ekf"},
+                                             "mcl": {"estimator": "mcl"}},
+                         2 * steps, gather_n=30_000, **outdoor)
+    ekf, mcl, g30 = paired["ekf"], paired["mcl"], paired[f"gather_us_{TABLE_ENTRIES}"]
     extra = (mcl - ekf) * 1e3 / 4
     out["outdoor_ekf_step_ms"] = ekf
     out["outdoor_mcl_step_ms"] = mcl
     out["outdoor_mcl_extra_us_per_robot"] = extra
     out["outdoor_gather_30k_us"] = g30
     out["outdoor_ratio"] = extra / g30
+    out["outdoor_ratio_all_copies"] = (paired["mcl_all"] - paired["ekf_all"]) * 1e3 / 4 / g30
     if training:
         out["ppo_hallway_agent_steps_per_s"] = ppo_hallway_steps_per_second(timesteps)
     if memory:
