@@ -60,6 +60,7 @@ outside it, and an 8-bin heading histogram.
 
 from __future__ import annotations
 
+import math
 from collections import OrderedDict
 from dataclasses import replace
 
@@ -238,6 +239,12 @@ class MCLBackend(EstimatorBackend):
         self._sonar = np.array([s.range_sensor == "sonar" for s in specs])
         self._has_gps = np.array([s.has_gps for s in specs])
         self._has_compass = np.array([s.has_compass for s in specs])
+        # the same as Python lists, read robot by robot at every step
+        self._robot_ids = self.robots.tolist()
+        self._has_range_l = self._has_range.tolist()
+        self._has_gps_l = self._has_gps.tolist()
+        self._has_compass_l = self._has_compass.tolist()
+        self._kinds = ["sonar" if s else "laser" for s in self._sonar.tolist()]
         res = map_resolution(cfg)
         self._grids = {
             t: known_map(world, t, res)
@@ -281,7 +288,7 @@ class MCLBackend(EstimatorBackend):
         self.init_factor = global_init_factor(cfg)
         self.filters: list[ParticleFilter] = []
         self._origins = np.zeros((0, 2))  # each filter's state origin (world x, y)
-        self._all_local = np.zeros(0, dtype=int)  # local indices of all robots
+        self._origins_l: list[list[float]] = []
         self.rng = np.random.default_rng(0)
         self.transfers_applied = np.zeros(len(self.robots), dtype=int)
         self._t = 0
@@ -316,7 +323,7 @@ class MCLBackend(EstimatorBackend):
                 pf.init_gaussian(start[i], cov)
             self.filters.append(pf)
         self._origins = np.array([pf.state_origin for pf in self.filters]).reshape(-1, 2)
-        self._all_local = np.arange(k)
+        self._origins_l = self._origins.tolist()
         self.transfer.reset()
         self.transfers_applied[:] = 0
         self._t = 0
@@ -469,69 +476,72 @@ class MCLBackend(EstimatorBackend):
         if not live:
             return 0
         cfg = self.config_fields
-        idx = self._all_local if len(live) == len(self.filters) else np.asarray(live)
-        g = self.robots[idx]
-        scanned = self._has_range[idx] & readings.range_mask[g]
+        robots = self._robot_ids
         team = [self.filters[i] for i in live]
+        range_mask = readings.range_mask.tolist()
+        scans: dict[str, list[int]] = {}  # positions in ``live`` of the robots with scans
+        for k, i in enumerate(live):
+            if self._has_range_l[i] and range_mask[robots[i]]:
+                scans.setdefault(self._kinds[i], []).append(k)
+        n_scans = sum(len(v) for v in scans.values())
         lf_ranges = None  # likelihood-field laser scans (rows of NaN: no scan)
-        if scanned.any():
-            sonar = self._sonar[idx]
-            for t in self._grids:
-                angles = self._angles[t]
-                member = scanned & sonar if t == "sonar" else scanned & ~sonar
-                if not member.any():
+        for t, sel in scans.items():
+            angles = self._angles[t]
+            rows = readings.ranges[[robots[live[k]] for k in sel], : len(angles)]
+            finite = np.isfinite(rows)
+            carry = finite.any(axis=1).tolist()  # a scan without a reading carries nothing
+            if not all(carry):
+                sel = [k for k, c in zip(sel, carry, strict=True) if c]
+                if not sel:
                     continue
-                sel = np.flatnonzero(member)
-                rows = readings.ranges[g[sel], : len(angles)]
-                finite = np.isfinite(rows)
-                carry = finite.any(axis=1)  # a scan without a reading carries nothing
-                if not carry.all():
-                    if not carry.any():
-                        continue
-                    rows, finite, sel = rows[carry], finite[carry], sel[carry]
-                if t == "laser" and not self._laser_beam:
-                    lf_ranges = np.full((len(live), len(angles)), np.nan)
-                    lf_ranges[sel] = np.where(finite, rows, np.inf)
-                    continue
-                filters = [team[k] for k in sel.tolist()]
-                if t == "sonar":
-                    update_beam_batch(filters, rows, angles, cfg["sonar_max_range"], self._cone)
-                else:
-                    update_beam_batch(filters, rows, angles, cfg["laser_max_range"])
-        gps = self._has_gps[idx] & readings.gps_mask[g]
-        compass = self._has_compass[idx] & readings.compass_mask[g]
-        if lf_ranges is not None or gps.any() or compass.any():
+                rows, finite = rows[carry], finite[carry]
+            if t == "laser" and not self._laser_beam:
+                lf_ranges = np.full((len(live), len(angles)), np.nan)
+                lf_ranges[sel] = np.where(finite, rows, np.inf)
+                continue
+            filters = [team[k] for k in sel]
+            if t == "sonar":
+                update_beam_batch(filters, rows, angles, cfg["sonar_max_range"], self._cone)
+            else:
+                update_beam_batch(filters, rows, angles, cfg["laser_max_range"])
+        gps_mask = readings.gps_mask.tolist()
+        compass_mask = readings.compass_mask.tolist()
+        gps = [self._has_gps_l[i] and gps_mask[robots[i]] for i in live]
+        compass = [self._has_compass_l[i] and compass_mask[robots[i]] for i in live]
+        if lf_ranges is not None or any(gps) or any(compass):
             # every live robot in one pass: one without a scan or a fix keeps its weights
-            fixes = self._fix_rows(idx, gps, compass, readings)
+            fixes = self._fix_rows(np.asarray(live), np.array(gps), np.array(compass), readings)
             weigh_batch(team, lf_ranges, None if lf_ranges is None else self._angles["laser"],
                         cfg["laser_max_range"], fixes)
-        return int(scanned.sum())
+        return n_scans
 
     def _fix_rows(self, idx: np.ndarray, gps: np.ndarray, compass: np.ndarray,
                   readings: Readings) -> np.ndarray:
         """:meth:`ParticleFilter.fix_row` of robots ``idx`` (backend indices) for their DGPS
-        fixes (where ``gps``) and compass readings (where ``compass``), vectorized."""
-        g = self.robots[idx]
-        fixes = np.zeros((g.size, 7))
-        if gps.any():
-            xy = readings.gps_xy[g[gps]]
-            var = readings.gps_var[g[gps]]
-            if not (np.all(np.isfinite(xy)) and np.all(np.isfinite(var)) and np.all(var > 0)):
-                raise ValueError(f"DGPS fixes must be finite with a positive variance, got "
-                                 f"{xy}, {var}")
-            fixes[gps, 0] = 1.0
-            fixes[gps, 1:3] = xy - self._origins[idx[gps]]
-            fixes[gps, 3] = -0.5 / var
-        if compass.any():
-            c = readings.compass[g[compass]]
-            std = self.config_fields["compass_std"]
-            if not (np.all(np.isfinite(c)) and std > 0):
-                raise ValueError(f"compass readings must be finite with compass_std > 0, got "
-                                 f"{c}, {std}")
-            fixes[compass, 4] = 1.0
-            fixes[compass, 5] = c
-            fixes[compass, 6] = -0.5 / std**2
-        return fixes
+        fixes (where ``gps``) and compass readings (where ``compass``)."""
+        rows = []
+        std = self.config_fields["compass_std"]
+        for i, has_gps, has_compass in zip(idx.tolist(), gps.tolist(), compass.tolist(),
+                                           strict=True):
+            g = self._robot_ids[i]
+            row = [0.0] * 7
+            if has_gps:
+                x, y = readings.gps_xy[g].tolist()
+                var = float(readings.gps_var[g])
+                if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(var)
+                        and var > 0):
+                    raise ValueError(f"DGPS fixes must be finite with a positive variance, "
+                                     f"got {(x, y)}, {var}")
+                ox, oy = self._origins_l[i]
+                row[:4] = (1.0, x - ox, y - oy, -0.5 / var)
+            if has_compass:
+                c = float(readings.compass[g])
+                if not (math.isfinite(c) and std > 0):
+                    raise ValueError(f"compass readings must be finite with compass_std > 0, "
+                                     f"got {c}, {std}")
+                row[4:] = (1.0, c, -0.5 / std**2)
+            rows.append(row)
+        return np.array(rows).reshape(-1, 7)
 
     def beam_model(self, i: int) -> tuple[RangeTable, BeamLUT, np.ndarray, float]:
         """What a planner needs to predict local robot ``i``'s scans in the known map.
