@@ -346,7 +346,8 @@ class MCLBackend(EstimatorBackend):
         stats = {"range_updates": 0, "detections_applied": 0, "detections_ignored": 0}
         self._t += 1
         self._summary = None
-        live = [i for i, g in enumerate(self.robots) if active[g]]
+        active_l = active.tolist()
+        live = [i for i, g in enumerate(self._robot_ids) if active_l[g]]
         team = [self.filters[i] for i in live]
         # Resample only when the weights degenerate (not on every step, as
         # ParticleFilter.resample_if_needed does while injection is on): every
