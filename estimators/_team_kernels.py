@@ -19,8 +19,8 @@ import numpy as np
 from numba import njit
 
 __all__ = [
-    "build_blocks", "compose_rows", "normals_from_bits", "predict_blocks", "select_blocks",
-    "weigh_blocks", "ziggurat_tables",
+    "build_blocks", "compose_rows", "lf_scan_rows", "normals_from_bits", "predict_blocks",
+    "select_blocks", "weigh_blocks", "ziggurat_tables",
 ]
 
 # fix columns of weigh_blocks: [gps?, gx, gy, -0.5 / var, compass?, heading, -0.5 / std**2]
@@ -88,6 +88,38 @@ def predict_blocks(
             flat[base + n + j] += math.sin(h) * t
             flat[base + 2 * n + j] = h + (rot2 + sd2 * z[base + 2 * n + j])
         start = end
+
+
+@njit(cache=True)
+def lf_scan_rows(
+    ranges: np.ndarray, unit_x: np.ndarray, unit_y: np.ndarray, reach: float, max_range: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover (compiled)
+    """The likelihood-field scans of robots' readings ``ranges (R, B)`` as
+    :func:`weigh_blocks` reads them: endpoints ``ux, uy (R, B)`` float32 in cells in the
+    robot frame (NaN: no endpoint, for readings not below ``max_range``), each
+    ``float32(unit * min(range, reach))`` with ``unit_x, unit_y (B,)`` float32 (as
+    :func:`estimators.likelihood_field.lf_endpoints` rounds them); the beam counts
+    ``nb (R,)`` (-1 for a row of NaN: no scan) and the endpoint counts ``k (R,)``."""
+    nr, nbeams = ranges.shape
+    ux = np.empty((nr, nbeams), dtype=np.float32)
+    uy = np.empty((nr, nbeams), dtype=np.float32)
+    nb = np.empty(nr, dtype=np.intp)
+    k = np.zeros(nr, dtype=np.intp)
+    for r in range(nr):
+        scan = False
+        for b in range(nbeams):
+            z = ranges[r, b]
+            scan = scan or z == z
+            if z < max_range:
+                k[r] += 1
+                zc = min(z, reach)
+                ux[r, b] = np.float32(np.float64(unit_x[b]) * zc)
+                uy[r, b] = np.float32(np.float64(unit_y[b]) * zc)
+            else:
+                ux[r, b] = np.nan
+                uy[r, b] = np.nan
+        nb[r] = k[r] if scan else -1
+    return ux, uy, nb, k
 
 
 @njit(cache=True)
@@ -305,15 +337,16 @@ def select_blocks(
 @njit(cache=True)
 def build_blocks(
     flat: np.ndarray, ends: np.ndarray, mode: np.ndarray, idx: np.ndarray, m: np.ndarray,
-    keep: np.ndarray, inj: np.ndarray, n_inj: np.ndarray, org: np.ndarray,
+    keep: np.ndarray, inj_xy: np.ndarray, inj_h: np.ndarray, n_inj: np.ndarray,
+    org: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover (compiled)
     """The team's state after resampling (block layout) and its segment ends.
 
     Robot ``r`` with ``mode[r]`` 0 keeps its particles; otherwise its new set is
     the first ``keep[r]`` particles of :func:`select_blocks`' indices (at the
-    offsets of ``m``) followed by ``n_inj[r]`` injected world poses, rows of
-    ``inj (K, 3)`` float64 in robot order, moved to state coordinates
-    (``org (R, 2)``) with the headings wrapped to ``[-pi, pi)``.
+    offsets of ``m``) followed by ``n_inj[r]`` injected world poses, in robot order:
+    positions ``inj_xy (K, 2)`` and headings ``inj_h (K,)`` (float64), moved to state
+    coordinates (``org (R, 2)``) with the headings wrapped to ``[-pi, pi)``.
     """
     nr = ends.size
     new_ends = np.empty(nr, dtype=np.intp)
@@ -345,9 +378,9 @@ def build_blocks(
                 out[nbase + nn + j] = flat[base + n + p]
                 out[nbase + 2 * nn + j] = flat[base + 2 * n + p]
             for j in range(keep[r], nn):
-                out[nbase + j] = np.float32(inj[q, 0] - org[r, 0])
-                out[nbase + nn + j] = np.float32(inj[q, 1] - org[r, 1])
-                h = (inj[q, 2] + math.pi) % two_pi - math.pi
+                out[nbase + j] = np.float32(inj_xy[q, 0] - org[r, 0])
+                out[nbase + nn + j] = np.float32(inj_xy[q, 1] - org[r, 1])
+                h = (inj_h[q] + math.pi) % two_pi - math.pi
                 out[nbase + 2 * nn + j] = np.float32(min(h, below_pi))
                 q += 1
         o += m[r]

@@ -20,8 +20,8 @@ from estimators.occupancy import OccupancyGrid
 from estimators.particle_config import MCLConfig
 
 __all__ = [
-    "LF_POWER", "LFField", "beam_matrix", "build_lf_field", "lf_buffers", "lf_endpoints",
-    "lf_loglik",
+    "LF_POWER", "LFField", "beam_matrix", "beam_units", "build_lf_field", "lf_buffers",
+    "lf_endpoints", "lf_loglik",
 ]
 
 _LOG_SQRT_2PI = 0.5 * np.log(2.0 * np.pi)
@@ -98,13 +98,9 @@ def build_lf_field(grid: OccupancyGrid, cfg: MCLConfig, max_range: float) -> LFF
                    np.float32(_MAGIC + pad), lmax, span)
 
 
-def lf_endpoints(lf: LFField, ranges: np.ndarray, angles: np.ndarray
-                 ) -> tuple[np.ndarray, np.ndarray]:
-    """Beam endpoints ``(ux, uy)`` float32 in cells, in the robot frame, of readings
-    ``ranges`` (``(..., B)``, below the maximum range; clipped here to ``lf.reach``; NaN
-    gives NaN) at ``angles (B,)``: the scan as the compiled weighting
-    (:func:`estimators._team_kernels.weigh_blocks`) reads it, rounded as
-    :func:`lf_loglik` rounds it."""
+def beam_units(lf: LFField, angles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Float32 unit vectors of the beam ``angles (B,)`` in cells per metre of ``lf``
+    (cached by angles and resolution)."""
     key = (angles.tobytes(), lf.inv_res)
     unit = _UNITS.get(key)
     if unit is None:
@@ -112,6 +108,17 @@ def lf_endpoints(lf: LFField, ranges: np.ndarray, angles: np.ndarray
             _UNITS.clear()
         unit = _UNITS[key] = (np.cos(angles) * lf.inv_res).astype(np.float32), (
             np.sin(angles) * lf.inv_res).astype(np.float32)
+    return unit
+
+
+def lf_endpoints(lf: LFField, ranges: np.ndarray, angles: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Beam endpoints ``(ux, uy)`` float32 in cells, in the robot frame, of readings
+    ``ranges`` (``(..., B)``, below the maximum range; clipped here to ``lf.reach``; NaN
+    gives NaN) at ``angles (B,)``: the scan as the compiled weighting
+    (:func:`estimators._team_kernels.weigh_blocks`) reads it, rounded as
+    :func:`lf_loglik` rounds it."""
+    unit = beam_units(lf, angles)
     r = np.minimum(ranges, lf.reach)
     ux = np.empty(r.shape, dtype=np.float32)
     uy = np.empty(r.shape, dtype=np.float32)

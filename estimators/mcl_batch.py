@@ -31,9 +31,9 @@ from collections.abc import Sequence
 import numpy as np
 
 from estimators._kernels import summary_features, weighted_distances
-from estimators._team_kernels import FIX_COLUMNS, compose_rows, predict_blocks
+from estimators._team_kernels import FIX_COLUMNS, compose_rows, lf_scan_rows, predict_blocks
 from estimators.beam_table import scan_loglik
-from estimators.likelihood_field import LF_POWER, lf_endpoints
+from estimators.likelihood_field import LF_POWER, beam_units
 from estimators.particle_filter import ParticleFilter
 from estimators.particle_sampling import standard_normals
 from estimators.particle_weighting import weigh_filters
@@ -158,7 +158,6 @@ def weigh_batch(
         raise ValueError(f"ranges must have shape ({nr}, {angles.size}), got {ranges.shape}")
     if (ranges < 0).any():
         raise ValueError(f"ranges must be >= 0, got {ranges}")
-    ok = ranges < max_range  # NaN and inf compare False
     has = (ranges == ranges).any(axis=1)  # a row of NaN is no scan
     lead = None
     for pf, scan in zip(filters, has.tolist(), strict=True):
@@ -173,9 +172,7 @@ def weigh_batch(
     if lead is None:
         return weigh_batch(filters, None, None, None, fixes)
     lf = lead._lf_field(max_range)
-    k = np.count_nonzero(ok, axis=1)
-    nb = np.where(has, k, -1)
-    ux, uy = lf_endpoints(lf, np.where(ok, ranges, np.nan), angles)
+    ux, uy, nb, k = lf_scan_rows(ranges, *beam_units(lf, angles), lf.reach, float(max_range))
     return weigh_filters(filters, flat, ends, w_prev, fixes, nb, np.empty(n), False,
                          k * lf.lmax, k * lead.config.likelihood_exponent,
                          lead.lf_kernel_args(max_range), ux, uy, float(LF_POWER))

@@ -30,7 +30,8 @@ __all__ = [
 _ZIGGURAT = ziggurat_tables()
 _NO_BITS = np.zeros(0, dtype=np.uint64)
 _NO_NEED = np.zeros(1)
-_NO_POSES = np.zeros((0, 3))
+_NO_XY = np.zeros((0, 2))
+_NO_H = np.zeros(0)
 _NO_KLD = np.zeros((1, 8))
 
 
@@ -170,21 +171,24 @@ def resample_filters(filters: Sequence[ParticleFilter], flat: np.ndarray, ends: 
                                 _NO_KLD if kld is None else kld, need_all)
     keep = counts if words else m_a
     n_inj_a = per_robot[:, 2]
-    inj: list[np.ndarray] = []
+    inj_xy: list[np.ndarray] = []
+    inj_h: list[np.ndarray] = []
     for r, pf in enumerate(filters):
         mode, _, k = ints[r]
         if mode == 2 and p_inj[r] > 0:
             n = int(counts[r])
             k = n_inj_a[r] = int(pf.rng.binomial(n, p_inj[r]))
             keep[r] = n - k
-        if k:
-            pose = np.empty((k, 3))
-            pose[:, :2] = pf.grid.sample_free(k, pf.rng)
-            pose[:, 2] = pf.rng.uniform(-np.pi, np.pi, size=k)
-            inj.append(pose)
+        if k:  # uniform over free space (OccupancyGrid.sample_free's draws), any heading
+            inj_xy.append(pf.grid.sample_free(k, pf.rng))
+            inj_h.append(pf.rng.uniform(-np.pi, np.pi, size=k))
     org = np.array([pf._org_xy for pf in filters]).reshape(-1, 2)
-    inj_all = np.concatenate(inj) if len(inj) > 1 else (inj[0] if inj else _NO_POSES)
-    new, new_ends = build_blocks(flat, ends, mode_a, idx, m_a, keep, inj_all, n_inj_a, org)
+    if len(inj_xy) > 1:
+        xy_all, h_all = np.concatenate(inj_xy), np.concatenate(inj_h)
+    else:
+        xy_all, h_all = (inj_xy[0], inj_h[0]) if inj_xy else (_NO_XY, _NO_H)
+    new, new_ends = build_blocks(flat, ends, mode_a, idx, m_a, keep, xy_all, h_all, n_inj_a,
+                                 org)
     start = 0
     for pf, end, (mode, _, _) in zip(filters, new_ends.tolist(), ints, strict=True):
         pf._state = new[3 * start:3 * end].reshape(3, end - start)

@@ -9,8 +9,9 @@ import math
 import numpy as np
 import pytest
 
+from estimators._team_kernels import lf_scan_rows
 from estimators.geometry import wrap_angle
-from estimators.likelihood_field import LF_POWER, lf_endpoints, lf_loglik
+from estimators.likelihood_field import LF_POWER, beam_units, lf_endpoints, lf_loglik
 from estimators.mcl_batch import predict_batch, team_state, team_weights, weigh_batch
 from estimators.occupancy import OccupancyGrid
 from estimators.particle_filter import MCLConfig, ParticleFilter
@@ -66,6 +67,23 @@ def test_compiled_field_scores_repeat_the_numpy_lookups():
     w = w_prev * np.exp(ref - ref.max())
     np.testing.assert_allclose(pf.weights, w / w.sum(), rtol=1e-12, atol=1e-300)
     assert math.isclose(ev[0], ref.max() + np.log(w.sum()), rel_tol=1e-12)
+
+
+def test_compiled_scan_rows_round_as_the_numpy_endpoints():
+    pf = ParticleFilter(field_map(), np.random.default_rng(0), MCLConfig(n_particles=10))
+    lf = pf._lf_field(8.0)
+    rng = np.random.default_rng(2)
+    ranges = rng.uniform(0.0, 30.0, (4, BEAMS.size))  # some beyond the field's reach
+    ranges[1, :5] = np.inf
+    ranges[2] = np.nan  # no scan
+    ranges[3, 3] = 8.0  # at the maximum range: no endpoint
+    ux, uy, nb, k = lf_scan_rows(ranges, *beam_units(lf, BEAMS), lf.reach, 8.0)
+    ok = ranges < 8.0
+    ref_x, ref_y = lf_endpoints(lf, np.where(ok, ranges, np.nan), BEAMS)
+    np.testing.assert_array_equal(ux, ref_x)  # NaN where no endpoint, bit for bit elsewhere
+    np.testing.assert_array_equal(uy, ref_y)
+    np.testing.assert_array_equal(k, ok.sum(axis=1))
+    np.testing.assert_array_equal(nb, [k[0], k[1], -1, k[3]])
 
 
 def test_team_step_equals_robot_by_robot_steps():
