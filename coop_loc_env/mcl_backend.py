@@ -511,7 +511,7 @@ class MCLBackend(EstimatorBackend):
         compass = [self._has_compass_l[i] and compass_mask[robots[i]] for i in live]
         if lf_ranges is not None or any(gps) or any(compass):
             # every live robot in one pass: one without a scan or a fix keeps its weights
-            fixes = self._fix_rows(np.asarray(live), np.array(gps), np.array(compass), readings)
+            fixes = self._fixes(live, gps, compass, readings)
             weigh_batch(team, lf_ranges, None if lf_ranges is None else self._angles["laser"],
                         cfg["laser_max_range"], fixes)
         return n_scans
@@ -520,15 +520,21 @@ class MCLBackend(EstimatorBackend):
                   readings: Readings) -> np.ndarray:
         """:meth:`ParticleFilter.fix_row` of robots ``idx`` (backend indices) for their DGPS
         fixes (where ``gps``) and compass readings (where ``compass``)."""
+        return self._fixes(idx.tolist(), gps.tolist(), compass.tolist(), readings)
+
+    def _fixes(self, idx: list[int], gps: list[bool], compass: list[bool],
+               readings: Readings) -> np.ndarray:
+        """:meth:`_fix_rows` from Python lists."""
         rows = []
         std = self.config_fields["compass_std"]
-        for i, has_gps, has_compass in zip(idx.tolist(), gps.tolist(), compass.tolist(),
-                                           strict=True):
+        gps_xy = readings.gps_xy.tolist()
+        gps_var = readings.gps_var.tolist()
+        heading = readings.compass.tolist()
+        for i, has_gps, has_compass in zip(idx, gps, compass, strict=True):
             g = self._robot_ids[i]
             row = [0.0] * 7
             if has_gps:
-                x, y = readings.gps_xy[g].tolist()
-                var = float(readings.gps_var[g])
+                (x, y), var = gps_xy[g], gps_var[g]
                 if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(var)
                         and var > 0):
                     raise ValueError(f"DGPS fixes must be finite with a positive variance, "
@@ -536,7 +542,7 @@ class MCLBackend(EstimatorBackend):
                 ox, oy = self._origins_l[i]
                 row[:4] = (1.0, x - ox, y - oy, -0.5 / var)
             if has_compass:
-                c = float(readings.compass[g])
+                c = heading[g]
                 if not (math.isfinite(c) and std > 0):
                     raise ValueError(f"compass readings must be finite with compass_std > 0, "
                                      f"got {c}, {std}")
