@@ -153,9 +153,7 @@ def resample_filters(filters: Sequence[ParticleFilter], flat: np.ndarray, ends: 
             k = int(rng.binomial(n, p)) if p > 0 else 0
             u[r] = rng.random()
             ints[r] = (1, n - k, k)
-    per_robot = np.array(ints, dtype=np.intp).reshape(nr, 3)
-    mode_a = per_robot[:, 0]
-    m_a = per_robot[:, 1]
+    mode_a, m_a, n_inj_a = np.array(ints, dtype=np.intp).reshape(nr, 3).T.copy()
     if words:  # KLD robots' shuffle words at their offsets
         offsets = np.cumsum(m_a) - m_a
         bits = np.zeros(int(m_a.sum()), dtype=np.uint64)
@@ -170,7 +168,6 @@ def resample_filters(filters: Sequence[ParticleFilter], flat: np.ndarray, ends: 
     idx, counts = select_blocks(flat, w, ends, mode_a, np.array(u), m_a, bits,
                                 _NO_KLD if kld is None else kld, need_all)
     keep = counts if words else m_a
-    n_inj_a = per_robot[:, 2]
     inj_xy: list[np.ndarray] = []
     inj_h: list[np.ndarray] = []
     for r, pf in enumerate(filters):
