@@ -21,17 +21,24 @@ import pytest  # noqa: E402
 SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
 
 
+def _load_script(name: str):
+    """The module of ``scripts/<name>.py``, freshly loaded."""
+    spec = importlib.util.spec_from_file_location(name, SCRIPTS / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture
+def script_module():
+    """Load ``scripts/<name>.py`` and return the module."""
+    return _load_script
+
+
 @pytest.fixture
 def script_main():
     """Load ``scripts/<name>.py`` and return its ``main`` function."""
-
-    def load(name: str):
-        spec = importlib.util.spec_from_file_location(name, SCRIPTS / f"{name}.py")
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-        return module.main
-
-    return load
+    return lambda name: _load_script(name).main
 
 
 # Tests that take more than ~3 s each (``pytest --durations=0`` on the 2-core development

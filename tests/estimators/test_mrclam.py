@@ -355,12 +355,8 @@ def test_noise_parameter_file_validation(tmp_path: Path) -> None:
         load_noise_parameters(tmp_path / "none.json")
 
 
-def test_cli_writes_the_documented_json(tmp_path: Path) -> None:
-    sys.path.insert(0, str(ROOT / "scripts"))
-    try:
-        import replay_logs
-    finally:
-        sys.path.pop(0)
+def test_cli_writes_the_documented_json(tmp_path: Path, script_module) -> None:
+    replay_logs = script_module("replay_logs")
     out = tmp_path / "m.json"
     png = tmp_path / "m.png"
     rc = replay_logs.main(
@@ -393,12 +389,8 @@ def test_cli_writes_the_documented_json(tmp_path: Path) -> None:
     assert {"final_position_error_m", "nees_95_fraction"} <= set(m["per_robot"][0])
 
 
-def test_cli_fit_writes_a_parameter_file_the_replay_reads(tmp_path: Path) -> None:
-    sys.path.insert(0, str(ROOT / "scripts"))
-    try:
-        import replay_logs
-    finally:
-        sys.path.pop(0)
+def test_cli_fit_writes_a_parameter_file_the_replay_reads(tmp_path: Path, script_module) -> None:
+    replay_logs = script_module("replay_logs")
     pfile = tmp_path / "fit.json"
     args = [str(EXCERPT), "--fit", "--fit-start", "0", "--fit-end", "60", "--no-tune"]
     assert replay_logs.main(args + ["--params", str(pfile)]) == 0
