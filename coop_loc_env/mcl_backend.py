@@ -516,15 +516,10 @@ class MCLBackend(EstimatorBackend):
                         cfg["laser_max_range"], fixes)
         return n_scans
 
-    def _fix_rows(self, idx: np.ndarray, gps: np.ndarray, compass: np.ndarray,
-                  readings: Readings) -> np.ndarray:
-        """:meth:`ParticleFilter.fix_row` of robots ``idx`` (backend indices) for their DGPS
-        fixes (where ``gps``) and compass readings (where ``compass``)."""
-        return self._fixes(idx.tolist(), gps.tolist(), compass.tolist(), readings)
-
     def _fixes(self, idx: list[int], gps: list[bool], compass: list[bool],
                readings: Readings) -> np.ndarray:
-        """:meth:`_fix_rows` from Python lists."""
+        """:meth:`ParticleFilter.fix_row` of robots ``idx`` (backend indices) for their DGPS
+        fixes (where ``gps``) and compass readings (where ``compass``)."""
         rows = []
         std = self.config_fields["compass_std"]
         gps_xy = readings.gps_xy.tolist()

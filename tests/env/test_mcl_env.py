@@ -103,7 +103,7 @@ def test_tracking_stays_close_outdoors():
 
 
 def test_backend_fix_rows_match_each_filter():
-    """The backend's vectorized DGPS / compass rows equal each filter's own."""
+    """The backend's DGPS / compass rows equal each filter's own."""
     env = coop_loc_env.parallel_env("outdoor_terrain", estimator="mcl", n_particles=50,
                                     n_robots=3)
     env.reset(seed=2)
@@ -114,10 +114,9 @@ def test_backend_fix_rows_match_each_filter():
     readings = dataclasses.replace(
         readings, gps_xy=np.array([[3.0, 4.0], [0.0, 0.0], [20.0, 30.0]]),
         gps_var=np.array([0.5, 1.0, 2.0]), compass=np.array([0.1, -3.0, 0.0]))
-    idx = np.arange(3)
-    gps = np.array([True, False, True])
-    compass = np.array([True, True, False])
-    rows = backend._fix_rows(idx, gps, compass, readings)
+    gps = [True, False, True]
+    compass = [True, True, False]
+    rows = backend._fixes([0, 1, 2], gps, compass, readings)
     std = env.unwrapped.config.compass_std
     for i, pf in enumerate(backend.filters):
         expected = pf.fix_row(readings.gps_xy[i] if gps[i] else None,
