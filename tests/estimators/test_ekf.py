@@ -359,7 +359,15 @@ def test_relative_update_with_partial_dims_and_rounds(fusion):
     ok = ekf.update_relative(ia, ib, z, r, dims=(0, 1), fusion=fusion, max_rounds=1)
     assert ok.tolist() == [True, True, True, False, False]  # 0 and 1 are in round 1 already
     traces = np.trace(ekf.cov, axis1=1, axis2=2)
-    assert np.all(traces <= np.trace(before, axis1=1, axis2=2) + 1e-12) or fusion == "naive"
+    shrink = np.trace(before, axis1=1, axis2=2) - traces
+    assert np.all(shrink >= -1e-12)  # no robot's uncertainty grows, with either fusion
+    assert np.all(shrink[[0, 2, 4]] > 0.5)  # the uncertain observed robots (cov x 10) gain
+    np.testing.assert_array_equal(ekf.cov[[6, 7]], before[[6, 7]])  # pairs left to round 2
+    if fusion == "naive":  # a Kalman update as if independent: P shrinks in every direction
+        assert np.linalg.eigvalsh(before - ekf.cov).min() > -1e-12
+        assert np.all(shrink[[1, 3, 5]] > 0)
+    else:  # covariance intersection keeps the confident robot's prior
+        np.testing.assert_array_equal(ekf.cov[[1, 3, 5]], before[[1, 3, 5]])
     np.testing.assert_array_equal(ekf.cov, ekf.cov.transpose(0, 2, 1))
     assert np.all(np.abs(ekf.mean[:, 2]) <= np.pi)
 
@@ -376,10 +384,13 @@ def test_cofactors_give_the_inverse_and_determinant():
 
 
 @pytest.mark.parametrize("scale", [1.0, 2.5])
-def test_backend_prediction_equals_public_predict_sequence_with_textbook_variances(scale):
-    """EKFBackend's prediction (stacked odometry variances through the private core) gives
-    what predict_sequence gives with var = scale * (encoder var + (slip_std * odometry)^2)."""
-    from coop_loc_env.estimation import _odometry_variance, _team_odometry
+def test_backend_step_predicts_with_textbook_variances(scale):
+    """EKFBackend.step on a step without fixes, headings or detections is the public
+    predict_sequence with var = scale * (encoder var + (slip_std * odometry)^2)."""
+    import copy
+    import dataclasses
+
+    from coop_loc_env.sensors import Detections
 
     env = coop_loc_env.parallel_env("outdoor_terrain", n_robots=4, start_region=None,
                                     ekf_process_noise_scale=scale)
@@ -389,17 +400,25 @@ def test_backend_prediction_equals_public_predict_sequence_with_textbook_varianc
     rng = np.random.default_rng(3)
     for _ in range(5):
         env.step({a: rng.uniform(-1, 1, 2) for a in env.agents})
-    readings = env.unwrapped._last_readings
-    mine, ref = (PoseEKF(backend.ekf.mean, backend.ekf.cov) for _ in range(2))
-    # The prediction lines of EKFBackend.step.
-    odo, dt_sub = _team_odometry(cfg, readings, backend.robots, np.ones(4, bool), True)
-    var = _odometry_variance(odo, cfg.slip_std, backend._encoder_var, scale)
-    mine._predict_sequence(odo[..., 0], odo[..., 1], dt_sub, var)
+    before = copy.deepcopy(backend)
+    env.step({a: rng.uniform(-1, 1, 2) for a in env.agents})
+    readings, active = env.unwrapped.last_readings, np.ones(4, bool)
+    replay = copy.deepcopy(before)
+    replay.step(readings, active)  # the env's own call, replayed on a copy
+    assert np.array_equal(replay.ekf.mean, backend.ekf.mean)
+    assert np.array_equal(replay.ekf.cov, backend.ekf.cov)
+    none = np.zeros(4, bool)
+    quiet = dataclasses.replace(readings, gps_mask=none, compass_mask=none,
+                                detections=Detections(), bumper=none)
+    mine = copy.deepcopy(before)
+    mine.step(quiet, active)
+    ref = copy.deepcopy(before.ekf)  # the same filter state, predicted by the public call
     odo = readings.odometry
     var_v = scale * (cfg.odom_v_std**2 + (cfg.slip_std * odo[..., 0]) ** 2)
     var_w = scale * (cfg.odom_w_std**2 + (cfg.slip_std * odo[..., 1]) ** 2)
     ref.predict_sequence(odo[..., 0], odo[..., 1], cfg.dt / cfg.odometry_substeps, var_v, var_w)
-    assert np.array_equal(mine.mean, ref.mean) and np.array_equal(mine.cov, ref.cov)
+    assert np.array_equal(mine.ekf.mean, ref.mean) and np.array_equal(mine.ekf.cov, ref.cov)
+    assert not np.array_equal(ref.cov, before.ekf.cov)  # the step did predict
 
 
 def test_predict_with_idx_and_scalar_variances_matches_a_one_step_sequence():
