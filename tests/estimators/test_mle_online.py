@@ -170,41 +170,59 @@ def test_observation_rate_limit_and_keyframes():
 
 
 @pytest.mark.parametrize(
-    "call",
+    ("call", "match"),
     [
-        lambda e: e.add_odometry(3, 0.1, 0.0, 0.1),
-        lambda e: e.add_odometry(0, np.nan, 0.0, 0.1),
-        lambda e: e.add_odometry(0, 0.1, 0.0, -0.1),
-        lambda e: e.add_observation(0, 0, [1.0, 0.0, 0.0], [0.1, 0.1, 0.1]),
-        lambda e: e.add_observation(0, 1, [1.0, 0.0], [0.1, 0.1, 0.1]),
-        lambda e: e.add_observation(0, 1, [1.0, 0.0], [0.1, 0.1], components="rz"),
-        lambda e: e.add_observation(0, 1, [1.0, 0.0], [0.1, -0.1], components="rb"),
-        lambda e: e.solve_batch(),
-        lambda e: e.add_observation(0, 1, [1.0], std=[0.1], cov=[[0.01]], components="r"),
-        lambda e: e.add_observation(0, 1, [1.0, 0.0], cov=[[0.01, 0.0], [0.0, -1.0]],
-                                    components="rb"),
+        (lambda e: e.add_odometry(3, 0.1, 0.0, 0.1),
+         r'robot index in \[0, 2\), got 3'),
+        (lambda e: e.add_odometry(0, np.nan, 0.0, 0.1),
+         r'got \(nan, 0.0, 0.1\)'),
+        (lambda e: e.add_odometry(0, 0.1, 0.0, -0.1),
+         r'dt >= 0, got \(0.1, 0.0, -0.1\)'),
+        (lambda e: e.add_observation(0, 0, [1.0, 0.0, 0.0], [0.1, 0.1, 0.1]),
+         'observer = target = 0'),
+        (lambda e: e.add_observation(0, 1, [1.0, 0.0], [0.1, 0.1, 0.1]),
+         r'3 finite numbers, got \[1.0, 0.0\]'),
+        (lambda e: e.add_observation(0, 1, [1.0, 0.0], [0.1, 0.1], components="rz"),
+         "subset of 'rbo', got 'rz'"),
+        (lambda e: e.add_observation(0, 1, [1.0, 0.0], [0.1, -0.1], components="rb"),
+         r'2 positive numbers, got \[0.1, -0.1\]'),
+        (lambda e: e.solve_batch(),
+         'keep_history=True'),
+        (lambda e: e.add_observation(0, 1, [1.0], std=[0.1], cov=[[0.01]], components="r"),
+         'exactly one of std and cov'),
+        (lambda e: e.add_observation(0, 1, [1.0, 0.0], cov=[[0.01, 0.0], [0.0, -1.0]],
+                                     components="rb"),
+         r'(?s)positive definite.*-1\.'),
     ],
 )
-def test_bad_input_raises_value_error(call):
-    with pytest.raises(ValueError):
+def test_bad_input_raises_value_error(call, match):
+    with pytest.raises(ValueError, match=match):
         call(TeamMLE(2))
 
 
 @pytest.mark.parametrize(
-    "kwargs",
+    ("kwargs", "match"),
     [
-        {"n_robots": 0},
-        {"n_robots": 2, "anchor": 5},
-        {"n_robots": 2, "window": 0},
-        {"n_robots": 2, "initial_poses": np.zeros((3, 3))},
-        {"n_robots": 2, "initial_std": [0.1, 0.0, 0.1]},
-        {"n_robots": 2, "odometry_std": (0.1, -1.0)},
-        {"n_robots": 2, "motion_window": 0.0},
-        {"n_robots": 2, "gate_prob": 1.5},
+        ({"n_robots": 0},
+         'n_robots must be >= 1, got 0'),
+        ({"n_robots": 2, "anchor": 5},
+         r'anchor must be a robot index in \[0, 2\), got 5'),
+        ({"n_robots": 2, "window": 0},
+         'window must be >= 1 or None, got 0'),
+        ({"n_robots": 2, "initial_poses": np.zeros((3, 3))},
+         r'initial_poses must be finite with shape \(2, 3\)'),
+        ({"n_robots": 2, "initial_std": [0.1, 0.0, 0.1]},
+         'initial_std row 1 mixes zero and non-zero'),
+        ({"n_robots": 2, "odometry_std": (0.1, -1.0)},
+         r'odometry_std .*got \(0.1, -1.0\)'),
+        ({"n_robots": 2, "motion_window": 0.0},
+         'motion_window must be > 0, got 0.0'),
+        ({"n_robots": 2, "gate_prob": 1.5},
+         r'gate_prob must be in \(0, 1\) or None, got 1.5'),
     ],
 )
-def test_bad_config_raises_value_error(kwargs):
-    with pytest.raises(ValueError):
+def test_bad_config_raises_value_error(kwargs, match):
+    with pytest.raises(ValueError, match=match):
         TeamMLE(**kwargs)
 
 
