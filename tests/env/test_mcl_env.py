@@ -90,16 +90,25 @@ def test_mcl_observation_layout_and_infos():
 
 
 def test_tracking_stays_close_outdoors():
-    """Position tracking with DGPS, compass and laser: errors stay well below a metre."""
-    env = coop_loc_env.parallel_env(
-        "outdoor_terrain", estimator="mcl", n_particles=300, max_cycles=60, n_robots=2
-    )
-    env.reset(seed=1)
-    while env.agents:
-        _, _, _, _, infos = env.step({a: np.array([0.6, 0.2]) for a in env.agents})
-    for info in infos.values():
-        assert info["position_error"] < 0.8
-        assert info["particle_spread"] < 1.2
+    """Position tracking with DGPS, compass and laser: errors of a few decimetres.
+
+    Bands from the final errors of 2 robots x 16 seeds (0-15) of this run: per robot mean
+    0.223 m, sd 0.072, max 0.458 (spread: the same to 0.003 m); means over the four
+    4-seed groups 0.180-0.265 m (sd 0.035). Mean band 0.37 m = 0.265 + 3 x 0.035; per-robot
+    band 0.67 m = 0.458 + 3 x 0.072.
+    """
+    errors, spreads = [], []
+    for seed in range(4):
+        env = coop_loc_env.parallel_env(
+            "outdoor_terrain", estimator="mcl", n_particles=300, max_cycles=60, n_robots=2
+        )
+        env.reset(seed=seed)
+        while env.agents:
+            _, _, _, _, infos = env.step({a: np.array([0.6, 0.2]) for a in env.agents})
+        errors += [info["position_error"] for info in infos.values()]
+        spreads += [info["particle_spread"] for info in infos.values()]
+    assert np.mean(errors) < 0.37 and max(errors) < 0.67
+    assert np.mean(spreads) < 0.37 and max(spreads) < 0.67
 
 
 def test_backend_fix_rows_match_each_filter():
