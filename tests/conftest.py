@@ -72,6 +72,7 @@ SLOW_TESTS = frozenset({
     "test_evaluate.py::test_render_episode_saves_gif",
     "test_evaluate.py::test_saved_sb3_model_is_a_policy",
     "test_examples.py::test_train_example",
+    "test_fox.py::test_detections_shorten_the_time_to_localize_in_the_hallway",
     "test_fox.py::test_reproduce_fox_script_writes_json",
     "test_fox.py::test_wander_reads_each_robots_own_scan",
     "test_fsm.py::test_fsm_long_run_visits_every_state_safely",
