@@ -282,3 +282,63 @@ def test_reset_loads_the_detection_kernels():
                          env={**os.environ, "PYTHONPATH": str(root)})
     counts = [int(v) for v in out.stdout.split()]
     assert len(counts) == 2 and min(counts) >= 1, out.stdout
+
+
+# A 10 m x 6 m room with boxes placed without symmetry (the room of
+# tests/estimators/test_particle_filter.py), for a laser-only robot.
+ROOM_BOXES = [(2.0, 2.0, 3.0, 2.6), (6.5, 3.2, 7.0, 4.2), (4.5, 0.0, 4.8, 1.2),
+              (8.0, 1.0, 9.0, 1.5), (3.5, 5.4, 4.5, 6.0), (5.8, 2.8, 6.1, 3.1),
+              (9.5, 5.5, 10.0, 6.0)]
+
+
+def _kidnap_recovered(seed: int, **overrides) -> bool:
+    """Track for 40 steps, move the robot's body to the free spot farthest away (odometry
+    does not notice), drive on for 100 steps: is the particle spread below 0.5 m over the
+    last 10?"""
+    from policies.fox import WanderPolicy
+
+    room = tuple(coop_loc_env.Obstacle("rock", "polygon",
+                                       vertices=((x0, y0), (x1, y0), (x1, y1), (x0, y1)))
+                 for x0, y0, x1, y1 in ROOM_BOXES)
+    env = coop_loc_env.parallel_env(
+        "outdoor_terrain", world_size=(10.0, 6.0), obstacles=room, n_random_trees=0,
+        n_random_rocks=0, n_random_ooi=0, steep_patches=0, terrain_amplitude=0.0,
+        estimator="mcl", n_robots=1, n_particles=1000, max_cycles=400,
+        team=(RobotSpec(has_gps=False, has_compass=False, has_camera=False,
+                        has_detector=False),),
+        laser_beams=30, laser_fov_deg=360.0, laser_max_range=8.0, robot_radius=0.2,
+        start_region=(0.5, 0.5, 9.5, 5.5), **overrides,
+    )
+    obs, _ = env.reset(seed=seed)
+    policy = WanderPolicy()
+    policy.reset(env, seed=seed)
+    xs, ys = np.meshgrid(np.arange(0.75, 9.3, 0.5), np.arange(0.75, 5.3, 0.5))
+    spots = np.stack([xs.ravel(), ys.ravel()], axis=1)
+    spots = spots[env.world.layout.clearance(spots) > 0.6]  # free floor, away from boxes
+    spread = []
+    for t in range(140):
+        if t == 40:
+            assert spread[-1] < 0.3  # tracking before the kidnap
+            there = spots[np.argmax(np.hypot(*(spots - env.world.poses[0, :2]).T))]
+            assert np.hypot(*(env.estimated_poses[0, :2] - there)) > 4.0  # far from the belief
+            env.world.bodies[0].position = (float(there[0]), float(there[1]))
+        obs, _, _, _, infos = env.step(policy.act(obs))
+        spread.append(infos["robot_0"]["particle_spread"])
+        if t == 40:
+            assert np.hypot(*(env.world.poses[0, :2] - there)) < 0.5  # the robot was moved
+    return max(spread[-10:]) < 0.5
+
+
+def test_kidnapped_robot_is_recovered_on_the_envs_resampling_schedule():
+    """The env's MCL (resampling only when the ESS falls, injecting random particles
+    there) finds a kidnapped robot again; without injection it does not.
+
+    Measured over seeds 0-39: 35 of 40 recover with the env's injection, 0 of 40
+    without. Bands on seeds 0-9 (9 of 10 today): at least 7 (P(X <= 6) ~ 3 % at a
+    rate of 0.875); without injection at most 1.
+    """
+    recovered = [_kidnap_recovered(seed) for seed in range(10)]
+    assert sum(recovered) >= 7, recovered
+    no_injection = {"extras": {"mcl": {"random_fraction": 0.0, "augmented": False}}}
+    recovered = [_kidnap_recovered(seed, **no_injection) for seed in range(10)]
+    assert sum(recovered) <= 1, recovered
