@@ -7,6 +7,7 @@ and save a rendered frame.
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -36,7 +37,8 @@ def run(scenario: str, steps: int, seed: int, frame: Path | None) -> dict[str, f
     return {a: float(np.mean(e)) for a, e in errors.items()}
 
 
-def main(argv: list[str] | None = None) -> None:
+def main(argv: list[str] | None = None) -> int:
+    """Run the episode and print the errors; returns the exit status."""
     parser = argparse.ArgumentParser(description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--scenario", default="outdoor_terrain",
@@ -45,12 +47,17 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--frame", type=Path, default=Path("outputs/frame.png"))
     args = parser.parse_args(argv)
-    errors = run(args.scenario, args.steps, args.seed, args.frame)
+    try:
+        errors = run(args.scenario, args.steps, args.seed, args.frame)
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
     print(f"{args.scenario}: {args.steps} steps, seed {args.seed}")
     for agent, err in errors.items():
         print(f"  {agent}: mean position error {err:.3f} m")
     print(f"frame saved to {args.frame}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())
