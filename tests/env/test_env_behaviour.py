@@ -135,6 +135,9 @@ def test_info_keys_and_reward_terms():
 
 
 def test_observations_never_contain_truth_unless_privileged():
+    """The observation's layout names no true quantity, and the privileged one appends the
+    true pose (that observations do not depend on the truth is checked by moving it, in
+    test_truth_leaks.py)."""
     env = coop_loc_env.parallel_env(max_cycles=5)
     obs, _ = env.reset(seed=0)
     names = env.observations.names
