@@ -44,12 +44,16 @@ def test_belief_honesty_probes_on_a_few_steps(belief_honesty, monkeypatch, tmp_p
         name, _, figures = line.partition(" ")
         assert json.loads(figures) == data[name]
     forward, wall = data["forward"], data["wall"]
-    # 100 steps x 4 robots, seed 0: 0 % above the bound, median 0.21 m, max 1.18 m
-    assert forward["samples"] == 400 and forward["nees_above_bound"] <= 0.02
-    assert 0.1 < forward["median_error_m"] < 0.4 and forward["max_error_m"] < 2.5
-    assert data["half_gps"]["max_error_rise_m"] < 0.38  # 0.05 m on these 2 x 50 steps
+    # Bands: max + 3 sd of each figure over seeds 0-15 of the same short forward run
+    # (share above the bound 0-0.05, sd 0.012; median 0.10-0.29 m, sd 0.048; max
+    # 0.67-1.49 m, sd 0.23), over the 8 seed pairs (0, 1) .. (14, 15) of the short
+    # half-GPS run (0.016-0.393 m, sd 0.16), and the wall run's seeds 0-7 (below the
+    # bound at every blocked step, below 0.5 m 0.1 s after leaving, in all 8).
+    assert forward["samples"] == 400 and forward["nees_above_bound"] <= 0.09
+    assert forward["median_error_m"] < 0.43 and forward["max_error_m"] < 2.2
+    assert data["half_gps"]["max_error_rise_m"] < 0.87
     assert wall["blocked_steps"] > 50 and wall["blocked_nees_below_bound"] == 1.0
-    assert wall["seconds_to_below_0.5m_after_leaving"] is not None
+    assert wall["seconds_to_below_0.5m_after_leaving"] <= 1.0
 
 
 def test_belief_honesty_figures_quoted_in_the_readme(belief_honesty, tmp_path):
