@@ -261,9 +261,9 @@ def test_detections_shorten_the_time_to_localize_in_the_hallway():
     """Fox's headline as a direction with a margin, on 150 s episodes of 8 seeds.
 
     Reductions measured on three disjoint 8-seed sets (0-7, 8-15, 16-23; 300
-    particles, 150 s): 42.4, 46.0 and 51.7 %, from 4-seed sets 18-68 %; band 20 %
-    (the lowest 8-seed figure less 4 sd of the three). Robots never localized, with
-    detections vs without: 8 vs 22, 9 vs 24, 5 vs 29.
+    particles, 150 s): 42.4, 46.1 and 51.7 %, from 4-seed sets 18-68 %; band 20 %,
+    below the lowest 8-seed figure less 4 sd of the three (23.6 %). Robots never
+    localized, with detections vs without: 8 vs 22, 9 vs 24, 5 vs 29.
     """
     res = run_hallway_experiment(range(8), duration_s=150.0, progress=False, n_particles=300)
     alone, coop = res["without_detections"], res["with_detections"]
