@@ -33,8 +33,13 @@ def _small(scenario: str) -> dict:
     return dict(SMALL)
 
 
-def _perturb_after_sensing(env, rng: np.random.Generator, shift: float = 3.0) -> None:
-    """Move ``env``'s true poses after each step's sensing (camera frame queued)."""
+def _perturb_after_sensing(env, rng: np.random.Generator, shift: float = 3.0) -> list[str]:
+    """Move ``env``'s true poses after each step's sensing (camera frame queued).
+
+    Returns the list the env's calls are logged to (``moved``, then ``estimate`` per
+    backend and ``map``), so a caller can check the poses moved before they were used.
+    """
+    calls: list[str] = []
     add_step = env.camera.add_step
 
     def add_then_move(poses, mask):
@@ -42,8 +47,20 @@ def _perturb_after_sensing(env, rng: np.random.Generator, shift: float = 3.0) ->
         n = len(env.world.poses)
         env.world.poses[:, :2] += rng.uniform(-shift, shift, size=(n, 2))
         env.world.poses[:, 2] += rng.uniform(-1.0, 1.0, size=n)
+        calls.append("moved")
+
+    def logged(name, method):
+        def call(*args, **kwargs):
+            calls.append(name)
+            return method(*args, **kwargs)
+
+        return call
 
     env.camera.add_step = add_then_move
+    for backend in env.backends:
+        backend.step = logged("estimate", backend.step)
+    env.mapper.step = logged("map", env.mapper.step)
+    return calls
 
 
 def _observations_differ(scenario: str, seed: int = 0, cheat=None, **overrides) -> list[int]:
@@ -53,7 +70,7 @@ def _observations_differ(scenario: str, seed: int = 0, cheat=None, **overrides) 
     moved = coop_loc_env.parallel_env(scenario, **kwargs)
     obs_a, _ = honest.reset(seed=seed)
     obs_b, _ = moved.reset(seed=seed)
-    _perturb_after_sensing(moved, np.random.default_rng(seed + 100))
+    calls = _perturb_after_sensing(moved, np.random.default_rng(seed + 100))
     if cheat is not None:
         cheat(moved)
     actions_rng = np.random.default_rng(seed)
@@ -63,6 +80,9 @@ def _observations_differ(scenario: str, seed: int = 0, cheat=None, **overrides) 
         actions = {a: draw[i].astype(np.float32) for i, a in enumerate(honest.agents)}
         obs_a, *_ = honest.step(actions)
         obs_b, *_ = moved.step(actions)
+        # the truth moved before the estimators and the map used anything of this step
+        assert calls == ["moved"] + ["estimate"] * len(moved.backends) + ["map"], calls
+        calls.clear()
         # the physics, hence the next step's sensing, is the same in both copies
         np.testing.assert_array_equal(honest.world.poses[:, :2], _true_poses(moved)[:, :2])
         assert obs_a.keys() == obs_b.keys()
