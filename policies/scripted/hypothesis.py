@@ -73,6 +73,7 @@ class _Robot:
         self.clear()
         self.visited_mates: list[tuple[int, np.ndarray]] = []  # (step, xy) met without luck
         self.trusted: bool | None = None  # confident on its own readings (None: not confident)
+        self.verify_failed = False  # its scan at a distinctive place did not match
         self.last_sighting = -(10**9)  # step of its last detection (as observer or target)
 
     def clear(self) -> None:
@@ -122,7 +123,8 @@ class HypothesisPolicy(CorridorPolicy):
                  cost_weight: float = 0.01, turn_cost: float = 1.0, replan_every: int = 20,
                  dwell: int = 8, lookahead: float = 1.5, assign_penalty: float = 0.2,
                  forget: int = 40, switch_margin: float = 0.05, meet: str = "trusted",
-                 sighting_hold: int = 6) -> None:
+                 sighting_hold: int = 6, verify: bool = False, distinct: float = 1.0,
+                 verify_rms: float = 0.8, meet_gain: float = 0.0) -> None:
         super().__init__(1.0)
         for key, value in (("min_weight", min_weight), ("min_cover", min_cover),
                            ("localized_weight", localized_weight)):
@@ -148,6 +150,9 @@ class HypothesisPolicy(CorridorPolicy):
         if meet not in MEET_MODES:
             raise ValueError(f"meet must be one of {MEET_MODES}, got {meet!r}")
         self.meet, self.sighting_hold = meet, int(sighting_hold)
+        self.verify, self.distinct = bool(verify), float(distinct)
+        self.verify_rms = float(verify_rms)
+        self.meet_gain = float(meet_gain)
 
     # ------------------------------------------------------------------ setup
     def reset(self, env, seed: int | None = None) -> None:
@@ -173,7 +178,13 @@ class HypothesisPolicy(CorridorPolicy):
                 by_grid[key] = _plan_grid(grid, cfg.world_size, clearance)
             self.plans[g] = by_grid[key]
         self.state = {g: _Robot() for g in self.models}
+        self.distinctive: dict[int, np.ndarray] = {}  # robot -> its map's distinctive cells
+        for g in self.models:
+            table, angles, max_range = self.models[g]
+            self.distinctive[g] = _distinctive(self.plans[g], table, angles, max_range,
+                                               self.distinct)
         self.t = 0
+        self._trusted: dict[int, np.ndarray] = {}
         self._cand_scans: dict[int, tuple] = {}
 
     # ------------------------------------------------------------------ acting
@@ -189,6 +200,9 @@ class HypothesisPolicy(CorridorPolicy):
                 if i in self.state:
                     self.state[i].last_sighting = self.t
         modes = self._modes(live)
+        self._trusted = {j: np.array([modes[j][0, 1], modes[j][0, 2]]) for j in live
+                         if j in self.state and self.state[j].trusted and len(modes[j])
+                         and modes[j][0, 0] >= self.localized_weight}
         targets: list[tuple[np.ndarray, np.ndarray]] = []  # (lead pose, target) chosen so far
         out = {}
         for a, i in zip(env.agents, live, strict=True):
@@ -223,10 +237,13 @@ class HypothesisPolicy(CorridorPolicy):
             st.clear()
             if st.trusted is None:  # just became confident: on its own readings?
                 st.trusted = self.t - st.last_sighting > self.sighting_hold
+            if not st.trusted and self.verify:
+                return self._verify(i, view, poses[0])
             if self.meet == "all" or (self.meet == "trusted" and st.trusted):
                 return self._meet(i, view, poses[0], modes, live)
             return follow(view, self.speed, self.gain)
         st.trusted = None
+        st.verify_failed = False
         if m[:, 0].sum() < self.min_cover or len(m) < 1:
             st.clear()
             return follow(view, self.speed, self.gain)
@@ -276,6 +293,9 @@ class HypothesisPolicy(CorridorPolicy):
         w = weights / weights.sum()
         cand = plan.centres[plan.free_index]  # (C, 2) lead-frame points
         gain = self._gain(i, lead, poses, w, cand) if len(poses) > 1 else np.zeros(len(cand))
+        mates = [p for j, p in self._trusted.items() if j != i]
+        if mates and self.meet_gain > 0:
+            gain = gain + self.meet_gain * self._meet_gain(lead, poses, w, cand, np.array(mates))
         src = int(plan.cell_of(lead[:2]))
         dist, _ = plan.distances(src)
         cost = dist[plan.free_index]
@@ -302,6 +322,23 @@ class HypothesisPolicy(CorridorPolicy):
         st.planned_gain = float(gain[best])
         st.tree = plan.distances(int(plan.free_index[best]))[1]
 
+    def _meet_gain(self, lead: np.ndarray, poses: np.ndarray, w: np.ndarray, cand: np.ndarray,
+                   mates: np.ndarray) -> np.ndarray:
+        """Expected eliminated mass at each candidate from meeting a trusted teammate: under
+        mode ``m`` the candidate lies at ``T_m q``; a teammate there detects the robot,
+        which confirms ``m`` (eliminating ``1 - w_m``)."""
+        reach = 0.5 * self.env.config.detector_range
+        rel = _inverse(lead)
+        out = np.zeros(len(cand))
+        for pose, wm in zip(poses, w, strict=True):
+            t = _compose(pose, rel)
+            c, s = math.cos(t[2]), math.sin(t[2])
+            x = t[0] + c * cand[:, 0] - s * cand[:, 1]
+            y = t[1] + s * cand[:, 0] + c * cand[:, 1]
+            d = np.hypot(x[:, None] - mates[None, :, 0], y[:, None] - mates[None, :, 1])
+            out += wm * (1.0 - wm) * (d.min(axis=1) < reach)
+        return out
+
     def _gain(self, i: int, lead: np.ndarray, poses: np.ndarray, w: np.ndarray,
               cand: np.ndarray) -> np.ndarray:
         """Expected eliminated mass at each candidate (module doc, step 3)."""
@@ -323,6 +360,33 @@ class HypothesisPolicy(CorridorPolicy):
         msd = ((s[:, None] - s[None, :]) ** 2).mean(axis=-1)  # (M, M, C)
         sim = np.exp(-0.5 * msd / self.scan_sigma**2)
         return 1.0 - np.einsum("m,n,mnc->c", w, w, sim)
+
+    def _verify(self, i: int, view, pose: np.ndarray) -> np.ndarray:
+        """A robot confident after a teammate's detection drives to the nearest place that
+        looks like nowhere else (:func:`distinctive_cells`); confident there, it is trusted."""
+        plan = self.plans[i]
+        cells = self.distinctive[i]
+        src = int(plan.cell_of(pose[:2]))
+        st = self.state[i]
+        if st.verify_failed or not len(cells):
+            return follow(view, self.speed, self.gain)
+        if src in set(cells.tolist()):  # there: does the own scan match the belief's?
+            table, angles, max_range = self.models[i]
+            ox, oy = table.origin
+            f32 = np.float32
+            expect = table.expected(np.array([pose[0] - ox], f32), np.array([pose[1] - oy], f32),
+                                    np.array([pose[2]], f32), angles)[0]
+            got = np.minimum(view.ranges, max_range)
+            rms = float(np.sqrt(np.mean((np.minimum(expect, max_range) - got) ** 2)))
+            st.trusted = rms <= self.verify_rms
+            st.verify_failed = not st.trusted
+            return follow(view, self.speed, self.gain)
+        dist, _ = plan.distances(src)
+        target = int(cells[np.argmin(dist[cells])])
+        if not np.isfinite(dist[target]):
+            return follow(view, self.speed, self.gain)
+        tree = plan.distances(target)[1]
+        return self._drive(i, view, pose, tree, plan.centres[target])
 
     # ------------------------------------------------------------------ team
     def _meet(self, i: int, view, pose: np.ndarray, modes: dict[int, np.ndarray],
@@ -394,15 +458,58 @@ def toward(view, err: float, speed: float = 1.0) -> np.ndarray:
                      -np.inf)
     heading = float(bearing[int(np.argmax(score))])
     left, right = view.min_range(*SIDE), view.min_range(-SIDE[1], -SIDE[0])
-    if view.min_range(-0.6, 0.6) < CLOSE:
-        return np.array([0.0, 0.8 if left >= right else -0.8], dtype=np.float32)
+    if view.min_range(-0.6, 0.6) < CLOSE:  # back off while turning to the freer side
+        back = -0.3 if view.min_range(math.pi - 0.6, math.pi) > CLOSE and \
+            view.min_range(-math.pi, -math.pi + 0.6) > CLOSE else 0.0
+        return np.array([back, 0.8 if left >= right else -0.8], dtype=np.float32)
     heading += SIDE_GAIN * float(np.clip(left - right, -1.0, 1.0))
     slow = min(1.0, view.min_range(-0.4, 0.4) / SLOW)
     forward = speed * max(0.0, math.cos(heading)) ** 2 * slow
     return np.array([forward, float(np.clip(3.0 * heading, -1.0, 1.0))], dtype=np.float32)
 
 
+def distinctive_cells(plan: PlanGrid, table, angles: np.ndarray, max_range: float,
+                      headings: int = 8, apart: float = 3.0) -> np.ndarray:
+    """``(C,)`` per drivable cell of ``plan`` (``plan.free_index`` order): the RMS difference
+    (m) between the scan predicted there (heading 0) and the most similar scan predicted
+    anywhere else (``apart`` m away or more, any of ``headings`` headings): large where the
+    map looks like nowhere else (a place that confirms a confident belief)."""
+    pts = plan.centres[plan.free_index]
+    ox, oy = table.origin
+    xs = np.repeat((pts[:, 0] - ox).astype(np.float32), headings)
+    ys = np.repeat((pts[:, 1] - oy).astype(np.float32), headings)
+    hs = np.tile((np.arange(headings) * (2 * np.pi / headings)).astype(np.float32), len(pts))
+    scans = np.minimum(table.expected(xs, ys, hs, angles), max_range).reshape(
+        len(pts), headings, -1)
+    ref = scans[:, 0]  # (C, B)
+    other = scans.reshape(-1, scans.shape[-1])  # (C * headings, B)
+    far = np.hypot(pts[:, None, 0] - pts[None, :, 0], pts[:, None, 1] - pts[None, :, 1]) >= apart
+    best = np.full(len(pts), np.inf)
+    for k in range(headings):  # one heading of the others at a time (memory)
+        o = other[k::headings]
+        msd = (ref ** 2).mean(1)[:, None] + (o ** 2).mean(1)[None, :] - 2 * ref @ o.T / ref.shape[1]
+        best = np.minimum(best, np.where(far, msd, np.inf).min(axis=1))
+    return np.sqrt(np.maximum(best, 0.0))
+
+
 _PLAN_CACHE: dict[tuple, PlanGrid] = {}
+_DISTINCT_CACHE: dict[tuple, np.ndarray] = {}
+
+
+def _distinctive(plan: PlanGrid, table, angles, max_range: float, threshold: float
+                 ) -> np.ndarray:
+    """Cell indices of ``plan`` whose :func:`distinctive_cells` value reaches ``threshold``
+    (cached per planning grid, table and threshold)."""
+    key = (id(plan), id(table), float(threshold))
+    hit = _DISTINCT_CACHE.get(key)
+    if hit is None or _DISTINCT_CACHE.get((key, "plan")) is not plan:
+        d = distinctive_cells(plan, table, angles, max_range)
+        hit = plan.free_index[d >= threshold]
+        if len(_DISTINCT_CACHE) > 32:
+            _DISTINCT_CACHE.clear()
+        _DISTINCT_CACHE[key] = hit
+        _DISTINCT_CACHE[(key, "plan")] = plan
+    return hit
 
 
 def _plan_grid(grid, world_size, clearance: float) -> PlanGrid:
