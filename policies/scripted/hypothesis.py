@@ -23,20 +23,30 @@ runs MCL:
    ``cost_weight`` times the path cost from the lead's cell (Dijkstra on the
    planning grid, which keeps to the middle of corridors) plus ``turn_cost`` per
    radian the robot must turn first. The robot drives the path by the lead
-   mode's pose (a look-ahead point ``lookahead`` m along it), turning in place
-   when its own scan shows something right ahead.
+   mode's pose, toward a look-ahead point ``lookahead`` m along it, steering by
+   the free space of its own scan around that direction (:func:`toward`).
 5. **Replanning.** When the lead mode dies (no mode within ``TRACK_M`` and
-   ``TRACK_RAD`` of it), when the number of hypotheses changes, after
-   ``replan_every`` steps, or when the target was reached and ``dwell`` steps
-   passed without an answer (that target is then left out while the lead lives).
+   ``TRACK_RAD`` of it), when the number of hypotheses changed and the target's
+   gain has halved, when the target was reached and ``dwell`` steps passed (that
+   target is then left out while the lead lives), and every ``replan_every``
+   steps (a new target must then beat the current one by ``switch_margin``).
 
 Team: lost robots test different hypotheses (a robot's candidate targets within
 ``ASSIGN_M`` of a target a teammate chose earlier in the same step lose
 ``assign_penalty``, when both lead poses are within detector range of each other,
-so that the two frames agree); a robot whose heaviest mode weighs at least
-``localized_weight`` drives to meet the lost teammates: to the mode of theirs
-with the best weight per metre of path, so that a detection passes its belief
-on (modes visited without a meeting are left out for ``forget`` steps).
+so that the two frames agree). A robot whose heaviest mode weighs at least
+``localized_weight`` is confident; it is *trusted* when it became confident with
+no detection (as observer or target) in the ``sighting_hold`` steps before: a
+detection between two lost robots can leave both confident in the same wrong
+copy of a symmetric map. With ``meet="trusted"`` (the default) trusted robots
+drive to meet the lost teammates: to the mode of theirs with the best weight
+per metre of path, so that a detection passes their belief on (modes visited
+without a meeting are left out for ``forget`` steps); other confident robots
+explore as ``corridor``. Options, off by default: ``meet_gain`` adds to a lost
+robot's gain the mass a meeting with a trusted teammate would eliminate (under
+mode ``m`` the target lies within half the detector range of it); ``verify``
+sends an untrusted confident robot to the nearest place that looks like nowhere
+else (:func:`distinctive_cells`) and trusts it if its scan matches there.
 
 It reads the particle beliefs, the known map, the robot's own scan and the
 team's communicated beliefs; never the true poses. Robots that do not run MCL
@@ -114,6 +124,15 @@ class HypothesisPolicy(CorridorPolicy):
         lookahead: m along the path of the point steered to.
         assign_penalty: gain lost by a target a teammate tests already.
         forget: steps a teammate's mode visited without a meeting is left out.
+        switch_margin: gain a new target must add over the current one at a periodic replan.
+        meet: which confident robots drive to meet the lost ones: ``"trusted"``, ``"all"``
+            or ``"off"``.
+        sighting_hold: steps after a detection during which a robot that becomes
+            confident is not trusted.
+        verify: send untrusted confident robots to a distinctive place to check.
+        distinct: m, the :func:`distinctive_cells` value of a distinctive place.
+        verify_rms: m, the largest RMS scan mismatch there that confirms the belief.
+        meet_gain: weight of the gain of meeting a trusted teammate (0: off).
     """
 
     name = "hypothesis"
@@ -185,7 +204,6 @@ class HypothesisPolicy(CorridorPolicy):
                                                self.distinct)
         self.t = 0
         self._trusted: dict[int, np.ndarray] = {}
-        self._cand_scans: dict[int, tuple] = {}
 
     # ------------------------------------------------------------------ acting
     def act(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
