@@ -96,15 +96,18 @@ def test_hypothesis_never_reads_the_truth_and_drives(actions_with_shifted_truth)
     assert moved.mean() > 2.0  # it drives (net displacement after 15 s)
 
 
-@pytest.mark.parametrize("spec", ["hypothesis", "corridor", "fsm", "gather"])
-def test_scripted_policies_run_on_the_dict_observation(spec):
-    scenario = "active_hallway" if spec in ("hypothesis", "corridor") else "outdoor_terrain"
-    env = coop_loc_env.parallel_env(scenario, n_robots=2, n_particles=200, max_cycles=8,
+@pytest.mark.parametrize("scenario, spec", [("active_hallway", n) for n in policy_names()]
+                         + [("outdoor_terrain", n) for n in ("fsm", "gather", "seek", "infogain")])
+def test_scripted_policies_run_on_the_dict_observation(scenario, spec):
+    """Every registered policy reads beliefs, scans or the vector's flat entries: it acts
+    on the dict observation as on the flat one."""
+    env = coop_loc_env.parallel_env(scenario, n_robots=2, n_particles=100, max_cycles=4,
                                     obs_format="dict")
     policy = make_policy(spec)
     obs, _ = env.reset(seed=0)
     policy.reset(env, seed=0)
     while env.agents:
         act = policy.act(obs)
+        assert set(act) == set(env.agents)
         assert all(np.all(np.abs(a) <= 1) for a in act.values())
         obs, *_ = env.step(act)
