@@ -31,7 +31,9 @@ class CoopLocParallelEnv(ParallelEnv):
     Agents ``robot_0 .. robot_{n-1}`` drive skid-steer robots with normalized
     actions ``(linear velocity, turn rate)`` in ``[-1, 1]^2``. Each robot's
     sensors feed its estimator; its observation is its belief plus its own
-    readings (see :mod:`coop_loc_env.observations`); its reward is the
+    readings (see :mod:`coop_loc_env.observations`; with ``obs_format="dict"``
+    a ``Dict`` of that vector plus the belief's modes, and the belief as a map,
+    :mod:`coop_loc_env.belief_map`); its reward is the
     weighted negative true localization error, plus the weighted number of
     drivable cells it was first in the team to cover at its *true* pose
     (``reward_coverage_weight``; belief drift earns nothing), minus
