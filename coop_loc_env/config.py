@@ -26,6 +26,7 @@ DETECTION_MODELS = ("fox", "howard", "laser", "camera", "scan_min")
 OBSTACLE_KINDS = ("tree", "rock", "wall", "ooi", "building")
 OBSTACLE_SHAPES = ("circle", "segment", "polygon")
 RANGE_SENSOR_TYPES = ("laser", "sonar")
+OBS_FORMATS = ("flat", "dict")
 #: Largest team the env simulates (sensing is pairwise: at this size on an 80 m field a
 #: step takes ~0.2 s and the random start placement ~10 s).
 MAX_ROBOTS = 1000
@@ -239,6 +240,12 @@ class ScenarioConfig:
     max_detections_obs: int = 3
     map_patch_obs: int = 0  # egocentric terrain-map patch edge in cells (0 = off)
     teammate_obs: bool = False  # nearest GPS / no-GPS teammates' shared estimates in the obs
+    # "flat" (one vector) or "dict": the vector plus the belief's modes, and the belief as a
+    # map (coop_loc_env.belief_map)
+    obs_format: str = "flat"
+    belief_map_cells: int = 32  # dict observation: belief-map cells a side
+    belief_map_headings: int = 8  # dict observation: heading bins of the belief map
+    belief_modes: int = 4  # dict observation: modes of the belief in the vector
     # --- team terrain map (coop_loc_env.mapping)
     map_resolution: float = _positive(0.5)
     map_footprint_radius: float = _non_negative(0.5)
@@ -313,6 +320,11 @@ class ScenarioConfig:
         _int_at_least(self, "max_detections_obs", 0)
         _int_at_least(self, "map_patch_obs", 0)
         _int_at_least(self, "n_particles", 10)
+        if self.obs_format not in OBS_FORMATS:
+            raise ValueError(f"obs_format must be one of {OBS_FORMATS}, got {self.obs_format!r}")
+        _int_at_least(self, "belief_map_cells", 2)
+        _int_at_least(self, "belief_map_headings", 1)
+        _int_at_least(self, "belief_modes", 1)
         if not isinstance(self.teammate_obs, bool):
             raise ValueError(f"teammate_obs must be True or False, got {self.teammate_obs!r}")
         if not isinstance(self.reward_terms_dict, bool):

@@ -31,7 +31,9 @@ class CoopLocParallelEnv(ParallelEnv):
     Agents ``robot_0 .. robot_{n-1}`` drive skid-steer robots with normalized
     actions ``(linear velocity, turn rate)`` in ``[-1, 1]^2``. Each robot's
     sensors feed its estimator; its observation is its belief plus its own
-    readings (see :mod:`coop_loc_env.observations`); its reward is the
+    readings (see :mod:`coop_loc_env.observations`; with ``obs_format="dict"``
+    a ``Dict`` of that vector plus the belief's modes, and the belief as a map,
+    :mod:`coop_loc_env.belief_map`); its reward is the
     weighted negative true localization error, plus the weighted number of
     drivable cells it was first in the team to cover at its *true* pose
     (``reward_coverage_weight``; belief drift earns nothing), minus
@@ -108,6 +110,13 @@ class CoopLocParallelEnv(ParallelEnv):
             self.backends[0].robots, np.arange(cfg.n_robots)
         )
         self._observation_space = self.observations.space
+        self._dict_obs = None  # obs_format="dict": the vector plus the belief's modes and map
+        if cfg.obs_format == "dict":
+            from coop_loc_env.belief_map import DictObservation, robot_grids
+
+            self._dict_obs = DictObservation(cfg, self.observations.space,
+                                             self.observations.names, robot_grids(cfg, self.world))
+            self._observation_space = self._dict_obs.space
         self._action_space = spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
         self._np_random: np.random.Generator | None = None
         self._np_random_seed: int | None = None
@@ -118,8 +127,9 @@ class CoopLocParallelEnv(ParallelEnv):
         self._reset_state()
 
     # ------------------------------------------------------------------ spaces
-    def observation_space(self, agent: str) -> spaces.Box:
-        """The observation space of ``agent`` (the same object on every call)."""
+    def observation_space(self, agent: str) -> spaces.Box | spaces.Dict:
+        """The observation space of ``agent`` (the same object on every call): a ``Box``, or
+        with ``obs_format="dict"`` a ``Dict`` (:mod:`coop_loc_env.belief_map`)."""
         self._check_agent_name(agent)
         return self._observation_space
 
@@ -399,6 +409,10 @@ class CoopLocParallelEnv(ParallelEnv):
                                      self._active, self.config.detector_range)
         obs = self.observations.build_all(belief, self._last_action, self.world.poses, patch,
                                           team)
+        if self._dict_obs is not None:
+            from coop_loc_env.belief_map import TeamBeliefs
+
+            obs = self._dict_obs.observe_all(TeamBeliefs.from_env(self, self._active), obs)
         if len(agents) == len(obs):  # every agent (a live list keeps their order): row views
             return dict(zip(agents, obs, strict=True))
         return {a: obs[self.agent_name_mapping[a]] for a in agents}

@@ -69,7 +69,11 @@ class LearnedPolicy:
         agents = list(self.env.agents)
         if not agents:
             return {}
-        batch = np.stack([obs[a] for a in agents])
+        first = obs[agents[0]]
+        if isinstance(first, dict):  # obs_format="dict": one batch per key
+            batch = {k: np.stack([obs[a][k] for a in agents]) for k in first}
+        else:
+            batch = np.stack([obs[a] for a in agents])
         actions, _ = self.model.predict(batch, deterministic=self.deterministic)
         actions = np.clip(np.asarray(actions, dtype=np.float32).reshape(len(agents), -1), -1, 1)
         return dict(zip(agents, actions, strict=True))

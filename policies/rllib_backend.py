@@ -120,6 +120,15 @@ def ppo_config(
     from ray.tune.registry import register_env
 
     register_env(ENV_NAME, _make_env)
+    env_cfg = dict(env_config)
+    scenario = env_cfg.pop("scenario", "outdoor_terrain")
+    env_cfg.pop("render_mode", None)
+    connector = None
+    if coop_loc_env.make_config(scenario, **env_cfg).obs_format == "dict":
+        from ray.rllib.connectors.env_to_module import FlattenObservations
+
+        def connector(env, spaces=None, device=None):  # the default encoders take vectors
+            return FlattenObservations(multi_agent=True)
     return (
         PPOConfig()
         # RLlib's env check wants a step's observations only from agents still live after
@@ -131,6 +140,7 @@ def ppo_config(
             num_envs_per_env_runner=1,
             num_cpus_per_env_runner=1,
             rollout_fragment_length=rollout_fragment_length,
+            env_to_module_connector=connector,
         )
         .learners(num_learners=0, num_gpus_per_learner=0)
         .multi_agent(

@@ -129,6 +129,12 @@ def _corridor(arg: str) -> Policy:
     return _with_speed(CorridorPolicy, "corridor", arg)
 
 
+def _hypothesis(arg: str) -> Policy:
+    from policies.scripted import HypothesisPolicy
+
+    return _no_argument(HypothesisPolicy, "hypothesis")(arg)
+
+
 register_policy("gather", _gather,
                 "drive toward the teammates that can inform you (by the shared estimates)")
 register_policy("infogain", _infogain,
@@ -136,6 +142,9 @@ register_policy("infogain", _infogain,
                 "(EKF beliefs) or posterior entropy (MCL particle beliefs)")
 register_policy("corridor", _corridor,
                 "follow the free space ahead at full speed by the own scan; corridor:SPEED")
+register_policy("hypothesis", _hypothesis,
+                "hypothesis elimination with far targets: drive where the belief's modes "
+                "predict different readings (MCL), localized robots meet the lost ones")
 POLICY_NAMES = tuple(_POLICIES)  # the built-in names
 
 

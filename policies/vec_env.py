@@ -179,6 +179,37 @@ class TimeToLocalizeReward:
         self.env.close()
 
 
+def obs_zeros(space: spaces.Space, n: int | None = None) -> np.ndarray | dict[str, np.ndarray]:
+    """Zero observation(s) of ``space`` (a ``Box`` or a ``Dict`` of boxes), ``n`` stacked."""
+    if isinstance(space, spaces.Dict):
+        return {k: obs_zeros(s, n) for k, s in space.spaces.items()}
+    lead = () if n is None else (n,)
+    return np.zeros(lead + space.shape, dtype=space.dtype)
+
+
+def obs_stack(items: list) -> np.ndarray | dict[str, np.ndarray]:
+    """Observations (arrays or dicts of arrays) stacked along a new first axis."""
+    if isinstance(items[0], dict):
+        return {k: np.stack([x[k] for x in items]) for k in items[0]}
+    return np.stack(items)
+
+
+def obs_concat(parts: list) -> np.ndarray | dict[str, np.ndarray]:
+    """Stacked observations concatenated along the first axis."""
+    if isinstance(parts[0], dict):
+        return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    return np.concatenate(parts)
+
+
+def obs_set(stacked: np.ndarray | dict, i: int, value: np.ndarray | dict) -> None:
+    """Row ``i`` of stacked observations set to ``value``."""
+    if isinstance(stacked, dict):
+        for k, v in stacked.items():
+            v[i] = value[k]
+    else:
+        stacked[i] = value
+
+
 class EnvCopies:
     """``n_copies`` ParallelEnv copies stepped in one process; the unit a worker runs.
 
@@ -205,21 +236,21 @@ class EnvCopies:
         """``n_copies * n_agents``."""
         return len(self.envs) * self.n_agents
 
-    def _zeros(self) -> np.ndarray:
-        return np.zeros(self.observation_space.shape, dtype=self.observation_space.dtype)
+    def _zeros(self) -> np.ndarray | dict[str, np.ndarray]:
+        return obs_zeros(self.observation_space)
 
     def _reset_copy(self, k: int, seed: int | None) -> np.ndarray:
         obs, _ = self.envs[k].reset(seed=seed)
         self.padding[k] = False
         self.ep_return[k] = 0.0
         self.ep_length[k] = 0
-        return np.stack([obs[a] for a in self.agents])
+        return obs_stack([obs[a] for a in self.agents])
 
     def reset(self, seeds: Sequence[int | None]) -> np.ndarray:
         """Reset every copy (copy ``k`` with ``seeds[k]``); observations ``(n_slots, obs)``."""
         if len(seeds) != len(self.envs):
             raise ValueError(f"need one seed per copy ({len(self.envs)}), got {list(seeds)!r}")
-        return np.concatenate([self._reset_copy(k, s) for k, s in enumerate(seeds)])
+        return obs_concat([self._reset_copy(k, s) for k, s in enumerate(seeds)])
 
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict]]:
         """Step every copy with ``actions (n_slots, act)``; auto-resets finished copies."""
@@ -233,7 +264,7 @@ class EnvCopies:
             obs, rewards, terms, truncs, infos = env.step(
                 {a: act[self.agent_index(a)] for a in live}
             )
-            o = np.zeros((self.n_agents,) + self.observation_space.shape, dtype=np.float32)
+            o = obs_zeros(self.observation_space, self.n_agents)
             r = np.zeros(self.n_agents, dtype=np.float32)
             d = np.zeros(self.n_agents, dtype=bool)
             slot_infos: list[dict] = [{} for _ in range(self.n_agents)]
@@ -257,7 +288,7 @@ class EnvCopies:
                     }
                     self.padding[k, i] = True
                 else:
-                    o[i] = obs[agent]
+                    obs_set(o, i, obs[agent])
                 slot_infos[i] = info
             if not env.agents:
                 o = self._reset_copy(k, None)
@@ -272,7 +303,7 @@ class EnvCopies:
             rew_out.append(r)
             done_out.append(d)
             info_out.extend(slot_infos)
-        return np.concatenate(obs_out), np.concatenate(rew_out), np.concatenate(done_out), info_out
+        return obs_concat(obs_out), np.concatenate(rew_out), np.concatenate(done_out), info_out
 
     def agent_index(self, agent: str) -> int:
         """Index of ``agent`` in ``possible_agents``."""
@@ -413,9 +444,13 @@ class ParallelEnvVecEnv(VecEnv):
                 raise
             g = self.groups[0]
             obs_space, act_space, n_agents = g.observation_space, g.action_space, g.n_agents
-        if not isinstance(obs_space, spaces.Box) or not isinstance(act_space, spaces.Box):
+        dict_of_boxes = isinstance(obs_space, spaces.Dict) and all(
+            isinstance(s, spaces.Box) for s in obs_space.spaces.values())
+        if not (isinstance(obs_space, spaces.Box) or dict_of_boxes) or \
+                not isinstance(act_space, spaces.Box):
             raise ValueError(
-                f"ParallelEnvVecEnv needs Box spaces, got {obs_space!r} and {act_space!r}"
+                f"ParallelEnvVecEnv needs Box spaces (or a Dict of Box observations), got "
+                f"{obs_space!r} and {act_space!r}"
             )
         self.n_agents = n_agents
         self._actions: np.ndarray | None = None
@@ -456,7 +491,7 @@ class ParallelEnvVecEnv(VecEnv):
         self._reset_seeds()
         self._reset_options()
         self.reset_infos = [{} for _ in range(self.num_envs)]
-        return np.concatenate([results[j] for j in range(len(self.groups))])
+        return obs_concat([results[j] for j in range(len(self.groups))])
 
     def step_async(self, actions: np.ndarray) -> None:
         """Send the actions ``(num_envs, act)`` to the copies."""
@@ -479,7 +514,7 @@ class ParallelEnvVecEnv(VecEnv):
             self._actions = None
             return result
         parts = [g.receive() for g in self.groups]
-        obs = np.concatenate([p[0] for p in parts])
+        obs = obs_concat([p[0] for p in parts])
         rew = np.concatenate([p[1] for p in parts])
         done = np.concatenate([p[2] for p in parts])
         infos = [info for p in parts for info in p[3]]

@@ -93,8 +93,11 @@ class ViewBuilder:
             self._lo.append(np.array([angles[s:e].min() for s, e in spans]))
             self._hi.append(np.array([angles[s:e].max() for s, e in spans]))
 
-    def view(self, agent: str, obs: np.ndarray) -> RobotView:
-        """``agent``'s view from its observation vector and its own sensors."""
+    def view(self, agent: str, obs: np.ndarray | dict) -> RobotView:
+        """``agent``'s view from its observation vector and its own sensors (a dict
+        observation's ``"vector"`` starts with the same entries)."""
+        if isinstance(obs, dict):
+            obs = obs["vector"]
         env = self.env
         i = env.agent_name_mapping[agent]
         readings = env.last_readings

@@ -13,6 +13,10 @@
 * :class:`~policies.scripted.corridor.CorridorPolicy` (``corridor``): follow
   the free space ahead at full speed by the robot's own scan (exploration for
   global localization; needs no belief).
+* :class:`~policies.scripted.hypothesis.HypothesisPolicy` (``hypothesis``):
+  hypothesis elimination with far targets: drive by a geodesic path to where
+  the modes of the particle belief predict different readings; localized
+  robots drive to meet the lost ones.
 
 They read only beliefs (means and covariances the team shares, particle sets),
 the robot's own range readings and odometry, the static map (obstacles, tree
@@ -21,6 +25,7 @@ canopies) and the robots' hardware (which ones carry GPS); never the true poses.
 
 from policies.scripted.corridor import CorridorPolicy
 from policies.scripted.gather import GatherPolicy
+from policies.scripted.hypothesis import HypothesisPolicy
 from policies.scripted.infogain import InfoGainPolicy
 
-__all__ = ["CorridorPolicy", "GatherPolicy", "InfoGainPolicy"]
+__all__ = ["CorridorPolicy", "GatherPolicy", "HypothesisPolicy", "InfoGainPolicy"]

@@ -52,3 +52,20 @@ def test_tip_over_terminates_one_agent_the_other_drives_on(steep_and_flat):
     moved = np.diff(robot["info", "true_pose"][:, 1, :2].numpy(), axis=0)
     assert np.abs(moved).sum() > 0  # robot_1 kept driving
     env.close()
+
+
+def test_dict_observation_specs_and_rollout():
+    """``obs_format="dict"``: TorchRL's wrapper builds a composite spec with both blocks."""
+    pz = coop_loc_env.parallel_env("active_hallway", n_robots=2, max_cycles=4, n_particles=100,
+                                   reward_terms_dict=False, obs_format="dict",
+                                   belief_map_cells=8)
+    env = PettingZooWrapper(env=pz, use_mask=True, done_on_any=False, seed=0)
+    check_env_specs(env, seed=0)
+    td = env.rollout(10)
+    obs = td["next", "robot", "observation"]
+    assert td.batch_size == torch.Size([4])
+    assert obs["belief_map"].shape == (4, 2, 10, 8, 8)
+    assert obs["vector"].shape[:2] == (4, 2)
+    torch.testing.assert_close(obs["belief_map"][..., :8, :, :].sum(dim=(-3, -2, -1)),
+                               torch.ones(4, 2))  # each robot's belief mass sums to 1
+    env.close()

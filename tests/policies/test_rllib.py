@@ -145,3 +145,20 @@ def test_bad_rllib_options_exit_2(tmp_path, script_main, capsys):
     assert "--backend rllib" in capsys.readouterr().err
     assert train(["--backend", "rllib", "--num-env-runners", "-1", "--out", str(tmp_path)]) == 2
     assert "num_env_runners" in capsys.readouterr().err
+
+
+def test_dict_observation_is_sampled_through_the_flattening_connector():
+    """RLlib's default encoders take vectors: ``obs_format="dict"`` gets a flattening
+    connector, and the env runner samples the ``Dict`` observations through the module."""
+    config = {"scenario": "active_hallway", "n_robots": 2, "max_cycles": 6, "n_particles": 100,
+              "obs_format": "dict", "belief_map_cells": 8}
+    runner = MultiAgentEnvRunner(config=ppo_config(config, seed=0))
+    episodes = runner.sample(num_timesteps=8)
+    runner.stop()
+    space = CoopLocMultiAgentEnv(config).observation_spaces["robot_0"]
+    assert set(space) == {"vector", "belief_map"}
+    sa = episodes[0].agent_episodes["robot_0"]
+    first = np.asarray(sa.get_observations()[0])  # flattened by the connector: both blocks
+    assert first.shape == (space["vector"].shape[0] + 10 * 8 * 8,)
+    actions = np.asarray(sa.get_actions())
+    assert len(actions) >= 4 and np.all(np.isfinite(actions))

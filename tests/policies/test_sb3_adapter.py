@@ -177,3 +177,30 @@ def test_bad_arguments_raise_value_error():
         ParallelEnvVecEnv(fn, n_envs=1, n_procs=2)
     with pytest.raises(ValueError, match="n_robotz"):
         make_env_fn("outdoor_terrain", n_robotz=2)
+
+
+def test_dict_observation_trains_a_multi_input_policy():
+    """``obs_format="dict"``: the adapter stacks both blocks per slot, SB3's MultiInputPolicy
+    learns from them, and an early termination leaves zero-filled dict padding."""
+    from stable_baselines3 import PPO
+
+    overrides = dict(n_robots=2, max_cycles=4, n_particles=100, obs_format="dict",
+                     belief_map_cells=8)
+    venv = ParallelEnvVecEnv(make_env_fn("active_hallway", **overrides), n_envs=1)
+    try:
+        assert isinstance(venv.observation_space, spaces.Dict)
+        venv.seed(3)
+        obs = venv.reset()
+        ref = coop_loc_env.parallel_env("active_hallway", **overrides)
+        ref_obs, _ = ref.reset(seed=3)
+        for key in ("vector", "belief_map"):
+            np.testing.assert_array_equal(obs[key][1], ref_obs["robot_1"][key])
+        assert obs["belief_map"].shape == (2, 10, 8, 8)
+        model = PPO("MultiInputPolicy", venv, n_steps=8, batch_size=8, n_epochs=1, seed=0)
+        model.learn(16)
+        action, _ = model.predict(obs, deterministic=True)
+        assert action.shape == (2, 2) and np.all(np.abs(action) <= 1)
+        zeros = EnvCopies(make_env_fn("active_hallway", **overrides), 1)._zeros()
+        assert set(zeros) == {"vector", "belief_map"} and not zeros["belief_map"].any()
+    finally:
+        venv.close()
