@@ -6,6 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from coop_loc_env._step_kernels import fan_ranges
+
 
 @dataclass
 class RayScene:
@@ -219,9 +221,7 @@ class FanCaster:
         if self._fan_angles is not None:
             lo, hi = self._fan_angles.min(1), self._fan_angles.max(1)
             self._fan_mid, self._fan_half = 0.5 * (lo + hi), 0.5 * (hi - lo)
-            self._box = (
-                None if self._bounds_xy is None else self._bounds_xy.reshape(2, 1, 1)
-            )
+            self._box_wh = np.zeros(0) if self._bounds_xy is None else self._bounds_xy
 
     def cast(
         self,
@@ -307,23 +307,12 @@ class FanCaster:
             rel = centers[None] - xy  # (robots, circles, 2)
         else:
             rel = np.take(centers, near[3], axis=0) - xy  # (robots, candidates, 2)
-        q = rel * rel
-        q = np.add(q[..., 0], q[..., 1])  # |c - o|^2
-        q -= near[4]  # r^2, -inf for padding and own bodies: q = inf there
         # The table is laid out (circles, robots, rays), so that the reduction over the
         # circles runs over whole planes.
-        b = np.empty((q.shape[1], n_fans, n_rays))
+        b = np.empty((rel.shape[1], n_fans, n_rays))
         np.matmul(rel, dirs.transpose(1, 0, 2), out=b.transpose(1, 0, 2))
-        with np.errstate(invalid="ignore", divide="ignore"):
-            disc = b * b
-            disc -= q.T[:, :, None]
-            np.sqrt(disc, out=disc)  # NaN where a ray misses
-            b -= disc
-            np.reciprocal(b, out=b)
-            inv = np.fmax.reduce(b, axis=0, initial=0.0)  # 0 where no circle is hit
-            dist = np.divide(1.0, inv, out=inv)  # inf there
-            if self._box is not None:
-                _box_walls(pose.T[:2, :, None], dirs, self._box, dist, 0)
+        dist = np.empty((n_fans, n_rays))
+        fan_ranges(b, rel, near[4], dirs, pose, self._box_wh, dist)
         return dist.reshape(-1)
 
     def _near_circles(
