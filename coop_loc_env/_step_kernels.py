@@ -5,7 +5,7 @@ the same IEEE operations in the same order (no fast-math: no reassociation,
 no fused multiply-adds), so results are bit-identical to the numpy code they
 replace. Trigonometry and matrix products stay in numpy (their vectorized
 implementations round differently from a scalar loop's). Private helpers of
-:mod:`coop_loc_env.raycast`.
+:mod:`coop_loc_env.raycast` and :mod:`coop_loc_env.world`.
 """
 
 from __future__ import annotations
@@ -15,7 +15,12 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["fan_ranges"]
+from estimators.geometry import PI_BELOW as _PI_BELOW
+
+__all__ = ["fan_ranges", "settle_poses", "substep_commands", "substep_velocities"]
+
+_PI = np.pi
+_TWO_PI = 2.0 * np.pi
 
 
 @njit(cache=True, error_model="numpy")
@@ -58,3 +63,62 @@ def fan_ranges(
                     if wall < d or wall != wall:  # np.minimum: NaN wins, then the smaller
                         d = wall
             out[f, j] = d
+
+
+@njit(cache=True)
+def substep_commands(
+    v_cmd: np.ndarray, w_cmd: np.ndarray, slip: np.ndarray, slip_std: float,
+    angles: np.ndarray, dt: float, vk: np.ndarray, wk: np.ndarray, heading: np.ndarray,
+) -> None:  # pragma: no cover (compiled)
+    """Slipping commands and the headings at each substep's start (:meth:`World.step`).
+
+    ``slip`` ``(T, n, 2)`` standard normals; writes ``vk``, ``wk`` ``(T, n)`` (the
+    commands times ``1 + slip_std * noise``) and ``heading`` ``(T + 1, n)``: the
+    unwrapped ``angles`` followed by the running sum of ``wk * dt``.
+    """
+    n_sub, n, _ = slip.shape
+    for r in range(n):
+        heading[0, r] = angles[r]
+    for t in range(n_sub):
+        for r in range(n):
+            s_v = slip[t, r, 0] * slip_std
+            s_v += 1.0
+            s_w = slip[t, r, 1] * slip_std
+            s_w += 1.0
+            vk[t, r] = v_cmd[r] * s_v
+            wk[t, r] = w_cmd[r] * s_w
+            heading[t + 1, r] = heading[t, r] + wk[t, r] * dt
+
+
+@njit(cache=True)
+def substep_velocities(vel: np.ndarray, vk: np.ndarray, wk: np.ndarray) -> None:  # pragma: no cover
+    """``vel`` ``(T, n, 3)`` holding (cos, sin) of the headings becomes the bodies'
+    velocities ``(vk cos, vk sin, wk)``."""
+    n_sub, n = vk.shape
+    for t in range(n_sub):
+        for r in range(n):
+            vel[t, r, 0] *= vk[t, r]
+            vel[t, r, 1] *= vk[t, r]
+            vel[t, r, 2] = wk[t, r]
+
+
+@njit(cache=True)
+def settle_poses(
+    state: np.ndarray, poses: np.ndarray, angles: np.ndarray, counts: np.ndarray,
+    before: np.ndarray, touching: np.ndarray, new: np.ndarray, in_contact: np.ndarray,
+) -> None:  # pragma: no cover (compiled)
+    """The world's state after a step: ``poses`` from pymunk's ``state`` (headings
+    wrapped to ``[-pi, pi)``, the unwrapped ones kept in ``angles``), the new contacts
+    ``new = counts - before`` and ``in_contact = touching | (new > 0)``."""
+    n = poses.shape[0]
+    for r in range(n):
+        poses[r, 0] = state[r, 0]
+        poses[r, 1] = state[r, 1]
+        a = state[r, 2]
+        angles[r] = a
+        h = a + _PI
+        h %= _TWO_PI
+        h -= _PI
+        poses[r, 2] = h if h < _PI_BELOW or h != h else _PI_BELOW
+        new[r] = counts[r] - before[r]
+        in_contact[r] = touching[r] or new[r] > 0
