@@ -5,7 +5,8 @@ the same IEEE operations in the same order (no fast-math: no reassociation,
 no fused multiply-adds), so results are bit-identical to the numpy code they
 replace. Trigonometry and matrix products stay in numpy (their vectorized
 implementations round differently from a scalar loop's). Private helpers of
-:mod:`coop_loc_env.raycast` and :mod:`coop_loc_env.world`.
+:mod:`coop_loc_env.raycast`, :mod:`coop_loc_env.world` and
+:mod:`coop_loc_env.estimation`.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from numba import njit
 
 from estimators.geometry import PI_BELOW as _PI_BELOW
 
-__all__ = ["fan_ranges", "settle_poses", "substep_commands", "substep_velocities"]
+__all__ = ["fan_ranges", "gaussian_rows", "settle_poses", "substep_commands", "substep_velocities"]
 
 _PI = np.pi
 _TWO_PI = 2.0 * np.pi
@@ -122,3 +123,46 @@ def settle_poses(
         poses[r, 2] = h if h < _PI_BELOW or h != h else _PI_BELOW
         new[r] = counts[r] - before[r]
         in_contact[r] = touching[r] or new[r] > 0
+
+
+@njit(cache=True, inline="always")
+def _floored(v: float) -> float:  # pragma: no cover (compiled)
+    """``np.maximum(v, 1e-12)`` (NaN stays NaN)."""
+    return 1e-12 if v < 1e-12 else v
+
+
+@njit(cache=True)
+def gaussian_rows(
+    mean: np.ndarray, flat: np.ndarray, cos_h: np.ndarray, sin_h: np.ndarray,
+    log_var: np.ndarray, scale: np.ndarray, shift: np.ndarray, low: np.ndarray,
+    high: np.ndarray, out: np.ndarray,
+) -> None:  # pragma: no cover (compiled)
+    """Rows of :func:`coop_loc_env.estimation.gaussian_features` into ``out`` ``(k, 10)``.
+
+    ``flat`` ``(k, 9)``: the row-major covariances; ``log_var`` ``(k, 3)``: log10 of
+    their variances floored at 1e-12; ``cos_h``, ``sin_h`` of the headings. Each
+    column is then scaled, shifted and clipped (NaN stays NaN).
+    """
+    k = mean.shape[0]
+    for r in range(k):
+        s0 = math.sqrt(_floored(flat[r, 0]))
+        s1 = math.sqrt(_floored(flat[r, 4]))
+        s2 = math.sqrt(_floored(flat[r, 8]))
+        out[r, 0] = mean[r, 0]
+        out[r, 1] = mean[r, 1]
+        out[r, 2] = cos_h[r]
+        out[r, 3] = sin_h[r]
+        out[r, 4] = log_var[r, 0]
+        out[r, 5] = log_var[r, 1]
+        out[r, 6] = log_var[r, 2]
+        out[r, 7] = flat[r, 1] / (s0 * s1)
+        out[r, 8] = flat[r, 2] / (s0 * s2)
+        out[r, 9] = flat[r, 5] / (s1 * s2)
+        for c in range(10):
+            x = out[r, c] * scale[c]
+            x -= shift[c]
+            if x < low[c]:  # np.maximum then np.minimum: NaN passes both
+                x = low[c]
+            if x > high[c]:
+                x = high[c]
+            out[r, c] = x

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from coop_loc_env._step_kernels import gaussian_rows
 from coop_loc_env.config import ScenarioConfig
 from coop_loc_env.sensors import Readings
 from coop_loc_env.world import World
@@ -70,10 +71,6 @@ class EstimatorBackend:
 _FEATURE_LOW = np.array([-np.inf] * 4 + [-3.0] * 3 + [-1.0] * 3)
 _FEATURE_HIGH = np.array([np.inf] * 4 + [2.0] * 3 + [1.0] * 3)
 _FEATURE_SHIFT = np.array([1.0, 1.0] + [0.0] * 8)
-# Cells of a row-major 3x3 covariance: the off-diagonal (0, 1), (0, 2), (1, 2), then
-# the variances of their rows (0, 0, 4) and columns (4, 8, 8); every other one of the
-# variances is the diagonal (0, 4, 8).
-_CELLS = np.array([1, 2, 5, 0, 0, 4, 4, 8, 8])
 _EYE2 = np.eye(2)
 _EYE2.flags.writeable = False
 
@@ -100,21 +97,11 @@ def gaussian_features(
     k = len(mean)
     flat = cov.reshape(k, 9)
     out = np.empty((k, 10))
-    cells = flat[:, _CELLS]
-    var = np.maximum(cells[:, 3:], 1e-12)
-    std = np.sqrt(var)
-    np.divide(cells[:, :3], std[:, :3] * std[:, 3:], out=out[:, 7:])
-    out[:, :2] = mean[:, :2]
     heading = mean[:, 2]
-    np.cos(heading, out=out[:, 2])
-    np.sin(heading, out=out[:, 3])
-    np.log10(var[:, ::2], out=out[:, 4:7])
-    # Whole rows at once (contiguous, so cheaper than the column slices): scaling by
-    # 1 and shifting by 0 leave the other columns exactly as they are.
-    out *= _feature_scale(w, h)
-    out -= _FEATURE_SHIFT
-    np.maximum(out, _FEATURE_LOW, out=out)  # np.clip's wrapper costs more than the work
-    np.minimum(out, _FEATURE_HIGH, out=out)
+    log_var = np.log10(np.maximum(flat[:, ::4], 1e-12))  # the variances
+    # The rest (stds, correlations, scaling, clipping) in one compiled pass.
+    gaussian_rows(mean, flat, np.cos(heading), np.sin(heading), log_var, _feature_scale(w, h),
+                  _FEATURE_SHIFT, _FEATURE_LOW, _FEATURE_HIGH, out)
     return out
 
 
