@@ -5,8 +5,9 @@ the same IEEE operations in the same order (no fast-math: no reassociation,
 no fused multiply-adds), so results are bit-identical to the numpy code they
 replace. Trigonometry and matrix products stay in numpy (their vectorized
 implementations round differently from a scalar loop's). Private helpers of
-:mod:`coop_loc_env.raycast`, :mod:`coop_loc_env.world` and
-:mod:`coop_loc_env.estimation`.
+:mod:`coop_loc_env.raycast`, :mod:`coop_loc_env.world`,
+:mod:`coop_loc_env.estimation`, :mod:`coop_loc_env.terrain` and
+:mod:`coop_loc_env.mapping`.
 """
 
 from __future__ import annotations
@@ -18,7 +19,10 @@ from numba import njit
 
 from estimators.geometry import PI_BELOW as _PI_BELOW
 
-__all__ = ["fan_ranges", "gaussian_rows", "settle_poses", "substep_commands", "substep_velocities"]
+__all__ = [
+    "cover_footprints", "fan_ranges", "gaussian_rows", "settle_poses", "steep_candidates",
+    "substep_commands", "substep_velocities",
+]
 
 _PI = np.pi
 _TWO_PI = 2.0 * np.pi
@@ -166,3 +170,57 @@ def gaussian_rows(
             if x > high[c]:
                 x = high[c]
             out[r, c] = x
+
+
+@njit(cache=True)
+def steep_candidates(
+    points: np.ndarray, inv_res: float, f_max: np.ndarray, strides: np.ndarray,
+    steep_cells: np.ndarray, among: np.ndarray, out: np.ndarray,
+) -> bool:  # pragma: no cover (compiled)
+    """Which ``points`` ``(k, 2)`` lie in a height-field cell that may be steep (and are
+    ``among``, a mask; empty: all), into ``out`` ``(k,)``, as
+    :meth:`coop_loc_env.terrain.HeightField.is_steep` tests first. Returns whether any
+    does, or a coordinate is NaN (the caller then runs the full test)."""
+    found = False
+    for r in range(points.shape[0]):
+        index = 0
+        for axis in range(2):
+            f = points[r, axis] * inv_res
+            if f != f:
+                return True
+            if f < 0.0:
+                f = 0.0
+            if f > f_max[axis]:
+                f = f_max[axis]
+            index += int(f) * strides[axis]
+        hit = steep_cells[index] and (among.size == 0 or among[r])
+        out[r] = hit
+        found |= hit
+    return found
+
+
+@njit(cache=True)
+def cover_footprints(
+    true_poses: np.ndarray, ids: np.ndarray, inv_res: float, footprint: np.ndarray,
+    nx: int, ny: int, drivable: np.ndarray, covered: np.ndarray, new: np.ndarray,
+) -> None:  # pragma: no cover (compiled)
+    """Mark the drivable cells of an ``nx x ny`` grid (flat, row ``x``) that the
+    ``footprint`` cell offsets ``(F, 2)`` cover around the cell holding each robot
+    ``ids``' true position; ``new[id]`` counts the cells that robot covered first
+    (robots in the order of ``ids``, so a cell two reach counts for the earlier)."""
+    for i in ids:
+        fx = true_poses[i, 0] * inv_res
+        fy = true_poses[i, 1] * inv_res
+        if fx != fx or fy != fy:
+            continue
+        cx = math.floor(fx)
+        cy = math.floor(fy)
+        for j in range(footprint.shape[0]):
+            x = cx + footprint[j, 0]
+            y = cy + footprint[j, 1]
+            if x < 0 or x >= nx or y < 0 or y >= ny:
+                continue
+            flat = x * ny + y
+            if drivable[flat] and not covered[flat]:
+                covered[flat] = True
+                new[i] += 1
