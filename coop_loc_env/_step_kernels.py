@@ -224,3 +224,59 @@ def cover_footprints(
             if drivable[flat] and not covered[flat]:
                 covered[flat] = True
                 new[i] += 1
+
+
+@njit(cache=True)
+def fan_inputs(
+    static: np.ndarray, extra: np.ndarray, pose: np.ndarray, fan_angles: np.ndarray,
+    ref_state: np.ndarray, tolerance: np.ndarray, check: bool, index: np.ndarray,
+    heading: np.ndarray, rel: np.ndarray,
+) -> bool:  # pragma: no cover (compiled)
+    """The inputs of :func:`fan_ranges` once the candidate lists are known valid.
+
+    The scene's state is the static circles' centres ``(S, 2)``, then the moving
+    ones' ``extra`` ``(E, 2)``, then the fans' poses ``(F, 3)``, flat; with ``check``
+    it must lie within ``tolerance`` of ``ref_state`` (the state the lists were made
+    for; NaN never does), else nothing is written and False comes back. Writes
+    each fan's ray ``heading`` ``(F, R)`` (pose heading plus ``fan_angles``) and
+    ``rel`` ``(F, K, 2)``: candidate circle minus fan position, the candidates being
+    ``index`` ``(F, K)`` into the circles (static first), or every circle when
+    ``index`` is empty.
+    """
+    n_static = static.shape[0]
+    n_fans = pose.shape[0]
+    if check:
+        at = 0
+        for i in range(n_static):
+            for d in range(2):
+                if not abs(static[i, d] - ref_state[at]) <= tolerance[at]:
+                    return False
+                at += 1
+        for i in range(extra.shape[0]):
+            for d in range(2):
+                if not abs(extra[i, d] - ref_state[at]) <= tolerance[at]:
+                    return False
+                at += 1
+        for i in range(n_fans):
+            for d in range(3):
+                if not abs(pose[i, d] - ref_state[at]) <= tolerance[at]:
+                    return False
+                at += 1
+    for f in range(n_fans):
+        for j in range(fan_angles.shape[1]):
+            heading[f, j] = pose[f, 2] + fan_angles[f, j]
+    every = index.size == 0 and rel.shape[1] > 0
+    for f in range(n_fans):
+        px = pose[f, 0]
+        py = pose[f, 1]
+        for k in range(rel.shape[1]):
+            c = k if every else index[f, k]
+            if c < n_static:
+                cx = static[c, 0]
+                cy = static[c, 1]
+            else:
+                cx = extra[c - n_static, 0]
+                cy = extra[c - n_static, 1]
+            rel[f, k, 0] = cx - px
+            rel[f, k, 1] = cy - py
+    return True

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from coop_loc_env._step_kernels import fan_ranges
+from coop_loc_env._step_kernels import fan_inputs, fan_ranges
 
 
 @dataclass
@@ -285,28 +285,28 @@ class FanCaster:
         n_fans, n_rays, _ = self.fans
         rows = slice(None) if self._robots_are_all == len(poses) else self.robots
         pose = poses[rows]
-        parts = [self.centers.ravel(), pose.ravel()]
-        if extra_centers is not None:
-            parts.insert(1, extra_centers.ravel())
-        state = np.concatenate(parts)  # the circles' centres, then the fans' poses
-        centers = state[: 2 * len(radii)].reshape(-1, 2)
+        extra = _NO_CENTERS if extra_centers is None else extra_centers
         near = self._near
-        if (
-            near is None
-            or near[0] is not radii
-            or len(near[1]) != len(state)
-            or not (np.abs(state - near[1]) <= near[2]).all()  # also false for NaN
-        ):
+        check = not (near is None or near[0] is not radii
+                     or len(near[1]) != 2 * len(radii) + pose.size)
+        heading = np.empty((n_fans, n_rays))
+        if check:  # the lists still hold: headings and candidates' offsets in one pass
+            rel = np.empty((n_fans, len(radii) if near[3] is None else near[3].shape[1], 2))
+            check = fan_inputs(self.centers, extra, pose, self._fan_angles, near[1], near[2],
+                               True, _NO_INDEX if near[3] is None else near[3], heading, rel)
+        if not check:  # new candidate lists (or NaN poses), then the same pass unchecked
+            parts = [self.centers.ravel(), pose.ravel()]
+            if extra_centers is not None:
+                parts.insert(1, extra_centers.ravel())
+            state = np.concatenate(parts)  # the circles' centres, then the fans' poses
+            centers = state[: 2 * len(radii)].reshape(-1, 2)
             near = self._near = self._near_circles(state, pose, centers, radii, n_static)
-        heading = pose[:, 2:3] + self._fan_angles  # (robots, rays)
+            rel = np.empty((n_fans, len(radii) if near[3] is None else near[3].shape[1], 2))
+            fan_inputs(self.centers, extra, pose, self._fan_angles, near[1], near[2], False,
+                       _NO_INDEX if near[3] is None else near[3], heading, rel)
         dirs = np.empty((2, n_fans, n_rays))  # (cos, sin) planes
         np.cos(heading, out=dirs[0])
         np.sin(heading, out=dirs[1])
-        xy = pose[:, None, :2]  # (robots, 1, 2)
-        if near[3] is None:  # every circle
-            rel = centers[None] - xy  # (robots, circles, 2)
-        else:
-            rel = np.take(centers, near[3], axis=0) - xy  # (robots, candidates, 2)
         # The table is laid out (circles, robots, rays), so that the reduction over the
         # circles runs over whole planes.
         b = np.empty((rel.shape[1], n_fans, n_rays))
@@ -476,6 +476,8 @@ class FanCaster:
 
 
 _KEY_STRIDE = 8.0  # > 2 pi: separates robots in the sorted ray keys
+_NO_CENTERS = np.zeros((0, 2))  # no moving circles (fan_inputs)
+_NO_INDEX = np.zeros((0, 0), dtype=np.intp)  # every circle a candidate (fan_inputs)
 _SIDES = np.array([1.0, -1.0])  # the two sides of a fan
 
 
