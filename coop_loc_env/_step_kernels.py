@@ -6,8 +6,8 @@ no fused multiply-adds), so results are bit-identical to the numpy code they
 replace. Trigonometry and matrix products stay in numpy (their vectorized
 implementations round differently from a scalar loop's). Private helpers of
 :mod:`coop_loc_env.raycast`, :mod:`coop_loc_env.world`,
-:mod:`coop_loc_env.estimation`, :mod:`coop_loc_env.terrain` and
-:mod:`coop_loc_env.mapping`.
+:mod:`coop_loc_env.estimation`, :mod:`coop_loc_env.terrain`,
+:mod:`coop_loc_env.mapping` and :mod:`coop_loc_env.sensors`.
 """
 
 from __future__ import annotations
@@ -20,8 +20,8 @@ from numba import njit
 from estimators.geometry import PI_BELOW as _PI_BELOW
 
 __all__ = [
-    "cover_footprints", "fan_ranges", "gaussian_rows", "settle_poses", "steep_candidates",
-    "substep_commands", "substep_velocities",
+    "cover_footprints", "fan_inputs", "fan_ranges", "gaussian_rows", "noisy_ranges_into",
+    "settle_poses", "steep_candidates", "substep_commands", "substep_velocities",
 ]
 
 _PI = np.pi
@@ -280,3 +280,23 @@ def fan_inputs(
             rel[f, k, 0] = cx - px
             rel[f, k, 1] = cy - py
     return True
+
+
+@njit(cache=True)
+def noisy_ranges_into(out: np.ndarray, ranges: np.ndarray, std: float,
+                      rmax: float) -> None:  # pragma: no cover (compiled)
+    """``out`` (standard normals, the shape of ``ranges`` ``(n, beams)``) becomes
+    ``ranges + std * out`` clipped to ``[0, rmax]``, exactly ``rmax`` where ``ranges >=
+    rmax`` (NaN stays NaN): :func:`coop_loc_env.sensors._noisy_ranges` in one pass."""
+    for a in range(ranges.shape[0]):
+        for b in range(ranges.shape[1]):
+            r = ranges[a, b]
+            x = out[a, b] * std
+            x += r
+            if x < 0.0:
+                x = 0.0
+            if x > rmax:
+                x = rmax
+            if r >= rmax:
+                x = rmax
+            out[a, b] = x
