@@ -1,6 +1,6 @@
-"""Compiled loop (numba, cached on disk) of the terrain map's per-step sampling.
+"""Compiled loops (numba, cached on disk) of the terrain map's per-step update.
 
-It replaces a chain of small numpy operations by one pass with the same IEEE
+Each replaces a chain of small numpy operations by one pass with the same IEEE
 operations in the same order (no fast-math, no fused multiply-adds), so the
 result is bit-identical to the numpy code of
 :meth:`estimators.terrain_map.TerrainMap._update` it serves; the trigonometry
@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["footprint_samples"]
+__all__ = ["footprint_samples", "fuse_without_fix"]
 
 
 @njit(cache=True)
@@ -66,3 +66,43 @@ def footprint_samples(
                 win = True
             m += 1
     return m, win
+
+
+_SAFE = 1e300  # below this, sums of a few thousand values cannot overflow
+
+
+@njit(cache=True)
+def fuse_without_fix(
+    prev_elev: np.ndarray, prev_var: np.ndarray, distance: np.ndarray, tan_p: np.ndarray,
+    tan2: np.ndarray, slope2: np.ndarray, pos_var: np.ndarray, pitch_std: float,
+    min_var: float, poses: np.ndarray, elev: np.ndarray, var: np.ndarray, var_s: np.ndarray,
+) -> bool:  # pragma: no cover (compiled)
+    """The inclinometer-only elevation fusion and the sample variances, when no robot has
+    a fix (as :func:`estimators.terrain_fusion._fuse_elevation` and
+    :meth:`estimators.terrain_map.TerrainMap._update` compute them).
+
+    Writes ``elev``, ``var`` (the fused elevation and its variance) and ``var_s`` (the
+    sample variance, floored at ``min_var``); returns whether every value and pose is
+    finite and far from overflow, i.e. the caller's finiteness check passes for sure
+    (False: run the numpy path, which decides).
+    """
+    ok = True
+    for r in range(distance.size):
+        z = distance[r] * tan_p[r]
+        z += prev_elev[r]
+        v = tan2[r] + 1.0
+        v *= distance[r]
+        v *= pitch_std
+        v *= v
+        v += prev_var[r]
+        s = slope2[r] * pos_var[r]
+        s += v
+        if s < min_var:  # np.maximum: NaN stays NaN
+            s = min_var
+        elev[r] = z
+        var[r] = v
+        var_s[r] = s
+        ok &= abs(z) < _SAFE and abs(s) < _SAFE
+        for c in range(poses.shape[1]):
+            ok &= abs(poses[r, c]) < _SAFE
+    return ok

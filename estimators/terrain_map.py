@@ -65,7 +65,7 @@ import numpy as np
 from scipy.interpolate import griddata
 from scipy.spatial import QhullError
 
-from estimators._map_kernels import footprint_samples
+from estimators._map_kernels import footprint_samples, fuse_without_fix
 from estimators.terrain_fusion import _fuse_elevation
 
 # What a merge that writes nothing hands the listener: no cells, before/after values
@@ -404,6 +404,15 @@ class TerrainMap:
         whole = ids is self._valid_ids and self._valid_whole
         rows = slice(None) if whole else ids
         tan_p, tan2, slope2 = self._pitch_terms(pitch)
+        if (self.merge_every_step and self._footprint.shape[0] > 1
+                and not np.count_nonzero(nos)):  # the usual step: one compiled pass
+            elev, var, var_s = np.empty(n), np.empty(n), np.empty(n)
+            if fuse_without_fix(self._robot_elev[rows], self._robot_var[rows], distance, tan_p,
+                                tan2, slope2, pos_var, self.pitch_std, self.min_var, poses,
+                                elev, var, var_s):
+                self._robot_elev[rows] = elev
+                self._robot_var[rows] = var
+                return self._sample_and_merge(ids, poses, elev, var_s, tan_p, whole)
         elev, var = _fuse_elevation(
             self._robot_elev[rows],
             self._robot_var[rows],
