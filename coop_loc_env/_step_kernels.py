@@ -7,7 +7,8 @@ replace. Trigonometry and matrix products stay in numpy (their vectorized
 implementations round differently from a scalar loop's). Private helpers of
 :mod:`coop_loc_env.raycast`, :mod:`coop_loc_env.world`,
 :mod:`coop_loc_env.estimation`, :mod:`coop_loc_env.terrain`,
-:mod:`coop_loc_env.mapping` and :mod:`coop_loc_env.sensors`.
+:mod:`coop_loc_env.mapping`, :mod:`coop_loc_env.sensors` and
+:mod:`coop_loc_env.observations`.
 """
 
 from __future__ import annotations
@@ -21,7 +22,8 @@ from estimators.geometry import PI_BELOW as _PI_BELOW
 
 __all__ = [
     "cover_footprints", "fan_inputs", "fan_ranges", "gaussian_rows", "noisy_ranges_into",
-    "settle_poses", "steep_candidates", "substep_commands", "substep_velocities",
+    "pack_observations", "settle_poses", "steep_candidates", "substep_commands",
+    "substep_velocities",
 ]
 
 _PI = np.pi
@@ -300,3 +302,36 @@ def noisy_ranges_into(out: np.ndarray, ranges: np.ndarray, std: float,
             if r >= rmax:
                 x = rmax
             out[a, b] = x
+
+
+@njit(cache=True)
+def pack_observations(
+    belief: np.ndarray, latched: np.ndarray, last_action: np.ndarray, belief_size: int,
+    limit: float, out: np.ndarray,
+) -> None:  # pragma: no cover (compiled)
+    """Rows ``[belief, zeros up to belief_size, latched, last_action]`` cast to ``out``'s
+    float32 and clipped to ``[-limit, limit]`` (NaN stays NaN), as
+    :meth:`coop_loc_env.observations.ObservationBuilder.build_all` lays them out."""
+    lo = np.float32(-limit)
+    hi = np.float32(limit)
+    for r in range(out.shape[0]):
+        c = 0
+        for j in range(belief.shape[1]):
+            out[r, c] = np.float32(belief[r, j])
+            c += 1
+        while c < belief_size:
+            out[r, c] = np.float32(0.0)
+            c += 1
+        for j in range(latched.shape[1]):
+            out[r, c] = np.float32(latched[r, j])
+            c += 1
+        for j in range(last_action.shape[1]):
+            out[r, c] = np.float32(last_action[r, j])
+            c += 1
+        for j in range(c):
+            x = out[r, j]
+            if x < lo:
+                x = lo
+            if x > hi:
+                x = hi
+            out[r, j] = x

@@ -49,6 +49,7 @@ import math
 import numpy as np
 from gymnasium import spaces
 
+from coop_loc_env._step_kernels import pack_observations
 from coop_loc_env.config import ScenarioConfig
 from coop_loc_env.sensors import Readings, _due
 
@@ -69,6 +70,9 @@ class ObservationBuilder:
         # moves them all: gps (2), incl (2), range bins, detections; each a view.
         self._latched = np.zeros((n, 4 + cfg.laser_obs_bins + 6 * cfg.max_detections_obs))
         self._bind_views()
+        # Only belief, latched features and the last action: build_all packs them compiled.
+        self._plain = not (cfg.teammate_obs or cfg.map_patch_obs or cfg.privileged_obs) and (
+            self.size == belief_size + self._latched.shape[1] + 2)
         self.range[:] = 1.0
         self._det_written = False
         self._range_key: bytes | None = None
@@ -189,6 +193,11 @@ class ObservationBuilder:
         """
         cfg = self.cfg
         n = len(belief)
+        if self._plain and belief.shape[1] <= self.belief_size and last_action.shape[1] == 2:
+            obs = np.empty((n, self.size), dtype=np.float32)  # the blocks in one pass
+            pack_observations(belief, self._latched, last_action, self.belief_size, OBS_LIMIT,
+                              obs)
+            return obs
         parts = [belief, self._latched, last_action]  # _latched: gps, incl, range, det
         if cfg.teammate_obs:
             if teammates is None:
