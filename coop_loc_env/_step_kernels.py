@@ -22,7 +22,7 @@ from estimators.geometry import PI_BELOW as _PI_BELOW
 
 __all__ = [
     "cover_footprints", "fan_inputs", "fan_ranges", "gaussian_rows", "noisy_ranges_into",
-    "pack_observations", "settle_poses", "steep_candidates", "substep_commands",
+    "pack_observations", "pool_scans", "settle_poses", "steep_candidates", "substep_commands",
     "substep_velocities",
 ]
 
@@ -335,3 +335,27 @@ def pack_observations(
             if x > hi:
                 x = hi
             out[r, j] = x
+
+
+@njit(cache=True)
+def pool_scans(
+    ranges: np.ndarray, scale: np.ndarray, starts: np.ndarray, fired: np.ndarray,
+    out: np.ndarray,
+) -> None:  # pragma: no cover (compiled)
+    """Min-pool each scanning robot's row of ``ranges`` ``(n, beams)`` divided by its
+    ``scale`` into ``out``'s ``len(starts)`` bins (``np.fmin.reduceat`` over ``starts``:
+    NaN ignored, a bin of NaN only reads 1); rows where ``fired`` is False are kept."""
+    n_bins = starts.size
+    beams = ranges.shape[1]
+    for r in range(ranges.shape[0]):
+        if not fired[r]:
+            continue
+        for i in range(n_bins):
+            s = starts[i]
+            e = starts[i + 1] if i + 1 < n_bins else beams
+            m = ranges[r, s] / scale[r]
+            for j in range(s + 1, e):
+                v = ranges[r, j] / scale[r]
+                if v < m or m != m:  # fmin: the other one when one is NaN
+                    m = v
+            out[r, i] = 1.0 if m != m else m

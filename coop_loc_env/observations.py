@@ -49,7 +49,7 @@ import math
 import numpy as np
 from gymnasium import spaces
 
-from coop_loc_env._step_kernels import pack_observations
+from coop_loc_env._step_kernels import pack_observations, pool_scans
 from coop_loc_env.config import ScenarioConfig
 from coop_loc_env.sensors import Readings, _due
 
@@ -75,8 +75,6 @@ class ObservationBuilder:
             self.size == belief_size + self._latched.shape[1] + 2)
         self.range[:] = 1.0
         self._det_written = False
-        self._range_key: bytes | None = None
-        self._range_mixed = True
 
     def _bind_views(self) -> None:
         """``gps``, ``incl``, ``range`` and ``det``: column blocks of ``_latched``."""
@@ -143,13 +141,10 @@ class ObservationBuilder:
             self.incl[m, 1] = readings.roll[m]
         m = readings.range_mask
         fired = np.count_nonzero(m)
-        if fired:
-            scale = max_range[:, None] if self._mixed_range(max_range) else float(max_range[0])
-            pooled = _pool(readings.ranges / scale, cfg.laser_obs_bins)
-            if fired == m.size:
-                self.range[:] = pooled
-            else:  # every row pooled on its own: keep the robots that scanned
-                np.copyto(self.range, pooled, where=m[:, None])
+        if fired:  # each scanning robot's row pooled on its own (the others keep theirs)
+            ranges = readings.ranges
+            pool_scans(ranges, np.asarray(max_range, dtype=float),
+                       _pool_starts(ranges.shape[1], cfg.laser_obs_bins), m, self.range)
         det = readings.detections
         if self._det_written:
             self.det[:] = 0.0
@@ -169,14 +164,6 @@ class ObservationBuilder:
                     1.0, r / cfg.detector_range, math.cos(b), math.sin(b), math.cos(o), math.sin(o)
                 )
                 slot[i] = s + 1
-
-    def _mixed_range(self, max_range: np.ndarray) -> bool:
-        """Whether the robots' maximum ranges differ (cached per set of values)."""
-        key = max_range.tobytes()
-        if self._range_key != key:
-            self._range_key = key
-            self._range_mixed = len(set(np.asarray(max_range).tolist())) > 1
-        return self._range_mixed
 
     def build_all(
         self,
@@ -257,10 +244,3 @@ def teammate_features(
 @functools.lru_cache(maxsize=64)
 def _pool_starts(beams: int, bins: int) -> np.ndarray:
     return np.minimum(np.floor(np.linspace(0, beams, bins + 1)[:-1]).astype(int), beams - 1)
-
-
-def _pool(scans: np.ndarray, bins: int) -> np.ndarray:
-    """Min-pool each row of ``scans (k, beams)`` into ``bins`` columns; NaN pads read 1."""
-    pooled = np.fmin.reduceat(scans, _pool_starts(scans.shape[1], bins), axis=1)
-    pooled[pooled != pooled] = 1.0  # a bin of padding only
-    return pooled
