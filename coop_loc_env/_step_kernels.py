@@ -22,8 +22,8 @@ from estimators.geometry import PI_BELOW as _PI_BELOW
 
 __all__ = [
     "cover_footprints", "fan_inputs", "fan_ranges", "gaussian_rows", "noisy_ranges_into",
-    "pack_observations", "pool_scans", "settle_poses", "steep_candidates", "substep_commands",
-    "substep_velocities",
+    "odometry_variance_into", "pack_observations", "pool_scans", "settle_poses",
+    "steep_candidates", "substep_commands", "substep_velocities",
 ]
 
 _PI = np.pi
@@ -359,3 +359,22 @@ def pool_scans(
                 if v < m or m != m:  # fmin: the other one when one is NaN
                     m = v
             out[r, i] = 1.0 if m != m else m
+
+
+@njit(cache=True)
+def odometry_variance_into(
+    odo: np.ndarray, slip_std: float, encoder_var: np.ndarray, scale: float, out: np.ndarray,
+) -> None:  # pragma: no cover (compiled)
+    """``out[i, t, k] = scale * (encoder_var[i] + (slip_std * odo[t, k, i])^2)`` for the
+    ``(V, w)`` components ``i`` of odometry ``odo`` ``(T, k, 2)`` (the multiplication
+    by ``scale`` only when it is not 1)."""
+    n_sub, k, _ = odo.shape
+    for i in range(2):
+        for t in range(n_sub):
+            for r in range(k):
+                x = odo[t, r, i] * slip_std
+                x *= x
+                x += encoder_var[i]
+                if scale != 1.0:
+                    x *= scale
+                out[i, t, r] = x

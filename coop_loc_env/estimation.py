@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from coop_loc_env._step_kernels import gaussian_rows
+from coop_loc_env._step_kernels import gaussian_rows, odometry_variance_into
 from coop_loc_env.config import ScenarioConfig
 from coop_loc_env.sensors import Readings
 from coop_loc_env.world import World
@@ -166,11 +166,7 @@ def _odometry_variance(
     """``scale * (encoder_var + (slip_std * odo)^2)`` of odometry ``(substeps, k, 2)`` with the
     ``(V, w)`` axis first: a fresh C-ordered ``(2, substeps, k)``; ``encoder_var`` ``(2, 1, 1)``."""
     var = np.empty((2, *odo.shape[:2]))
-    np.multiply(odo.transpose(2, 0, 1), slip_std, out=var)
-    var *= var
-    var += encoder_var
-    if scale != 1.0:
-        var *= scale
+    odometry_variance_into(odo, float(slip_std), encoder_var.reshape(2), float(scale), var)
     return var
 
 
@@ -232,12 +228,14 @@ class EKFBackend(EstimatorBackend):
         self._encoder_var.flags.writeable = False
         self.ekf: PoseEKF | None = None
         self._contact_steps = np.zeros(len(self.robots), dtype=int)
+        self._contact_run = False  # whether _contact_steps may hold a nonzero count
 
     def reset(self, true_poses: np.ndarray, rng: np.random.Generator) -> None:
         """Start each filter at a noisy draw around the true pose."""
         mean, std = noisy_start(self.cfg, true_poses, self.robots, rng)
         self.ekf = PoseEKF(mean, np.diag(std**2), gate_prob=self.cfg.gate_prob)
         self._contact_steps[:] = 0
+        self._contact_run = False
 
     def step(self, readings: Readings, active: np.ndarray) -> dict[str, int]:
         """Fuse one step of readings; returns counts of accepted/rejected updates."""
@@ -249,13 +247,16 @@ class EKFBackend(EstimatorBackend):
         if pressed is not None and np.count_nonzero(pressed):
             pressed = pressed if self._whole_team else pressed[g]
             self._contact_steps = np.where(pressed, self._contact_steps + 1, 0)
+            self._contact_run = True
             hit = np.nonzero(pressed)[0]
             distance = np.abs(odo[:, hit, 0]).sum(axis=0) * dt_sub
             odo = odo.copy()
             odo[:, hit, 0] = 0.0  # the wheels' distance is no measure of motion now
         else:
             hit = None
-            self._contact_steps[:] = 0
+            if self._contact_run:  # (nothing to clear on most steps)
+                self._contact_steps[:] = 0
+                self._contact_run = False
         # Encoder noise plus the wheel slip the robot's maker specifies, inflated by
         # ``ekf_process_noise_scale`` to cover what the model leaves out; (V, w) together.
         var = _odometry_variance(odo, cfg.slip_std, self._encoder_var, cfg.ekf_process_noise_scale)
