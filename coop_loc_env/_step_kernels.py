@@ -21,9 +21,9 @@ from numba import njit
 from estimators.geometry import PI_BELOW as _PI_BELOW
 
 __all__ = [
-    "cover_footprints", "fan_inputs", "fan_ranges", "gaussian_rows", "noisy_ranges_into",
-    "odometry_variance_into", "pack_observations", "pool_scans", "settle_poses",
-    "steep_candidates", "substep_commands", "substep_velocities",
+    "circle_ray_hits", "cover_footprints", "fan_inputs", "fan_ranges", "gaussian_rows",
+    "near_pairs", "noisy_ranges_into", "odometry_variance_into", "pack_observations",
+    "pool_scans", "settle_poses", "steep_candidates", "substep_commands", "substep_velocities",
 ]
 
 _PI = np.pi
@@ -378,3 +378,109 @@ def odometry_variance_into(
                 if scale != 1.0:
                     x *= scale
                 out[i, t, r] = x
+
+
+@njit(cache=True)
+def near_pairs(
+    xy: np.ndarray, robots: np.ndarray, centers: np.ndarray, radii: np.ndarray,
+    reach: np.ndarray, n_static: int, pr: np.ndarray, pc: np.ndarray, d2v: np.ndarray,
+    dxv: np.ndarray, dyv: np.ndarray, ratio: np.ndarray, inside: np.ndarray,
+) -> int:  # pragma: no cover (compiled)
+    """The (robot slot, circle) pairs of :meth:`FanCaster._cast_circles` in row-major order:
+    circle within the robot's ``reach`` plus its radius, never the robot's own body
+    (circle ``n_static + robots[f]``). For each pair writes the slot and circle, the
+    squared distance, the offset ``circle - robot`` and ``min(r / max(d, 1e-12), 1)``
+    (the sine of the half-angle it covers) and whether the robot is inside it; returns
+    the number of pairs."""
+    m = 0
+    for f in range(xy.shape[0]):
+        own = n_static + robots[f]
+        for c in range(centers.shape[0]):
+            if c == own:
+                continue
+            dx = centers[c, 0] - xy[f, 0]
+            dy = centers[c, 1] - xy[f, 1]
+            d2 = dx * dx + dy * dy
+            lim = reach[f] + radii[c]
+            if not d2 < lim * lim:
+                continue
+            d = math.sqrt(d2)
+            r = radii[c]
+            q = r / (d if d > 1e-12 or d != d else 1e-12)
+            pr[m] = f
+            pc[m] = c
+            d2v[m] = d2
+            dxv[m] = dx
+            dyv[m] = dy
+            ratio[m] = q if q < 1.0 or q != q else 1.0
+            inside[m] = d <= r
+            m += 1
+    return m
+
+
+@njit(cache=True)
+def _search(keys: np.ndarray, v: float, right: bool) -> int:  # pragma: no cover (compiled)
+    """``np.searchsorted(keys, v, side)`` on sorted finite ``keys`` (NaN sorts last)."""
+    if v != v:
+        return keys.size
+    lo = 0
+    hi = keys.size
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if keys[mid] < v or (right and keys[mid] == v):
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@njit(cache=True)
+def circle_ray_hits(
+    pr: np.ndarray, pc: np.ndarray, d2v: np.ndarray, half: np.ndarray, angle: np.ndarray,
+    robots: np.ndarray, heading: np.ndarray, key_stride: float, sorted_key: np.ndarray,
+    order: np.ndarray, origins: np.ndarray, dirs: np.ndarray, centers: np.ndarray,
+    radii: np.ndarray, dist: np.ndarray,
+) -> None:  # pragma: no cover (compiled)
+    """The hits of :meth:`FanCaster._cast_circles`: each pair's rays (binary searches over
+    the rays sorted by robot and angle, the angular interval in up to three pieces) meet
+    its circle; ``dist`` keeps the nearest (``np.minimum.at``, in numpy's order).
+
+    ``half`` is the half-angle each pair covers (``pi`` from inside), ``angle`` the
+    ``atan2`` of its offset and ``heading`` each slot's robot heading.
+    """
+    m = pr.size
+    lo_k = np.empty(3 * m)
+    hi_k = np.empty(3 * m)
+    base = np.empty(m)
+    for i in range(m):
+        b = (angle[i] - heading[pr[i]]) + _PI
+        b %= _TWO_PI
+        lo = b - half[i]
+        hi = b + half[i]
+        base[i] = robots[pr[i]] * key_stride
+        lo_k[i] = lo if lo > 0.0 or lo != lo else 0.0
+        hi_k[i] = hi if hi < _TWO_PI or hi != hi else _TWO_PI
+        lo_k[m + i] = lo + _TWO_PI
+        hi_k[m + i] = _TWO_PI
+        lo_k[2 * m + i] = 0.0
+        hi_k[2 * m + i] = hi - _TWO_PI
+    for p in range(3 * m):
+        i = p % m
+        start = _search(sorted_key, base[i] + lo_k[p], False)
+        stop = _search(sorted_key, base[i] + hi_k[p], True)
+        c_idx = pc[i]
+        r = radii[c_idx]
+        c = d2v[i] - r * r
+        for s in range(start, stop):
+            ray = order[s]
+            fx = origins[ray, 0] - centers[c_idx, 0]
+            fy = origins[ray, 1] - centers[c_idx, 1]
+            b = fx * dirs[ray, 0] + fy * dirs[ray, 1]
+            disc = b * b - c
+            sq = math.sqrt(disc if disc > 0.0 or disc != disc else 0.0)
+            t = (-b - sq) if c > 0 else (-b + sq)
+            if disc < 0 or t < 0:
+                t = np.inf
+            cur = dist[ray]
+            if not (cur <= t or cur != cur):  # np.minimum: NaN wins, else the smaller
+                dist[ray] = t

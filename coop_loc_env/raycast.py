@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from coop_loc_env._step_kernels import fan_inputs, fan_ranges
+from coop_loc_env._step_kernels import circle_ray_hits, fan_inputs, fan_ranges, near_pairs
 
 
 @dataclass
@@ -428,51 +428,24 @@ class FanCaster:
         return self._own
 
     def _cast_circles(self, poses, centers, radii, n_static, dirs, origins, dist) -> None:
+        """Rays against the circles near their robot: each (robot, circle) pair's angular
+        interval picks its rays from the sorted keys (two compiled passes around numpy's
+        arcsine and arctangent)."""
         rob = self.robots
         xy = poses[rob, :2]
-        dx = centers[None, :, 0] - xy[:, 0:1]  # (robots, circles)
-        dy = centers[None, :, 1] - xy[:, 1:2]
-        d2 = dx * dx + dy * dy
-        near = d2 < (self.reach[:, None] + radii) ** 2
-        if len(radii) > n_static:  # a robot's rays skip its own body
-            own = np.nonzero(rob[:, None] == np.arange(len(radii) - n_static)[None])
-            near[own[0], n_static + own[1]] = False
-        pr, pc = np.nonzero(near)
-        if len(pr) == 0:
+        size = len(rob) * len(radii)
+        pr, pc = np.empty(size, dtype=np.intp), np.empty(size, dtype=np.intp)
+        d2v, dxv, dyv, ratio = np.empty(size), np.empty(size), np.empty(size), np.empty(size)
+        inside = np.empty(size, dtype=bool)
+        m = near_pairs(xy, rob, centers, radii, self.reach, n_static, pr, pc, d2v, dxv, dyv,
+                       ratio, inside)
+        if m == 0:
             return
-        d = np.sqrt(d2[pr, pc])
-        r = radii[pc]
-        half = np.arcsin(np.minimum(r / np.maximum(d, 1e-12), 1.0))
-        half[d <= r] = np.pi  # inside the circle: every ray exits through it
-        bearing = np.arctan2(dy[pr, pc], dx[pr, pc]) - poses[rob[pr], 2] + np.pi
-        bearing %= 2 * np.pi  # in [0, 2 pi), as the sorted keys
-        base = rob[pr] * _KEY_STRIDE
-        lo, hi = bearing - half, bearing + half
-        # Up to three pieces: the interval clipped to [0, 2 pi) and its wrapped-around ends.
-        lo_k = np.concatenate([np.maximum(lo, 0.0), lo + 2 * np.pi, np.zeros_like(lo)])
-        hi_k = np.concatenate(
-            [np.minimum(hi, 2 * np.pi), np.full_like(hi, 2 * np.pi), hi - 2 * np.pi]
-        )
-        base3 = np.concatenate([base, base, base])
-        start = np.searchsorted(self.sorted_key, base3 + lo_k, side="left")
-        stop = np.searchsorted(self.sorted_key, base3 + hi_k, side="right")
-        count = np.maximum(stop - start, 0)
-        total = int(count.sum())
-        if total == 0:
-            return
-        piece = np.repeat(np.arange(len(count)), count)
-        offset = np.arange(total) - np.repeat(np.cumsum(count) - count, count)
-        ray = self.order[start[piece] + offset]
-        pair = piece % len(pr)
-        fx = origins[ray, 0] - centers[pc[pair], 0]
-        fy = origins[ray, 1] - centers[pc[pair], 1]
-        b = fx * dirs[ray, 0] + fy * dirs[ray, 1]
-        c = d2[pr[pair], pc[pair]] - r[pair] ** 2
-        disc = b * b - c
-        sq = np.sqrt(np.maximum(disc, 0.0))
-        t = np.where(c > 0, -b - sq, -b + sq)
-        t[(disc < 0) | (t < 0)] = np.inf
-        np.minimum.at(dist, ray, t)
+        half = np.arcsin(ratio[:m])
+        half[inside[:m]] = np.pi  # inside the circle: every ray exits through it
+        angle = np.arctan2(dyv[:m], dxv[:m])
+        circle_ray_hits(pr[:m], pc[:m], d2v[:m], half, angle, rob, poses[rob, 2], _KEY_STRIDE,
+                        self.sorted_key, self.order, origins, dirs, centers, radii, dist)
 
 
 _KEY_STRIDE = 8.0  # > 2 pi: separates robots in the sorted ray keys
