@@ -419,12 +419,12 @@ def near_pairs(
 
 
 @njit(cache=True)
-def _search(keys: np.ndarray, v: float, right: bool) -> int:  # pragma: no cover (compiled)
-    """``np.searchsorted(keys, v, side)`` on sorted finite ``keys`` (NaN sorts last)."""
+def _search(keys: np.ndarray, lo: int, hi: int, v: float,
+            right: bool) -> int:  # pragma: no cover (compiled)
+    """``np.searchsorted(keys, v, side)`` (``"right"`` if ``right``) on sorted finite
+    ``keys`` whose answer is known to lie in ``[lo, hi]``; NaN sorts last (``hi``)."""
     if v != v:
-        return keys.size
-    lo = 0
-    hi = keys.size
+        return hi
     while lo < hi:
         mid = (lo + hi) // 2
         if keys[mid] < v or (right and keys[mid] == v):
@@ -438,15 +438,19 @@ def _search(keys: np.ndarray, v: float, right: bool) -> int:  # pragma: no cover
 def circle_ray_hits(
     pr: np.ndarray, pc: np.ndarray, d2v: np.ndarray, half: np.ndarray, angle: np.ndarray,
     robots: np.ndarray, heading: np.ndarray, key_stride: float, sorted_key: np.ndarray,
-    order: np.ndarray, origins: np.ndarray, dirs: np.ndarray, centers: np.ndarray,
-    radii: np.ndarray, dist: np.ndarray,
+    segments: np.ndarray, order: np.ndarray, origins: np.ndarray, dirs: np.ndarray,
+    centers: np.ndarray, radii: np.ndarray, dist: np.ndarray,
 ) -> None:  # pragma: no cover (compiled)
     """The hits of :meth:`FanCaster._cast_circles`: each pair's rays (binary searches over
     the rays sorted by robot and angle, the angular interval in up to three pieces) meet
     its circle; ``dist`` keeps the nearest (``np.minimum.at``, in numpy's order).
 
     ``half`` is the half-angle each pair covers (``pi`` from inside), ``angle`` the
-    ``atan2`` of its offset and ``heading`` each slot's robot heading.
+    ``atan2`` of its offset, ``heading`` each slot's robot heading and ``segments``
+    ``(slots, 2)`` where each slot's rays start and end in ``sorted_key``. A robot's
+    keys lie in ``[base, base + 2 pi]``, the others' outside, so a search of its own
+    segment gives numpy's answer for a key in that span; outside it, the interval
+    holds none of the robot's rays either way (NaN bounds search every key).
     """
     m = pr.size
     lo_k = np.empty(3 * m)
@@ -466,8 +470,17 @@ def circle_ray_hits(
         hi_k[2 * m + i] = hi - _TWO_PI
     for p in range(3 * m):
         i = p % m
-        start = _search(sorted_key, base[i] + lo_k[p], False)
-        stop = _search(sorted_key, base[i] + hi_k[p], True)
+        v_lo = base[i] + lo_k[p]
+        v_hi = base[i] + hi_k[p]
+        if v_lo > v_hi:  # no key is >= v_lo and <= v_hi: no ray
+            continue
+        a = segments[pr[i], 0]
+        z = segments[pr[i], 1]
+        if v_lo != v_lo or v_hi != v_hi:  # NaN sorts last: numpy's search of every key
+            a = 0
+            z = sorted_key.size
+        start = _search(sorted_key, a, z, v_lo, False)
+        stop = _search(sorted_key, a, z, v_hi, True)
         c_idx = pc[i]
         r = radii[c_idx]
         c = d2v[i] - r * r

@@ -204,6 +204,10 @@ class FanCaster:
         key = self.ray_robot * _KEY_STRIDE + wrapped
         self.order = np.argsort(key, kind="stable")
         self.sorted_key = key[self.order]
+        # Where each robot's rays start and end in sorted_key (keys base + [0, 2 pi]).
+        base = self.robots * _KEY_STRIDE
+        self._segments = np.stack([np.searchsorted(self.sorted_key, base - 0.5),
+                                   np.searchsorted(self.sorted_key, base + 7.5)], 1)
         reach = np.zeros(self.ray_robot.max() + 1 if len(self.ray_robot) else 0)
         np.maximum.at(reach, self.ray_robot, np.asarray(max_range, dtype=float))
         self.reach = reach[self.robots]
@@ -445,7 +449,8 @@ class FanCaster:
         half[inside[:m]] = np.pi  # inside the circle: every ray exits through it
         angle = np.arctan2(dyv[:m], dxv[:m])
         circle_ray_hits(pr[:m], pc[:m], d2v[:m], half, angle, rob, poses[rob, 2], _KEY_STRIDE,
-                        self.sorted_key, self.order, origins, dirs, centers, radii, dist)
+                        self.sorted_key, self._segments, self.order, origins, dirs, centers,
+                        radii, dist)
 
 
 _KEY_STRIDE = 8.0  # > 2 pi: separates robots in the sorted ray keys
