@@ -3,6 +3,7 @@ printed against their targets."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 
@@ -17,10 +18,11 @@ def test_benchmark_prints_the_ratio_and_the_growth_against_their_targets(script_
         for r in row["rounds"]:  # each round's ratio is its own two rates
             assert r["steps_per_s"] > 0 and r["mpe2_steps_per_s"] > 0
             assert r["ratio"] == pytest.approx(r["steps_per_s"] / r["mpe2_steps_per_s"])
-    assert results["growth"] == pytest.approx(rows[0]["steps_per_s"] / rows[1]["steps_per_s"])
+    assert len(results["growth_rounds"]) == 2 and min(results["growth_rounds"]) > 0
+    assert results["growth"] == pytest.approx(float(np.median(results["growth_rounds"])))
     assert f"ratio to mpe2 at 2 robots: {rows[0]['ratio']:.2f}" in out
     assert "target >= 1.5, at least 1.1" in out
-    assert "step time at 3 robots" in out and "(target <= 6x)" in out
+    assert "step time at 3 robots" in out and "target <= 6x)" in out
 
 
 @pytest.mark.parametrize("argv", [["--seconds", "0"], ["--rounds", "0"], ["--sizes", "4", "0"]])
