@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from coop_loc_env._step_kernels import gaussian_rows, odometry_variance_into
 from coop_loc_env.config import ScenarioConfig
 from coop_loc_env.sensors import Readings
 from coop_loc_env.world import World
@@ -70,10 +71,6 @@ class EstimatorBackend:
 _FEATURE_LOW = np.array([-np.inf] * 4 + [-3.0] * 3 + [-1.0] * 3)
 _FEATURE_HIGH = np.array([np.inf] * 4 + [2.0] * 3 + [1.0] * 3)
 _FEATURE_SHIFT = np.array([1.0, 1.0] + [0.0] * 8)
-# Cells of a row-major 3x3 covariance: the off-diagonal (0, 1), (0, 2), (1, 2), then
-# the variances of their rows (0, 0, 4) and columns (4, 8, 8); every other one of the
-# variances is the diagonal (0, 4, 8).
-_CELLS = np.array([1, 2, 5, 0, 0, 4, 4, 8, 8])
 _EYE2 = np.eye(2)
 _EYE2.flags.writeable = False
 
@@ -100,21 +97,11 @@ def gaussian_features(
     k = len(mean)
     flat = cov.reshape(k, 9)
     out = np.empty((k, 10))
-    cells = flat[:, _CELLS]
-    var = np.maximum(cells[:, 3:], 1e-12)
-    std = np.sqrt(var)
-    np.divide(cells[:, :3], std[:, :3] * std[:, 3:], out=out[:, 7:])
-    out[:, :2] = mean[:, :2]
     heading = mean[:, 2]
-    np.cos(heading, out=out[:, 2])
-    np.sin(heading, out=out[:, 3])
-    np.log10(var[:, ::2], out=out[:, 4:7])
-    # Whole rows at once (contiguous, so cheaper than the column slices): scaling by
-    # 1 and shifting by 0 leave the other columns exactly as they are.
-    out *= _feature_scale(w, h)
-    out -= _FEATURE_SHIFT
-    np.maximum(out, _FEATURE_LOW, out=out)  # np.clip's wrapper costs more than the work
-    np.minimum(out, _FEATURE_HIGH, out=out)
+    log_var = np.log10(np.maximum(flat[:, ::4], 1e-12))  # the variances
+    # The rest (stds, correlations, scaling, clipping) in one compiled pass.
+    gaussian_rows(mean, flat, np.cos(heading), np.sin(heading), log_var, _feature_scale(w, h),
+                  _FEATURE_SHIFT, _FEATURE_LOW, _FEATURE_HIGH, out)
     return out
 
 
@@ -179,11 +166,7 @@ def _odometry_variance(
     """``scale * (encoder_var + (slip_std * odo)^2)`` of odometry ``(substeps, k, 2)`` with the
     ``(V, w)`` axis first: a fresh C-ordered ``(2, substeps, k)``; ``encoder_var`` ``(2, 1, 1)``."""
     var = np.empty((2, *odo.shape[:2]))
-    np.multiply(odo.transpose(2, 0, 1), slip_std, out=var)
-    var *= var
-    var += encoder_var
-    if scale != 1.0:
-        var *= scale
+    odometry_variance_into(odo, float(slip_std), encoder_var.reshape(2), float(scale), var)
     return var
 
 
@@ -245,12 +228,14 @@ class EKFBackend(EstimatorBackend):
         self._encoder_var.flags.writeable = False
         self.ekf: PoseEKF | None = None
         self._contact_steps = np.zeros(len(self.robots), dtype=int)
+        self._contact_run = False  # whether _contact_steps may hold a nonzero count
 
     def reset(self, true_poses: np.ndarray, rng: np.random.Generator) -> None:
         """Start each filter at a noisy draw around the true pose."""
         mean, std = noisy_start(self.cfg, true_poses, self.robots, rng)
         self.ekf = PoseEKF(mean, np.diag(std**2), gate_prob=self.cfg.gate_prob)
         self._contact_steps[:] = 0
+        self._contact_run = False
 
     def step(self, readings: Readings, active: np.ndarray) -> dict[str, int]:
         """Fuse one step of readings; returns counts of accepted/rejected updates."""
@@ -262,13 +247,16 @@ class EKFBackend(EstimatorBackend):
         if pressed is not None and np.count_nonzero(pressed):
             pressed = pressed if self._whole_team else pressed[g]
             self._contact_steps = np.where(pressed, self._contact_steps + 1, 0)
+            self._contact_run = True
             hit = np.nonzero(pressed)[0]
             distance = np.abs(odo[:, hit, 0]).sum(axis=0) * dt_sub
             odo = odo.copy()
             odo[:, hit, 0] = 0.0  # the wheels' distance is no measure of motion now
         else:
             hit = None
-            self._contact_steps[:] = 0
+            if self._contact_run:  # (nothing to clear on most steps)
+                self._contact_steps[:] = 0
+                self._contact_run = False
         # Encoder noise plus the wheel slip the robot's maker specifies, inflated by
         # ``ekf_process_noise_scale`` to cover what the model leaves out; (V, w) together.
         var = _odometry_variance(odo, cfg.slip_std, self._encoder_var, cfg.ekf_process_noise_scale)

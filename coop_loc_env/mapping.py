@@ -35,6 +35,7 @@ import math
 
 import numpy as np
 
+from coop_loc_env._step_kernels import cover_footprints
 from coop_loc_env.config import ScenarioConfig
 from coop_loc_env.sensors import Readings
 from coop_loc_env.world import World
@@ -94,7 +95,6 @@ class TeamMapper:
         self.last_new_cells = np.zeros(n, dtype=np.int64)
         self._truly_covered = np.zeros(self._drivable_flat.size, dtype=bool)
         self._footprint_cells = np.rint(self.map._footprint / cfg.map_resolution).astype(np.intp)
-        self._cover_key = b""
         self.last_covered_cells = np.zeros(n, dtype=np.int64)
 
     @property
@@ -121,7 +121,6 @@ class TeamMapper:
         )
         self.last_new_cells = np.zeros(n, dtype=np.int64)
         self._truly_covered[:] = False
-        self._cover_key = b""
         self.cover(np.asarray(true_poses, dtype=float), self._all)
         self.last_covered_cells = np.zeros(n, dtype=np.int64)
 
@@ -133,29 +132,12 @@ class TeamMapper:
         a cell two robots reach in the same call counts for the lower index.
         """
         new = np.zeros(self.cfg.n_robots, dtype=np.int64)
-        if not ids.size:
-            return new
-        cell = np.floor(true_poses[ids, :2] * (1.0 / self.map.resolution)).astype(np.intp)
-        key = cell.tobytes() + ids.tobytes()
-        if key == self._cover_key:  # every robot still in the cell it was in: nothing new
-            return new
-        self._cover_key = key
-        cells = (cell[:, None, :] + self._footprint_cells).reshape(-1, 2)
-        nx, ny = self.map.shape
-        owner = np.repeat(ids, self._footprint_cells.shape[0])
-        ok = (cells[:, 0] >= 0) & (cells[:, 0] < nx) & (cells[:, 1] >= 0) & (cells[:, 1] < ny)
-        flat = cells[:, 0] * ny + cells[:, 1]
-        if np.count_nonzero(ok) < ok.size:
-            flat, owner = flat[ok], owner[ok]
-        fresh = self._drivable_flat[flat] & ~self._truly_covered[flat]
-        if not np.count_nonzero(fresh):
-            return new
-        flat, owner = flat[fresh], owner[fresh]
-        if flat.size > 1 and len(set(flat.tolist())) < flat.size:  # shared by two robots
-            flat, first = np.unique(flat, return_index=True)  # owners come in id order
-            owner = owner[first]
-        self._truly_covered[flat] = True
-        return np.bincount(owner, minlength=self.cfg.n_robots)
+        if ids.size:  # one compiled pass over the robots' footprints
+            nx, ny = self.map.shape
+            cover_footprints(np.asarray(true_poses, dtype=float), np.asarray(ids, dtype=np.intp),
+                             1.0 / self.map.resolution, self._footprint_cells, nx, ny,
+                             self._drivable_flat, self._truly_covered, new)
+        return new
 
     def step(
         self,

@@ -49,6 +49,7 @@ import math
 import numpy as np
 from gymnasium import spaces
 
+from coop_loc_env._step_kernels import pack_observations, pool_scans
 from coop_loc_env.config import ScenarioConfig
 from coop_loc_env.sensors import Readings, _due
 
@@ -69,10 +70,11 @@ class ObservationBuilder:
         # moves them all: gps (2), incl (2), range bins, detections; each a view.
         self._latched = np.zeros((n, 4 + cfg.laser_obs_bins + 6 * cfg.max_detections_obs))
         self._bind_views()
+        # Only belief, latched features and the last action: build_all packs them compiled.
+        self._plain = not (cfg.teammate_obs or cfg.map_patch_obs or cfg.privileged_obs) and (
+            self.size == belief_size + self._latched.shape[1] + 2)
         self.range[:] = 1.0
         self._det_written = False
-        self._range_key: bytes | None = None
-        self._range_mixed = True
 
     def _bind_views(self) -> None:
         """``gps``, ``incl``, ``range`` and ``det``: column blocks of ``_latched``."""
@@ -139,13 +141,10 @@ class ObservationBuilder:
             self.incl[m, 1] = readings.roll[m]
         m = readings.range_mask
         fired = np.count_nonzero(m)
-        if fired:
-            scale = max_range[:, None] if self._mixed_range(max_range) else float(max_range[0])
-            pooled = _pool(readings.ranges / scale, cfg.laser_obs_bins)
-            if fired == m.size:
-                self.range[:] = pooled
-            else:  # every row pooled on its own: keep the robots that scanned
-                np.copyto(self.range, pooled, where=m[:, None])
+        if fired:  # each scanning robot's row pooled on its own (the others keep theirs)
+            ranges = readings.ranges
+            pool_scans(ranges, np.asarray(max_range, dtype=float),
+                       _pool_starts(ranges.shape[1], cfg.laser_obs_bins), m, self.range)
         det = readings.detections
         if self._det_written:
             self.det[:] = 0.0
@@ -166,14 +165,6 @@ class ObservationBuilder:
                 )
                 slot[i] = s + 1
 
-    def _mixed_range(self, max_range: np.ndarray) -> bool:
-        """Whether the robots' maximum ranges differ (cached per set of values)."""
-        key = max_range.tobytes()
-        if self._range_key != key:
-            self._range_key = key
-            self._range_mixed = len(set(np.asarray(max_range).tolist())) > 1
-        return self._range_mixed
-
     def build_all(
         self,
         belief: np.ndarray,
@@ -189,6 +180,11 @@ class ObservationBuilder:
         """
         cfg = self.cfg
         n = len(belief)
+        if self._plain and belief.shape[1] <= self.belief_size and last_action.shape[1] == 2:
+            obs = np.empty((n, self.size), dtype=np.float32)  # the blocks in one pass
+            pack_observations(belief, self._latched, last_action, self.belief_size, OBS_LIMIT,
+                              obs)
+            return obs
         parts = [belief, self._latched, last_action]  # _latched: gps, incl, range, det
         if cfg.teammate_obs:
             if teammates is None:
@@ -248,10 +244,3 @@ def teammate_features(
 @functools.lru_cache(maxsize=64)
 def _pool_starts(beams: int, bins: int) -> np.ndarray:
     return np.minimum(np.floor(np.linspace(0, beams, bins + 1)[:-1]).astype(int), beams - 1)
-
-
-def _pool(scans: np.ndarray, bins: int) -> np.ndarray:
-    """Min-pool each row of ``scans (k, beams)`` into ``bins`` columns; NaN pads read 1."""
-    pooled = np.fmin.reduceat(scans, _pool_starts(scans.shape[1], bins), axis=1)
-    pooled[pooled != pooled] = 1.0  # a bin of padding only
-    return pooled

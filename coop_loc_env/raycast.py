@@ -6,6 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from coop_loc_env._step_kernels import circle_ray_hits, fan_inputs, fan_ranges, near_pairs
+
 
 @dataclass
 class RayScene:
@@ -202,6 +204,10 @@ class FanCaster:
         key = self.ray_robot * _KEY_STRIDE + wrapped
         self.order = np.argsort(key, kind="stable")
         self.sorted_key = key[self.order]
+        # Where each robot's rays start and end in sorted_key (keys base + [0, 2 pi]).
+        base = self.robots * _KEY_STRIDE
+        self._segments = np.stack([np.searchsorted(self.sorted_key, base - 0.5),
+                                   np.searchsorted(self.sorted_key, base + 7.5)], 1)
         reach = np.zeros(self.ray_robot.max() + 1 if len(self.ray_robot) else 0)
         np.maximum.at(reach, self.ray_robot, np.asarray(max_range, dtype=float))
         self.reach = reach[self.robots]
@@ -219,9 +225,7 @@ class FanCaster:
         if self._fan_angles is not None:
             lo, hi = self._fan_angles.min(1), self._fan_angles.max(1)
             self._fan_mid, self._fan_half = 0.5 * (lo + hi), 0.5 * (hi - lo)
-            self._box = (
-                None if self._bounds_xy is None else self._bounds_xy.reshape(2, 1, 1)
-            )
+            self._box_wh = np.zeros(0) if self._bounds_xy is None else self._bounds_xy
 
     def cast(
         self,
@@ -285,45 +289,34 @@ class FanCaster:
         n_fans, n_rays, _ = self.fans
         rows = slice(None) if self._robots_are_all == len(poses) else self.robots
         pose = poses[rows]
-        parts = [self.centers.ravel(), pose.ravel()]
-        if extra_centers is not None:
-            parts.insert(1, extra_centers.ravel())
-        state = np.concatenate(parts)  # the circles' centres, then the fans' poses
-        centers = state[: 2 * len(radii)].reshape(-1, 2)
+        extra = _NO_CENTERS if extra_centers is None else extra_centers
         near = self._near
-        if (
-            near is None
-            or near[0] is not radii
-            or len(near[1]) != len(state)
-            or not (np.abs(state - near[1]) <= near[2]).all()  # also false for NaN
-        ):
+        check = not (near is None or near[0] is not radii
+                     or len(near[1]) != 2 * len(radii) + pose.size)
+        heading = np.empty((n_fans, n_rays))
+        if check:  # the lists still hold: headings and candidates' offsets in one pass
+            rel = np.empty((n_fans, len(radii) if near[3] is None else near[3].shape[1], 2))
+            check = fan_inputs(self.centers, extra, pose, self._fan_angles, near[1], near[2],
+                               True, _NO_INDEX if near[3] is None else near[3], heading, rel)
+        if not check:  # new candidate lists (or NaN poses), then the same pass unchecked
+            parts = [self.centers.ravel(), pose.ravel()]
+            if extra_centers is not None:
+                parts.insert(1, extra_centers.ravel())
+            state = np.concatenate(parts)  # the circles' centres, then the fans' poses
+            centers = state[: 2 * len(radii)].reshape(-1, 2)
             near = self._near = self._near_circles(state, pose, centers, radii, n_static)
-        heading = pose[:, 2:3] + self._fan_angles  # (robots, rays)
+            rel = np.empty((n_fans, len(radii) if near[3] is None else near[3].shape[1], 2))
+            fan_inputs(self.centers, extra, pose, self._fan_angles, near[1], near[2], False,
+                       _NO_INDEX if near[3] is None else near[3], heading, rel)
         dirs = np.empty((2, n_fans, n_rays))  # (cos, sin) planes
         np.cos(heading, out=dirs[0])
         np.sin(heading, out=dirs[1])
-        xy = pose[:, None, :2]  # (robots, 1, 2)
-        if near[3] is None:  # every circle
-            rel = centers[None] - xy  # (robots, circles, 2)
-        else:
-            rel = np.take(centers, near[3], axis=0) - xy  # (robots, candidates, 2)
-        q = rel * rel
-        q = np.add(q[..., 0], q[..., 1])  # |c - o|^2
-        q -= near[4]  # r^2, -inf for padding and own bodies: q = inf there
         # The table is laid out (circles, robots, rays), so that the reduction over the
         # circles runs over whole planes.
-        b = np.empty((q.shape[1], n_fans, n_rays))
+        b = np.empty((rel.shape[1], n_fans, n_rays))
         np.matmul(rel, dirs.transpose(1, 0, 2), out=b.transpose(1, 0, 2))
-        with np.errstate(invalid="ignore", divide="ignore"):
-            disc = b * b
-            disc -= q.T[:, :, None]
-            np.sqrt(disc, out=disc)  # NaN where a ray misses
-            b -= disc
-            np.reciprocal(b, out=b)
-            inv = np.fmax.reduce(b, axis=0, initial=0.0)  # 0 where no circle is hit
-            dist = np.divide(1.0, inv, out=inv)  # inf there
-            if self._box is not None:
-                _box_walls(pose.T[:2, :, None], dirs, self._box, dist, 0)
+        dist = np.empty((n_fans, n_rays))
+        fan_ranges(b, rel, near[4], dirs, pose, self._box_wh, dist)
         return dist.reshape(-1)
 
     def _near_circles(
@@ -439,54 +432,30 @@ class FanCaster:
         return self._own
 
     def _cast_circles(self, poses, centers, radii, n_static, dirs, origins, dist) -> None:
+        """Rays against the circles near their robot: each (robot, circle) pair's angular
+        interval picks its rays from the sorted keys (two compiled passes around numpy's
+        arcsine and arctangent)."""
         rob = self.robots
         xy = poses[rob, :2]
-        dx = centers[None, :, 0] - xy[:, 0:1]  # (robots, circles)
-        dy = centers[None, :, 1] - xy[:, 1:2]
-        d2 = dx * dx + dy * dy
-        near = d2 < (self.reach[:, None] + radii) ** 2
-        if len(radii) > n_static:  # a robot's rays skip its own body
-            own = np.nonzero(rob[:, None] == np.arange(len(radii) - n_static)[None])
-            near[own[0], n_static + own[1]] = False
-        pr, pc = np.nonzero(near)
-        if len(pr) == 0:
+        size = len(rob) * len(radii)
+        pr, pc = np.empty(size, dtype=np.intp), np.empty(size, dtype=np.intp)
+        d2v, dxv, dyv, ratio = np.empty(size), np.empty(size), np.empty(size), np.empty(size)
+        inside = np.empty(size, dtype=bool)
+        m = near_pairs(xy, rob, centers, radii, self.reach, n_static, pr, pc, d2v, dxv, dyv,
+                       ratio, inside)
+        if m == 0:
             return
-        d = np.sqrt(d2[pr, pc])
-        r = radii[pc]
-        half = np.arcsin(np.minimum(r / np.maximum(d, 1e-12), 1.0))
-        half[d <= r] = np.pi  # inside the circle: every ray exits through it
-        bearing = np.arctan2(dy[pr, pc], dx[pr, pc]) - poses[rob[pr], 2] + np.pi
-        bearing %= 2 * np.pi  # in [0, 2 pi), as the sorted keys
-        base = rob[pr] * _KEY_STRIDE
-        lo, hi = bearing - half, bearing + half
-        # Up to three pieces: the interval clipped to [0, 2 pi) and its wrapped-around ends.
-        lo_k = np.concatenate([np.maximum(lo, 0.0), lo + 2 * np.pi, np.zeros_like(lo)])
-        hi_k = np.concatenate(
-            [np.minimum(hi, 2 * np.pi), np.full_like(hi, 2 * np.pi), hi - 2 * np.pi]
-        )
-        base3 = np.concatenate([base, base, base])
-        start = np.searchsorted(self.sorted_key, base3 + lo_k, side="left")
-        stop = np.searchsorted(self.sorted_key, base3 + hi_k, side="right")
-        count = np.maximum(stop - start, 0)
-        total = int(count.sum())
-        if total == 0:
-            return
-        piece = np.repeat(np.arange(len(count)), count)
-        offset = np.arange(total) - np.repeat(np.cumsum(count) - count, count)
-        ray = self.order[start[piece] + offset]
-        pair = piece % len(pr)
-        fx = origins[ray, 0] - centers[pc[pair], 0]
-        fy = origins[ray, 1] - centers[pc[pair], 1]
-        b = fx * dirs[ray, 0] + fy * dirs[ray, 1]
-        c = d2[pr[pair], pc[pair]] - r[pair] ** 2
-        disc = b * b - c
-        sq = np.sqrt(np.maximum(disc, 0.0))
-        t = np.where(c > 0, -b - sq, -b + sq)
-        t[(disc < 0) | (t < 0)] = np.inf
-        np.minimum.at(dist, ray, t)
+        half = np.arcsin(ratio[:m])
+        half[inside[:m]] = np.pi  # inside the circle: every ray exits through it
+        angle = np.arctan2(dyv[:m], dxv[:m])
+        circle_ray_hits(pr[:m], pc[:m], d2v[:m], half, angle, rob, poses[rob, 2], _KEY_STRIDE,
+                        self.sorted_key, self._segments, self.order, origins, dirs, centers,
+                        radii, dist)
 
 
 _KEY_STRIDE = 8.0  # > 2 pi: separates robots in the sorted ray keys
+_NO_CENTERS = np.zeros((0, 2))  # no moving circles (fan_inputs)
+_NO_INDEX = np.zeros((0, 0), dtype=np.intp)  # every circle a candidate (fan_inputs)
 _SIDES = np.array([1.0, -1.0])  # the two sides of a fan
 
 

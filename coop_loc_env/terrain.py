@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from coop_loc_env._step_kernels import steep_candidates
 from coop_loc_env.config import ScenarioConfig
+
+_ALL = np.zeros(0, dtype=bool)  # "every point" for steep_candidates
 
 
 class HeightField:
@@ -133,9 +136,15 @@ class HeightField:
         With a boolean mask ``among`` only those points are tested (the others
         read False): a robot already tipped over on a slope costs nothing.
         """
-        cells = self._cells(points)
         # The interpolated slope never exceeds its cell's steepest corner: most cells
         # can't be steep anywhere, and points in them need no interpolation.
+        pts = np.asarray(points, dtype=float).reshape(-1, 2)
+        maybe = np.empty(len(pts), dtype=bool)
+        mask = _ALL if among is None else among
+        if not steep_candidates(pts, self._inv_res, self._f_max, self._strides,
+                                self._steep_cells, mask, maybe):
+            return maybe  # (one compiled pass over the points: the usual case)
+        cells = self._cells(points)
         maybe = self._steep_cells[cells[0]]
         if among is not None:
             maybe &= among

@@ -24,10 +24,10 @@ import numpy as np
 import pymunk
 import pymunk.batch
 
+from coop_loc_env._step_kernels import settle_poses, substep_commands, substep_velocities
 from coop_loc_env.config import START_GAP, Obstacle, ScenarioConfig
 from coop_loc_env.raycast import RayScene
 from coop_loc_env.terrain import HeightField
-from estimators.geometry import wrap_angle
 
 ROBOT_COLLISION_TYPE = 1
 #: Most a robot may travel in one physics step, in robot radii. pymunk lets a body
@@ -406,39 +406,35 @@ class World:
         n_phys = self.physics_steps
         dt_phys = dt / n_phys
         n = len(v_cmd)
-        before = self.contacts["counts"].copy()
-        slip = rng.standard_normal((n_sub, n, 2))  # 1 + slip_std * noise, in place
-        slip *= cfg.slip_std
-        slip += 1.0
+        counts = self.contacts["counts"]
+        before = counts.copy()
+        slip = rng.standard_normal((n_sub, n, 2))  # 1 + slip_std * noise
         if not idle_zeroed and np.count_nonzero(active) < n:
             v_cmd, w_cmd = np.where(active, v_cmd, 0.0), np.where(active, w_cmd, 0.0)
-        vk = v_cmd * slip[:, :, 0]  # (substeps, n)
-        wk = w_cmd * slip[:, :, 1]
         # Bodies have infinite moment: contacts never change their turn rate, so the
         # heading at each substep's start is known in advance (summed in pymunk's order;
         # with several physics steps per substep, equal to pymunk's up to rounding).
+        vk, wk = np.empty((n_sub, n)), np.empty((n_sub, n))
         heading = np.empty((n_sub + 1, n))
-        heading[0] = self._angles
-        np.multiply(wk, dt, out=heading[1:])
-        np.add.accumulate(heading, axis=0, out=heading)  # np.cumsum without its wrapper
+        substep_commands(v_cmd, w_cmd, slip, float(cfg.slip_std), self._angles, dt, vk, wk,
+                         heading)
         vel = self._velocity_buffer[:-1, :n]
         np.cos(heading[:-1], out=vel[..., 0])
         np.sin(heading[:-1], out=vel[..., 1])
-        vel[..., :2] *= vk[..., None]  # both velocity components in one multiply
-        vel[..., 2] = wk
+        substep_velocities(vel, vk, wk)
         space, batch = self.space, self._batch
         if batch is not None:
             if n_phys == 1:
                 for k in range(n_sub):
                     batch.set_velocities(k)
-                    space.step(dt)
+                    batch.step(space, dt)
             else:  # the commanded velocity is set again before every physics step
                 for k in range(n_sub):
                     for _ in range(n_phys):
                         batch.set_velocities(k)
-                        space.step(dt_phys)
+                        batch.step(space, dt_phys)
             batch.set_velocities(n_sub)  # stop the robots
-            state = batch.poses()[:n]
+            state = batch.poses()
         else:
             set_bodies = pymunk.batch.set_space_bodies
             for row in self._velocity_rows[:-1]:
@@ -449,15 +445,13 @@ class World:
             self._state_batch.clear()
             pymunk.batch.get_space_bodies(space, _POSE_FIELDS, self._state_batch)
             state = np.frombuffer(self._state_batch.float_buf(), dtype=np.float64)
-            state = state.reshape(-1, 3)[:n]
-        self.poses[:] = state
-        self._angles = state[:, 2].copy()  # unwrapped, as pymunk keeps them
-        self.poses[:, 2] = wrap_angle(self._angles)
-        new = self.contacts["counts"] - before
+            state = state.reshape(-1, 3)
         self.touching = self._touching()
-        self.in_contact = self.touching.copy()
-        if np.count_nonzero(new):
-            self.in_contact |= new > 0
+        new = np.empty(n, dtype=counts.dtype)
+        self.in_contact = np.empty(n, dtype=bool)
+        # Poses (headings wrapped, the unwrapped ones kept), new contacts and in_contact.
+        settle_poses(state, self.poses, self._angles, counts, before, self.touching, new,
+                     self.in_contact)
         return new
 
 
@@ -507,15 +501,35 @@ def _set_bias(body: pymunk.Body, values: tuple[float, ...] | None) -> None:
         raw[i] = value
 
 
+_SPACE_STEP_STATE = ("_locked", "_bodies_to_check", "_removed_shapes", "_add_later",
+                     "_remove_later", "_post_step_callbacks", "_remove")
+
+
+def _finish_step(space: pymunk.Space) -> None:
+    """The end of ``pymunk.Space.step``: what callbacks queued during the C step."""
+    space.add(*space._add_later)
+    space._add_later.clear()
+    removed = set()
+    while space._remove_later:
+        to_remove, _ = space._remove_later.popitem()
+        if to_remove not in removed:
+            removed.add(to_remove)
+            space._remove(to_remove)
+    for key in space._post_step_callbacks:
+        space._post_step_callbacks[key](space)
+    space._post_step_callbacks.clear()
+
+
 class _BatchCalls:
     """``pymunk.batch.set_space_bodies`` / ``get_space_bodies`` with their C argument
     structs built once.
 
     The public functions allocate and fill a ``pmBatchedData`` struct on every
     call, and the world makes seven calls per step; here each is the same single
-    C call (``cpSpaceEachBody`` with pymunk's batch iterator). Only body data is
-    set and read this way: the world still steps through ``Space.step``, which
-    keeps pymunk's locking, deferred removals and post-step callbacks.
+    C call (``cpSpaceEachBody`` with pymunk's batch iterator). :meth:`step` is
+    ``Space.step`` without its Python bookkeeping when there is none to do: the
+    C step under pymunk's lock, then pymunk's handling of deferred additions,
+    removals and post-step callbacks only when a callback queued some.
     :meth:`make` returns ``None`` where this pymunk lacks these internals.
     """
 
@@ -524,6 +538,8 @@ class _BatchCalls:
     ) -> None:
         from pymunk._chipmunk import ffi, lib
 
+        for name in _SPACE_STEP_STATE:  # what :meth:`step` reads of pymunk's Space
+            getattr(space, name)
         self._lib, self._ffi = lib, ffi
         self._space_ptr = space._space
         self._set_fn = ffi.addressof(lib, "pmSpaceBodySetIteratorFuncBatched")
@@ -560,6 +576,21 @@ class _BatchCalls:
         arr.num = 0  # pymunk's iterator reads from the start
         self._lib.cpSpaceEachBody(self._space_ptr, self._set_fn, data)
         arr.num = num
+
+    def step(self, space: pymunk.Space, dt: float) -> None:
+        """``space.step(dt)``: the C step under pymunk's lock, then pymunk's own handling
+        of whatever callbacks queued (additions, removals, post-step callbacks), if any."""
+        if space._bodies_to_check:  # pymunk checks new bodies' masses first
+            space.step(dt)
+            return
+        space._locked = True
+        try:
+            self._lib.cpSpaceStep(self._space_ptr, dt)
+            space._removed_shapes.clear()
+        finally:
+            space._locked = False
+        if space._add_later or space._remove_later or space._post_step_callbacks:
+            _finish_step(space)
 
     def poses(self) -> np.ndarray:
         """``(bodies, 3)`` positions and angles (``get_space_bodies`` into the state buffer).

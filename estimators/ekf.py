@@ -41,6 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from estimators._ekf_kernels import propagate_rest
 from estimators.gating import GateMonitor, chi2_threshold, observed_inflation
 from estimators.geometry import wrap_angle, wrap_angle_in_place
 from estimators.relative_model import _best_ci_weight, _relative_measurement, _rounds
@@ -203,8 +204,7 @@ class PoseEKF:
 
     def _predict_sequence(self, v: np.ndarray, w: np.ndarray, dt: float, q: np.ndarray) -> None:
         """:meth:`predict_sequence` (its one implementation) of float ``v``, ``w`` ``(T, n)``
-        with the variances stacked in a fresh C-ordered ``q`` ``(2, T, n)``: ``var_v`` then
-        ``var_w`` (overwritten)."""
+        with the variances stacked in ``q`` ``(2, T, n)``: ``var_v`` then ``var_w``."""
         self._ticks += 1
         _propagate(self.mean, self.cov, v, w, dt, q)
 
@@ -611,8 +611,7 @@ def _propagate(
 ) -> None:
     """``T`` unicycle EKF predictions of ``k`` robots in place; ``v``, ``w`` ``(T, k)``.
 
-    ``q`` ``(2, T, k)``, C-ordered, holds ``var_v`` and ``var_w``; it is scaled in
-    place (to ``dt^2`` times them).
+    ``q`` ``(2, T, k)`` holds ``var_v`` and ``var_w`` (read only).
 
     The headings along the way follow from a cumulative sum, and the Jacobians
     ``Fx_t = I + a_t e02 + b_t e12`` commute, so their product and each noise
@@ -624,8 +623,10 @@ def _propagate(
     sums over ``j > t``) turn ``G_t`` into ``L_t = [[c_t, a'_t], [s_t, b'_t], [0,
     1]]``, so the total is ``sum_t qv_t l0 l0^T + qw_t l1 l1^T`` over the columns
     ``l0 = (c, s, 0)``, ``l1 = (a', b', 1)`` of the ``L_t``: one contraction over
-    the ``2 T`` columns. Arrays keep the robots on the last axis, so each numpy
-    call is one long inner loop whatever the team size.
+    the ``2 T`` columns. After the headings (numpy's cumulative sum, cosine and
+    sine), one compiled pass per robot does the rest
+    (:func:`estimators._ekf_kernels.propagate_rest`, bit-identical to the numpy
+    contraction it replaced).
     """
     n_sub, k = v.shape
     # phi[t]: heading before substep t (t < T); phi[T]: heading after the last one.
@@ -633,36 +634,10 @@ def _propagate(
     phi[0] = mean[:, 2]
     np.multiply(w, dt, out=phi[1:])
     np.add.accumulate(phi, axis=0, out=phi)
-    # cols[i, m, t]: entry i of column m of L_t (for each robot).
-    cols = np.empty((3, 2, n_sub, k))
-    cols[2] = _ZERO_ONE
     heading = phi[:-1]
-    np.cos(heading, out=cols[0, 0])
-    np.sin(heading, out=cols[1, 0])
-    # ba = (b, a) = (dv cos(phi), -dv sin(phi)) with dv = dt v: the Jacobian entries.
-    ba = cols[:2, 0] * (v * _signed(dt))
-    ba_cum = np.add.accumulate(ba, axis=1)
-    ba_tot = ba_cum[:, -1]  # (B, A): sums over all substeps
-    # Later Jacobians applied to the noise entering at substep t: a'_t, b'_t.
-    np.subtract(ba_tot[:, None], ba_cum, out=cols[1::-1, 1])
-    xy = mean[:, :2]
-    xy += (ba_tot * _PLUS_MINUS).T  # x += B, y -= A
-    last = phi[-1]
-    wrap_angle_in_place(last)
-    mean[:, 2] = last
-    # F P F^T with F = I + A e02 + B e12: rows 0 and 1 gain A, B times row 2, then columns.
-    ab_tot = ba_tot[::-1].T  # (k, 2): A, B
-    top = p[:, :2, :]
-    top += ab_tot[:, :, None] * p[:, 2:3, :]
-    left = p[:, :, :2]
-    left += p[:, :, 2:3] * ab_tot[:, None, :]
-    q *= dt * dt  # qv, qw: the weights of l0, l1
-    # (l_i l_j) q is symmetric in i, j, so the covariance stays exactly symmetric.
-    p += np.einsum("imtk,jmtk,mtk->kij", cols, cols, q)
-
-
-_ZERO_ONE = np.array([0.0, 1.0])[:, None, None]  # third entry of l0, l1
-_PLUS_MINUS = np.array([1.0, -1.0])[:, None]
+    # The Jacobians, the mean, F P F^T and the noise sum in one compiled pass (the same
+    # operations as the numpy formulation above, in the same order).
+    propagate_rest(mean, p, v, dt, q, phi[-1], np.cos(heading), np.sin(heading))
 
 
 def _variances(var_v: np.ndarray | float, var_w: np.ndarray | float, shape: tuple) -> np.ndarray:
@@ -673,9 +648,3 @@ def _variances(var_v: np.ndarray | float, var_w: np.ndarray | float, shape: tupl
     return q
 
 
-@functools.lru_cache(maxsize=8)
-def _signed(dt: float) -> np.ndarray:
-    """``(dt, -dt)`` shaped ``(2, 1, 1)``, read-only (made once per ``dt``)."""
-    out = np.array([dt, -dt])[:, None, None]
-    out.flags.writeable = False
-    return out

@@ -65,6 +65,7 @@ import numpy as np
 from scipy.interpolate import griddata
 from scipy.spatial import QhullError
 
+from estimators._map_kernels import footprint_samples, fuse_without_fix
 from estimators.terrain_fusion import _fuse_elevation
 
 # What a merge that writes nothing hands the listener: no cells, before/after values
@@ -158,6 +159,7 @@ class TerrainMap:
         self._shape_xy = np.array(self.shape, dtype=float)
         self._min_dim = float(min(self.shape))
         self._origin_xy = None if self.origin == (0.0, 0.0) else np.array(self.origin)
+        self._origin_flat = np.zeros(0) if self._origin_xy is None else self._origin_xy.copy()
         self.datum = float(datum)
         self.pitch_std = float(pitch_std)
         self.gps_alt_std = float(gps_alt_std)
@@ -402,6 +404,15 @@ class TerrainMap:
         whole = ids is self._valid_ids and self._valid_whole
         rows = slice(None) if whole else ids
         tan_p, tan2, slope2 = self._pitch_terms(pitch)
+        if (self.merge_every_step and self._footprint.shape[0] > 1
+                and not np.count_nonzero(nos)):  # the usual step: one compiled pass
+            elev, var, var_s = np.empty(n), np.empty(n), np.empty(n)
+            if fuse_without_fix(self._robot_elev[rows], self._robot_var[rows], distance, tan_p,
+                                tan2, slope2, pos_var, self.pitch_std, self.min_var, poses,
+                                elev, var, var_s):
+                self._robot_elev[rows] = elev
+                self._robot_var[rows] = var
+                return self._sample_and_merge(ids, poses, elev, var_s, tan_p, whole)
         elev, var = _fuse_elevation(
             self._robot_elev[rows],
             self._robot_var[rows],
@@ -429,6 +440,8 @@ class TerrainMap:
         self._robot_var[rows] = var
 
         fp = self._footprint
+        if fp.shape[0] > 1 and self.merge_every_step:
+            return self._sample_and_merge(ids, poses, elev, var_s, tan_p, whole)
         if fp.shape[0] == 1:
             xy = poses[:, :2]
             vals, conf, owner = elev, var_s, ids
@@ -461,6 +474,35 @@ class TerrainMap:
         )
         self.newly_mapped_cells = 0
         return np.zeros(n, dtype=np.int64)
+
+    def _sample_and_merge(
+        self, ids: np.ndarray, poses: np.ndarray, elev: np.ndarray, var_s: np.ndarray,
+        tan_p: np.ndarray, whole: bool,
+    ) -> np.ndarray:
+        """The end of :meth:`_update` for a footprint of several cells merged every step:
+        the samples and their cells in one compiled pass
+        (:func:`estimators._map_kernels.footprint_samples`), then :meth:`_merge` unless
+        no sample beats its cell's stored confidence."""
+        size = ids.size * self._footprint.shape[0]
+        flat = np.empty(size, dtype=np.intp)
+        vals, conf = np.empty(size), np.empty(size)
+        owner = np.empty(size, dtype=np.intp)
+        heading = poses[:, 2]
+        m, win = footprint_samples(
+            poses, elev, var_s, tan_p, np.cos(heading), np.sin(heading), self._footprint,
+            self._footprint_var, self._origin_flat, 1.0 / self.resolution, self.shape[0],
+            self.shape[1], ids, self._conf, flat, vals, conf, owner,
+        )
+        if win:
+            if m < size:
+                flat, vals, conf, owner = flat[:m], vals[:m], conf[:m], owner[:m]
+            new = self._merge(flat, vals, conf, owner)
+            return new if whole else new[ids]
+        # No sample wins (the usual case on ground mapped before): what _merge does then.
+        self.newly_mapped_cells = 0
+        if self.merge_listener is not None:
+            self.merge_listener(*_NO_CELLS)
+        return np.zeros(self.n_robots if whole else ids.size, dtype=np.int64)
 
     def _pitch_terms(self, pitch: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``tan(pitch)``, its square and the squared slope ``max(tan^2, slope_floor^2)`` of
