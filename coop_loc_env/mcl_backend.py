@@ -84,6 +84,8 @@ from estimators.detection_consistency import (
     ConsistencyConfig,
     backtrack,
     main_mode,
+    move_rigidly,
+    pose_estimate,
     scan_loglik_along,
     widen,
 )
@@ -128,8 +130,12 @@ CONFLICT_M = 1.0  # m: detection vs confident target disagreement / agreement to
 CONFLICT_MIN_S = 2.0  # s: two conflicts this far apart at least ...
 CONFLICT_WINDOW_S = 60.0  # s: ... and at most confirm each other
 EVIDENCE_WINDOW_S = 60.0  # s of each robot's own odometry and scans weighed in a conflict
-EVIDENCE_NATS = 3.0  # tempered log-likelihood by which a robot's own scans reject a claim
-EVIDENCE_POSES = 32  # candidate poses per hypothesis
+EVIDENCE_NATS = 10.0  # tempered log-likelihood by which a robot's own scans reject a claim
+WEAK_NATS = 3.0  # ... and below which they cannot tell it from their own mode
+EVIDENCE_TURNS = np.linspace(-0.2, 0.2, 11)  # rad: headings searched around a hypothesis
+EVIDENCE_SHIFTS = (-0.3, 0.0, 0.3)  # m: and positions along x and y
+_EVIDENCE_GRID = np.array([(dx, dy, dth) for dth in EVIDENCE_TURNS for dx in EVIDENCE_SHIFTS
+                           for dy in EVIDENCE_SHIFTS])
 ADOPT_MASS = 0.9  # weight a robot whose scans cannot tell gives a claim its teammate's back
 _GRID_CACHE: OrderedDict[tuple, OccupancyGrid] = OrderedDict()
 _GRID_CACHE_SIZE = 16
@@ -449,44 +455,51 @@ class MCLBackend(EstimatorBackend):
                 hs[-1, i, :b] = readings.ranges[g, :b]
         self._hist_n = min(self._hist_n + 1, len(hd))
 
-    def _evidence(self, i: int, claimed: np.ndarray) -> float:
+    def _evidence(self, i: int, claimed: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
         """How strongly robot ``i``'s own recent scans prefer its main mode to ``claimed``
-        poses (tempered log-likelihood ratio): poses of both hypotheses (``EVIDENCE_POSES``
-        each, from its main mode's particles and from the claim) are taken back along its
-        odometry over the last ``EVIDENCE_WINDOW_S``, its scans weighed along every
-        trajectory, and the best of each hypothesis compared (a claim is blurred by the
-        detection noise, the robot's own particles are not: the best, not the mean, keeps
-        that from counting against the claim). 0 for a robot without a beam model.
+        poses (tempered log-likelihood ratio), and the best pose of each hypothesis.
+
+        Each hypothesis (the main mode's pose, and the claim's:
+        :func:`~estimators.detection_consistency.pose_estimate`) is searched over a
+        small grid of poses around it (``EVIDENCE_TURNS`` x ``EVIDENCE_SHIFTS``: a claim is
+        blurred by the detection noise, and a heading off by a few hundredths of a radian
+        takes a trajectory into the walls a few tens of metres back); every pose is taken
+        back along the robot's odometry over the last ``EVIDENCE_WINDOW_S``, its scans
+        weighed along each trajectory, and the best of each hypothesis compared. A robot
+        without a beam model has no evidence (0).
         """
-        if not (self._sonar[i] or self._laser_beam) or self._hist_n == 0 or len(claimed) == 0:
-            return 0.0
         pf = self.filters[i]
-        _, mode = main_mode(pf.particles[:, :2], pf.weights, self.check.mode_radius)
-        own = pf.particles[mode] if mode.any() else pf.particles
-        k = EVIDENCE_POSES
-        own = own[self.rng.integers(0, len(own), size=k)]
-        alt = claimed[self.rng.integers(0, len(claimed), size=k)]
+        radius = self.check.mode_radius
+        own = pose_estimate(pf.particles, pf.weights, radius)
+        alt = pose_estimate(claimed, np.full(len(claimed), 1.0 / len(claimed)), radius)
+        if not (self._sonar[i] or self._laser_beam) or self._hist_n == 0:
+            return 0.0, own, alt
         table, lut, angles, _ = self.beam_model(i)
         deltas = self._hist_delta[-self._hist_n:, i]
         scans = self._hist_scan[-self._hist_n:, i, :len(angles)]
-        traj = backtrack(np.concatenate([own, alt]), deltas)
-        ll = scan_loglik_along(table, lut, pf.state_origin, angles, traj, scans,
-                               pf.config.occupied_loglik)
-        return float(ll[:k].max() - ll[k:].max())
+        offsets = _EVIDENCE_GRID
+        cands = np.concatenate([own + offsets, alt + offsets])
+        ll = scan_loglik_along(table, lut, pf.state_origin, angles, backtrack(cands, deltas),
+                               scans, pf.config.occupied_loglik)
+        k = len(offsets)
+        best_own, best_alt = int(np.argmax(ll[:k])), int(np.argmax(ll[k:]))
+        return float(ll[best_own] - ll[k + best_alt]), cands[best_own], cands[k + best_alt]
 
     def _widen(self, ib: int, rec: RobotDetection, observer: ParticleFilter,
                target: ParticleFilter) -> None:
         """Resolve a confirmed conflict between the observer and the target.
 
         Each robot's own recent scans are weighed at its main mode and at the
-        pose the other claims for it (:meth:`_evidence`). A robot whose scans
-        reject the other's claim (by ``EVIDENCE_NATS``) while the other's cannot
-        reject its claim is trusted: the other gives ``ADOPT_MASS`` of its weight
-        to the trusted robot's claim (keeping the rest on its own mode). When
-        neither robot's scans can tell, each confident one (position std below
-        ``RESET_STD``) makes the other keep ``widen_mass`` where it claims the
-        other is (:func:`estimators.detection_consistency.widen`). When both
-        reject the other's claim, nothing changes. A single conflict may be a
+        pose the other claims for it (:meth:`_evidence`); a claim needs a
+        confident claimant (position std below ``RESET_STD``). When both are
+        confident and one robot's scans reject the other's claim (by
+        ``EVIDENCE_NATS``) while the other's scans cannot tell its claim from
+        its own mode (below ``WEAK_NATS``), the first is trusted: the other gives
+        ``ADOPT_MASS`` of its weight to the trusted robot's claim (its own mode
+        carried there rigidly, keeping the rest where it was). When no robot's
+        scans reject a claim, each claimed-about robot keeps ``widen_mass`` where
+        the other says it is (:func:`estimators.detection_consistency.widen`).
+        Otherwise nothing changes. A single conflict may be a
         false positive, so this waits for a second (:meth:`_confirmed_conflict`).
         """
         obs_ok = observer.position_std() < RESET_STD
@@ -509,12 +522,28 @@ class MCLBackend(EstimatorBackend):
             draw = target.particles[low_variance_indices(target.weights, n, self.rng)]
             claimed = sample_observer_poses(draw, rec, self.rng)
             claims[ia] = claimed[observer.grid.is_free(claimed[:, :2])]
-        strong = {i: self._evidence(i, c) >= EVIDENCE_NATS for i, c in claims.items()}
-        if ib in claims and not strong.get(ib, False) and strong.get(ia, not tgt_ok):
+        evidence, clouds = {}, {}
+        for i, claimed in claims.items():
+            if len(claimed) == 0:
+                continue
+            evidence[i], own, alt = self._evidence(i, claimed)
+            # the robot's own main mode carried to the claim's best-fitting pose: the shape
+            # its scans gave it fits there as well in a symmetric map, and a noisy draw from
+            # the claim would lose weight to the well-fitted own mode while it settles
+            pf = self.filters[i]
+            _, mode = main_mode(pf.particles[:, :2], pf.weights, cfg.mode_radius)
+            moved = move_rigidly(pf.particles[mode] if mode.any() else pf.particles, own, alt)
+            clouds[i] = moved[pf.grid.is_free(moved[:, :2])]
+        claims = {i: c for i, c in clouds.items() if len(c)}
+        if not claims:
+            return
+        e_t, e_o = evidence.get(ib), evidence.get(ia)
+        both = e_t is not None and e_o is not None
+        if both and e_t < WEAK_NATS and e_o >= EVIDENCE_NATS:
             masses = {ib: ADOPT_MASS}  # the target's scans cannot tell; the observer's can
-        elif ia in claims and not strong.get(ia, False) and strong.get(ib, not obs_ok):
+        elif both and e_o < WEAK_NATS and e_t >= EVIDENCE_NATS:
             masses = {ia: ADOPT_MASS}
-        elif not any(strong.values()):
+        elif all(e < EVIDENCE_NATS for e in evidence.values()):
             masses = dict.fromkeys(claims, cfg.widen_mass)
         else:
             return

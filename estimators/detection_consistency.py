@@ -46,7 +46,8 @@ is not confident itself make the detected robot confident (``premature``): in
 a symmetric world the product of two multi-modal beliefs is sharp where their
 sampling noise happens to agree, which is no evidence of where the pair is.
 
-Widening (:func:`widen`). A conflict cannot say which of the two is wrong:
+Widening (:func:`widen`, with clouds placed by :func:`move_rigidly`). A
+single conflict cannot say which of the two is wrong:
 a robot locked onto a rotated copy of a symmetric map is as sharp as a
 correctly localized one, and both have fitted every scan so far. So each
 confident party (position spread under ``RESET_STD`` in the backend: a
@@ -77,6 +78,7 @@ __all__ = [
     "backtrack",
     "detection_bayes_factor",
     "main_mode",
+    "move_rigidly",
     "pose_estimate",
     "scan_loglik_along",
     "target_pose_density",
@@ -346,3 +348,18 @@ def scan_loglik_along(
     ll[~table.free(x, y)] += occupied_loglik
     total = ll.reshape(n, k).sum(axis=1)
     return total if many else float(total[0])
+
+
+def move_rigidly(poses: np.ndarray, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """``poses`` ``(N, 3)`` moved by the rigid motion (turn and shift) that takes pose
+    ``src`` to pose ``dst``: a particle cloud carried to another hypothesis keeps the shape
+    the robot's own scans gave it."""
+    poses = np.asarray(poses, dtype=float)
+    turn = float(dst[2] - src[2])
+    c, s = math.cos(turn), math.sin(turn)
+    d = poses[:, :2] - np.asarray(src[:2], dtype=float)
+    out = np.empty_like(poses)
+    out[:, 0] = dst[0] + c * d[:, 0] - s * d[:, 1]
+    out[:, 1] = dst[1] + s * d[:, 0] + c * d[:, 1]
+    out[:, 2] = wrap_angle(poses[:, 2] + turn)
+    return out
