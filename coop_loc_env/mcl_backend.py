@@ -372,7 +372,7 @@ class MCLBackend(EstimatorBackend):
             width = max((len(a) for a in self._angles.values()), default=0)
             self._hist_delta = np.zeros((h, k, 3))
             self._hist_scan = np.full((h, k, width), np.nan)
-            self._hist_n = 0
+            self._hist_n = self._hist_next = 0
         if cfg.cooperative_updates:  # the first detection would load them inside a step
             load_kernels()
         # build the shared range tables now, not inside the first step
@@ -442,18 +442,23 @@ class MCLBackend(EstimatorBackend):
         """Remember each live robot's odometry motion and beam-model scan of this step (the
         evidence :meth:`_evidence` weighs; robots without a beam model keep no scans)."""
         hd, hs = self._hist_delta, self._hist_scan
-        hd[:-1] = hd[1:]
-        hs[:-1] = hs[1:]
-        hd[-1] = 0.0
-        hs[-1] = np.nan
-        hd[-1, live] = deltas
+        row = self._hist_next  # a ring: row ``_hist_next - 1`` is the newest
+        hd[row] = 0.0
+        hs[row] = np.nan
+        hd[row, live] = deltas
         mask = readings.range_mask
         for i in live:
             g = self._robot_ids[i]
             if self._has_range_l[i] and mask[g] and (self._sonar[i] or self._laser_beam):
                 b = len(self._angles[self._kinds[i]])
-                hs[-1, i, :b] = readings.ranges[g, :b]
+                hs[row, i, :b] = readings.ranges[g, :b]
+        self._hist_next = (row + 1) % len(hd)
         self._hist_n = min(self._hist_n + 1, len(hd))
+
+    def _history(self, i: int, beams: int) -> tuple[np.ndarray, np.ndarray]:
+        """Robot ``i``'s remembered odometry motions and scans, oldest first."""
+        order = (self._hist_next - self._hist_n + np.arange(self._hist_n)) % len(self._hist_delta)
+        return self._hist_delta[order, i], self._hist_scan[order, i, :beams]
 
     def _evidence(self, i: int, claimed: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
         """How strongly robot ``i``'s own recent scans prefer its main mode to ``claimed``
@@ -475,8 +480,7 @@ class MCLBackend(EstimatorBackend):
         if not (self._sonar[i] or self._laser_beam) or self._hist_n == 0:
             return 0.0, own, alt
         table, lut, angles, _ = self.beam_model(i)
-        deltas = self._hist_delta[-self._hist_n:, i]
-        scans = self._hist_scan[-self._hist_n:, i, :len(angles)]
+        deltas, scans = self._history(i, len(angles))
         offsets = _EVIDENCE_GRID
         cands = np.concatenate([own + offsets, alt + offsets])
         ll = scan_loglik_along(table, lut, pf.state_origin, angles, backtrack(cands, deltas),
