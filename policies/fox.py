@@ -266,9 +266,9 @@ def run_hallway_experiment(
 
     Returns per condition ``{"mean_s", "std_s", "not_localized", "robots"}``,
     ``reduction_pct`` (of the mean time with detections vs without) with
-    ``reduction_ci95_pct`` (95 % bootstrap interval over seeds; per condition
-    ``per_seed_mean_s``) and ``curves`` (mean spread vs time per condition, for
-    the plot).
+    ``reduction_ci95_pct`` (95 % bootstrap interval over seeds),
+    ``per_seed_mean_s`` (per condition, one mean per seed) and ``curves``
+    (mean spread vs time per condition, for the plot).
     """
     runs = _run_conditions("symmetric_hallway", seeds, duration_s, progress, **overrides)
     result: dict[str, Any] = {}
@@ -282,13 +282,12 @@ def run_hallway_experiment(
 
 
 def _seed_statistics(result: dict[str, Any], runs: dict[str, list[dict[str, Any]]]) -> None:
-    """Per-seed mean times per condition and the reduction's bootstrap interval over seeds
-    (``reduction_ci95_pct``; every seed has as many robots, so the mean of the seed means
-    is the mean over robots)."""
+    """Per-seed mean times per condition (``per_seed_mean_s``) and the reduction's bootstrap
+    interval over seeds (``reduction_ci95_pct``; every seed has as many robots, so the
+    mean of the seed means is the mean over robots)."""
     per_seed = {c: np.array([time_to_localize(ep["spread_m"], ep["dt"])[0].mean()
                              for ep in runs[c]]) for c in CONDITIONS}
-    for c in CONDITIONS:
-        result[c]["per_seed_mean_s"] = per_seed[c].tolist()
+    result["per_seed_mean_s"] = {c: per_seed[c].tolist() for c in CONDITIONS}
     result["reduction_ci95_pct"] = list(bootstrap_over_seeds(per_seed, _reduction))
 
 
