@@ -41,10 +41,10 @@ detection *conflicts* with a confident robot when ``B < min_bayes_factor``
 already leaves the belief almost unchanged) or when the transfer would move
 the bulk of its main mode's mass elsewhere (the observer agrees only with a
 few stray particles). On a conflict the transfer is not applied: a confident
-robot is never moved toward a contradicting observer. Nor may an observer that
-is not confident itself make the detected robot confident (``premature``): in
-a symmetric world the product of two multi-modal beliefs is sharp where their
-sampling noise happens to agree, which is no evidence of where the pair is.
+robot is never moved toward a contradicting observer. Two beliefs that are
+not confident are multiplied as in the paper: in the hexagon, where a sonar
+robot keeps three copies of its pose and a laser robot two, that product is
+what localizes the team.
 
 Widening (:func:`widen`, with clouds placed by :func:`move_rigidly`). A
 single conflict cannot say which of the two is wrong:
@@ -213,26 +213,21 @@ def main_mode(xy: np.ndarray, weights: np.ndarray, radius: float) -> tuple[np.nd
 @dataclass(frozen=True)
 class DetectionAssessment:
     """What :func:`assess_detection` found: the Bayes factor, whether the detected robot is
-    confident, its main mode's weight before and after the would-be transfer, whether
-    the detection conflicts with it, and whether the transfer would make it confident
-    although the observer is not (``premature``)."""
+    confident, its main mode's weight before and after the would-be transfer, and whether
+    the detection conflicts with it."""
 
     bayes_factor: float
     confident: bool
     mode_mass: float
     mode_mass_after: float
     conflict: bool
-    premature: bool = False
 
 
 def assess_detection(
     target_xy: np.ndarray, target_weights: np.ndarray, factors: np.ndarray,
-    bayes_factor: float, config: ConsistencyConfig, observer_confident: bool = True,
+    bayes_factor: float, config: ConsistencyConfig,
 ) -> DetectionAssessment:
-    """Decide whether a transfer with weight ``factors`` conflicts with the detected robot,
-    or would make it confident although the observer is not (``observer_confident``
-    False): the product of two multi-modal beliefs of a symmetric world is sharp only
-    where their sampling noise happens to agree, which is no evidence."""
+    """Decide whether a transfer with weight ``factors`` conflicts with the detected robot."""
     w = np.asarray(target_weights, dtype=float)
     _, mode = main_mode(target_xy, w, config.mode_radius)
     mass = float(w[mode].sum())
@@ -242,8 +237,7 @@ def assess_detection(
     confident = mass >= config.confident_mass
     conflict = confident and (bayes_factor < config.min_bayes_factor
                               or after < config.move_fraction * mass)
-    premature = not (observer_confident or confident) and after >= config.confident_mass
-    return DetectionAssessment(float(bayes_factor), confident, mass, after, conflict, premature)
+    return DetectionAssessment(float(bayes_factor), confident, mass, after, conflict)
 
 
 def widen(

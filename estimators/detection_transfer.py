@@ -70,12 +70,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from estimators.density_tree import DensityTree
-from estimators.detection_consistency import (
-    ConsistencyConfig,
-    assess_detection,
-    main_mode,
-    tree_bayes_factor,
-)
+from estimators.detection_consistency import ConsistencyConfig, assess_detection, tree_bayes_factor
 from estimators.geometry import compose_relative, wrap_angle
 from estimators.particle_filter import ParticleFilter, low_variance_indices
 
@@ -208,9 +203,7 @@ class TransferResult:
     ``"locked"`` (within the lockout distance), ``"unknown_robot"``,
     ``"outside_map"`` (no sample of the target fell inside the map) or
     ``"conflict"`` (the consistency check found the detection contradicts a
-    confident target) or ``"uncertain_observer"`` (it would make the target
-    confident although the observer is not); the lockout is recorded for both
-    as for an applied one.
+    confident target; the lockout is recorded as for an applied one).
     ``false_positive_posterior`` is the probability, after the update, that
     the detection was spurious (``None`` when not applied); ``bayes_factor``
     the detection's consistency with both beliefs
@@ -402,17 +395,10 @@ class DetectionTransfer:
         bayes = tree_bayes_factor(pdf, target_pf.weights, tree.volume)
         self.lockout.record(det.observer, det.target, observer_pf.odometer)
         if cfg.consistency is not None:
-            con = cfg.consistency
-            _, obs_mode = main_mode(observer_pf.particles[:, :2], observer_pf.weights,
-                                    con.mode_radius)
             check = assess_detection(target_pf.particles[:, :2], target_pf.weights, factors,
-                                     bayes, con,
-                                     observer_pf.weights[obs_mode].sum() >= con.confident_mass)
+                                     bayes, cfg.consistency)
             if check.conflict:
                 return TransferResult(False, "conflict", posterior_fp, bayes_factor=bayes)
-            if check.premature:
-                return TransferResult(False, "uncertain_observer", posterior_fp,
-                                      bayes_factor=bayes)
         target_pf.apply_weight_factors(factors)
         sym = False
         if observer_samples is not None:
