@@ -132,7 +132,7 @@ CONFLICT_WINDOW_S = 60.0  # s: ... and at most confirm each other
 EVIDENCE_WINDOW_S = 60.0  # s of each robot's own odometry and scans weighed in a conflict
 EVIDENCE_NATS = 10.0  # tempered log-likelihood by which a robot's own scans reject a claim
 WEAK_NATS = 3.0  # ... and below which they cannot tell it from their own mode
-EVIDENCE_TURNS = np.linspace(-0.2, 0.2, 11)  # rad: headings searched around a hypothesis
+EVIDENCE_TURNS = np.linspace(-0.18, 0.18, 7)  # rad: headings searched around a hypothesis
 EVIDENCE_SHIFTS = (-0.3, 0.0, 0.3)  # m: and positions along x and y
 _EVIDENCE_GRID = np.array([(dx, dy, dth) for dth in EVIDENCE_TURNS for dx in EVIDENCE_SHIFTS
                            for dy in EVIDENCE_SHIFTS])

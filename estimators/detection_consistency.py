@@ -201,11 +201,19 @@ def _weighted_median(x: np.ndarray, w: np.ndarray) -> float:
 
 def main_mode(xy: np.ndarray, weights: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
     """The main mode of a particle set: its centre (the weighted coordinate-wise median
-    position, which lies in the heaviest cluster whenever one holds most of the weight)
-    and the mask of the particles within ``radius`` of it."""
+    position, which lies in the heaviest cluster whenever one holds most of the weight;
+    the weighted mean when the whole set lies within a quarter of ``radius`` of it, one
+    standard deviation, where the two agree and the mean costs no sort) and the mask of
+    the particles within ``radius`` of it."""
     xy = np.asarray(xy, dtype=float)
     w = np.asarray(weights, dtype=float)
-    centre = np.array([_weighted_median(xy[:, 0], w), _weighted_median(xy[:, 1], w)])
+    w = w / w.sum()
+    mean = w @ xy
+    spread2 = float(w @ ((xy[:, 0] - mean[0]) ** 2 + (xy[:, 1] - mean[1]) ** 2))
+    if spread2 <= (0.25 * radius) ** 2:
+        centre = mean
+    else:
+        centre = np.array([_weighted_median(xy[:, 0], w), _weighted_median(xy[:, 1], w)])
     d2 = (xy[:, 0] - centre[0]) ** 2 + (xy[:, 1] - centre[1]) ** 2
     return centre, d2 <= radius * radius
 
