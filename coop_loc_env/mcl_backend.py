@@ -29,8 +29,8 @@ in a known map built from the scenario's layout. Per env step and robot:
    on by default): one that contradicts a confident detected robot is not
    transferred but counted as a conflict for both robots (info
    ``detection_conflicts``), and once a second conflict confirms it, each
-   confident robot of the pair leaves the other a minority hypothesis where it
-   claims the other is (:meth:`MCLBackend._widen`).
+   robot's own recent scans decide whom to trust, or both keep a minority
+   hypothesis where the other claims they are (:meth:`MCLBackend._widen`).
 
 Maps: one :class:`~estimators.occupancy.OccupancyGrid` per range-sensor type,
 rasterized from ``world.layout.obstacles`` honouring each obstacle's
