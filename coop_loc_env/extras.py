@@ -62,6 +62,7 @@ EXTRAS_SCHEMA: dict[str, Callable[[str, Any], None]] = {
                               "'likelihood_field' or 'beam'"),
     "mcl_detection_reset": _check(lambda v: _is_number(v) and 0.0 <= v < 1.0, "in [0, 1)"),
     "mcl_detection_exponent": _check(lambda v: _is_number(v) and 0.0 < v <= 1.0, "in (0, 1]"),
+    "mcl_detection_check": _check(lambda v: isinstance(v, bool), "True or False"),
     "mcl_global_init_factor": _check(lambda v: _is_int(v) and v >= 1, "an int >= 1"),
     "mcl_random_every_step": _check(lambda v: isinstance(v, bool), "True or False"),
     # --- pose-graph MLE (coop_loc_env.mle_backend)

@@ -23,7 +23,14 @@ in a known map built from the scenario's layout. Per env step and robot:
    say it is (:class:`estimators.detection_transfer.DetectionTransfer`, density
    trees, the paper's 2.5 m lockout, negative sightings ignored; the factor may
    be tempered, ``extras["mcl_detection_exponent"]``). Without
-   ``cfg.detection_orientation`` the transfer samples (x, y) only.
+   ``cfg.detection_orientation`` the transfer samples (x, y) only. Every
+   detection is first checked against both robots' beliefs
+   (:mod:`estimators.detection_consistency`, ``extras["mcl_detection_check"]``,
+   on by default): one that contradicts a confident detected robot is not
+   transferred but counted as a conflict for both robots (info
+   ``detection_conflicts``), and once a second conflict confirms it, each
+   robot's own recent scans decide whom to trust, or both keep a minority
+   hypothesis where the other claims they are (:meth:`MCLBackend._widen`).
 
 Maps: one :class:`~estimators.occupancy.OccupancyGrid` per range-sensor type,
 rasterized from ``world.layout.obstacles`` honouring each obstacle's
@@ -73,12 +80,22 @@ from coop_loc_env.sensors import Readings, beam_angles
 from coop_loc_env.world import World
 from estimators.beam_table import BeamLUT, RangeTable
 from estimators.density_tree import load_kernels
+from estimators.detection_consistency import (
+    ConsistencyConfig,
+    backtrack,
+    main_mode,
+    move_rigidly,
+    pose_estimate,
+    scan_loglik_along,
+    widen,
+)
 from estimators.detection_transfer import (
     DetectionTransfer,
     RobotDetection,
     TransferConfig,
     detection_from_measurement,
     sample_detected_poses,
+    sample_observer_poses,
 )
 from estimators.mcl_batch import (
     belief_summaries,
@@ -112,6 +129,14 @@ GLOBAL_INIT_FACTOR = 4  # global localization starts with this many times n_part
 CONFLICT_M = 1.0  # m: detection vs confident target disagreement / agreement tolerance
 CONFLICT_MIN_S = 2.0  # s: two conflicts this far apart at least ...
 CONFLICT_WINDOW_S = 60.0  # s: ... and at most confirm each other
+EVIDENCE_WINDOW_S = 60.0  # s of each robot's own odometry and scans weighed in a conflict
+EVIDENCE_NATS = 10.0  # tempered log-likelihood by which a robot's own scans reject a claim
+WEAK_NATS = 3.0  # ... and below which they cannot tell it from their own mode
+EVIDENCE_TURNS = np.linspace(-0.18, 0.18, 7)  # rad: headings searched around a hypothesis
+EVIDENCE_SHIFTS = (-0.3, 0.0, 0.3)  # m: and positions along x and y
+_EVIDENCE_GRID = np.array([(dx, dy, dth) for dth in EVIDENCE_TURNS for dx in EVIDENCE_SHIFTS
+                           for dy in EVIDENCE_SHIFTS])
+ADOPT_MASS = 0.9  # weight a robot whose scans cannot tell gives a claim its teammate's back
 _GRID_CACHE: OrderedDict[tuple, OccupancyGrid] = OrderedDict()
 _GRID_CACHE_SIZE = 16
 
@@ -159,6 +184,15 @@ def detection_reset_fraction(cfg: ScenarioConfig) -> float:
     f = cfg.extras.get("mcl_detection_reset", 0.0)
     check_extra("mcl_detection_reset", f)
     return float(f)
+
+
+def detection_check(cfg: ScenarioConfig) -> bool:
+    """``extras["mcl_detection_check"]``: check every detection against both beliefs
+    before transferring it (True, the default; False is Fox et al.'s transfer alone, as
+    the ``paper`` profile runs it)."""
+    f = cfg.extras.get("mcl_detection_check", True)
+    check_extra("mcl_detection_check", f)
+    return f
 
 
 def global_init_factor(cfg: ScenarioConfig) -> int:
@@ -280,8 +314,10 @@ class MCLBackend(EstimatorBackend):
                 false_positive_prob=max(cfg.false_positive_prob, 1e-3),
                 n_samples=min(n, 1000),
                 exponent=detection_exponent(cfg),
+                consistency=ConsistencyConfig() if detection_check(cfg) else None,
             )
         )
+        self.check = self.transfer.config.consistency
         self.reset_fraction = detection_reset_fraction(cfg)
         self.resample_every_step = cfg.extras.get("mcl_random_every_step", False)
         check_extra("mcl_random_every_step", self.resample_every_step)
@@ -291,6 +327,7 @@ class MCLBackend(EstimatorBackend):
         self._origins_l: list[list[float]] = []
         self.rng = np.random.default_rng(0)
         self.transfers_applied = np.zeros(len(self.robots), dtype=int)
+        self.detection_conflicts = np.zeros(len(self.robots), dtype=int)
         self._t = 0
         self._conflicts: dict[int, list] = {}
         self._summary: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
@@ -326,9 +363,16 @@ class MCLBackend(EstimatorBackend):
         self._origins_l = self._origins.tolist()
         self.transfer.reset()
         self.transfers_applied[:] = 0
+        self.detection_conflicts[:] = 0
         self._t = 0
         self._conflicts = {}
         self._summary = None
+        if self.check is not None:
+            h = max(1, int(round(EVIDENCE_WINDOW_S / cfg.dt)))
+            width = max((len(a) for a in self._angles.values()), default=0)
+            self._hist_delta = np.zeros((h, k, 3))
+            self._hist_scan = np.full((h, k, width), np.nan)
+            self._hist_n = self._hist_next = 0
         if cfg.cooperative_updates:  # the first detection would load them inside a step
             load_kernels()
         # build the shared range tables now, not inside the first step
@@ -362,6 +406,8 @@ class MCLBackend(EstimatorBackend):
             odo = readings.odometry[:, self.robots[live]]  # (substeps, robots, 2)
             deltas = compose_odometry_batch(odo[..., 0].T, odo[..., 1].T, dt_sub)
             predict_batch(team, deltas)
+            if self.check is not None:
+                self._record(live, deltas, readings)
         stats["range_updates"] = self._measurement_updates(live, readings)
         det = readings.detections
         if cfg.cooperative_updates and len(det):
@@ -387,7 +433,130 @@ class MCLBackend(EstimatorBackend):
                     self.transfers_applied[ib] += 1
                 else:
                     stats["detections_ignored"] += 1
+                    if res.reason == "conflict":
+                        self.detection_conflicts[[ia, ib]] += 1
+                        self._widen(ib, rec, observer, target)
         return stats
+
+    def _record(self, live: list[int], deltas: np.ndarray, readings: Readings) -> None:
+        """Remember each live robot's odometry motion and beam-model scan of this step (the
+        evidence :meth:`_evidence` weighs; robots without a beam model keep no scans)."""
+        hd, hs = self._hist_delta, self._hist_scan
+        row = self._hist_next  # a ring: row ``_hist_next - 1`` is the newest
+        hd[row] = 0.0
+        hs[row] = np.nan
+        hd[row, live] = deltas
+        mask = readings.range_mask
+        for i in live:
+            g = self._robot_ids[i]
+            if self._has_range_l[i] and mask[g] and (self._sonar[i] or self._laser_beam):
+                b = len(self._angles[self._kinds[i]])
+                hs[row, i, :b] = readings.ranges[g, :b]
+        self._hist_next = (row + 1) % len(hd)
+        self._hist_n = min(self._hist_n + 1, len(hd))
+
+    def _history(self, i: int, beams: int) -> tuple[np.ndarray, np.ndarray]:
+        """Robot ``i``'s remembered odometry motions and scans, oldest first."""
+        order = (self._hist_next - self._hist_n + np.arange(self._hist_n)) % len(self._hist_delta)
+        return self._hist_delta[order, i], self._hist_scan[order, i, :beams]
+
+    def _evidence(self, i: int, claimed: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+        """How strongly robot ``i``'s own recent scans prefer its main mode to ``claimed``
+        poses (tempered log-likelihood ratio), and the best pose of each hypothesis.
+
+        Each hypothesis (the main mode's pose, and the claim's:
+        :func:`~estimators.detection_consistency.pose_estimate`) is searched over a
+        small grid of poses around it (``EVIDENCE_TURNS`` x ``EVIDENCE_SHIFTS``: a claim is
+        blurred by the detection noise, and a heading off by a few hundredths of a radian
+        takes a trajectory into the walls a few tens of metres back); every pose is taken
+        back along the robot's odometry over the last ``EVIDENCE_WINDOW_S``, its scans
+        weighed along each trajectory, and the best of each hypothesis compared. A robot
+        without a beam model has no evidence (0).
+        """
+        pf = self.filters[i]
+        radius = self.check.mode_radius
+        own = pose_estimate(pf.particles, pf.weights, radius)
+        alt = pose_estimate(claimed, np.full(len(claimed), 1.0 / len(claimed)), radius)
+        if not (self._sonar[i] or self._laser_beam) or self._hist_n == 0:
+            return 0.0, own, alt
+        table, lut, angles, _ = self.beam_model(i)
+        deltas, scans = self._history(i, len(angles))
+        offsets = _EVIDENCE_GRID
+        cands = np.concatenate([own + offsets, alt + offsets])
+        ll = scan_loglik_along(table, lut, pf.state_origin, angles, backtrack(cands, deltas),
+                               scans, pf.config.occupied_loglik)
+        k = len(offsets)
+        best_own, best_alt = int(np.argmax(ll[:k])), int(np.argmax(ll[k:]))
+        return float(ll[best_own] - ll[k + best_alt]), cands[best_own], cands[k + best_alt]
+
+    def _widen(self, ib: int, rec: RobotDetection, observer: ParticleFilter,
+               target: ParticleFilter) -> None:
+        """Resolve a confirmed conflict between the observer and the target.
+
+        Each robot's own recent scans are weighed at its main mode and at the
+        pose the other claims for it (:meth:`_evidence`); a claim needs a
+        confident claimant (position std below ``RESET_STD``). When both are
+        confident and one robot's scans reject the other's claim (by
+        ``EVIDENCE_NATS``) while the other's scans cannot tell its claim from
+        its own mode (below ``WEAK_NATS``), the first is trusted: the other gives
+        ``ADOPT_MASS`` of its weight to the trusted robot's claim (its own mode
+        carried there rigidly, keeping the rest where it was). When no robot's
+        scans reject a claim, each claimed-about robot keeps ``widen_mass`` where
+        the other says it is (:func:`estimators.detection_consistency.widen`).
+        Otherwise nothing changes. A single conflict may be a
+        false positive, so this waits for a second (:meth:`_confirmed_conflict`).
+        """
+        obs_ok = observer.position_std() < RESET_STD
+        tgt_ok = target.position_std() < RESET_STD
+        if not (obs_ok or tgt_ok) or not self._confirmed_conflict(ib, rec, observer, target,
+                                                                  True):
+            return
+        cfg = self.check
+        ia = self._local[rec.observer]
+        n = max(8, int(round(2 * cfg.widen_mass * max(observer.n_particles,
+                                                       target.n_particles))))
+        claims = {}
+        if obs_ok:  # the observer says where the target is
+            draw = observer.particles[low_variance_indices(observer.weights, n, self.rng)]
+            claimed = sample_detected_poses(draw, rec, self.rng)
+            if rec.orientation is None:
+                claimed[:, 2] = self.rng.uniform(-np.pi, np.pi, len(claimed))
+            claims[ib] = claimed[target.grid.is_free(claimed[:, :2])]
+        if tgt_ok:  # and the target where the observer is
+            draw = target.particles[low_variance_indices(target.weights, n, self.rng)]
+            claimed = sample_observer_poses(draw, rec, self.rng)
+            claims[ia] = claimed[observer.grid.is_free(claimed[:, :2])]
+        evidence, clouds = {}, {}
+        for i, claimed in claims.items():
+            if len(claimed) == 0:
+                continue
+            evidence[i], own, alt = self._evidence(i, claimed)
+            # the robot's own main mode carried to the claim's best-fitting pose: the shape
+            # its scans gave it fits there as well in a symmetric map, and a noisy draw from
+            # the claim would lose weight to the well-fitted own mode while it settles
+            pf = self.filters[i]
+            _, mode = main_mode(pf.particles[:, :2], pf.weights, cfg.mode_radius)
+            moved = move_rigidly(pf.particles[mode] if mode.any() else pf.particles, own, alt)
+            clouds[i] = moved[pf.grid.is_free(moved[:, :2])]
+        claims = {i: c for i, c in clouds.items() if len(c)}
+        if not claims:
+            return
+        e_t, e_o = evidence.get(ib), evidence.get(ia)
+        both = e_t is not None and e_o is not None
+        if both and e_t < WEAK_NATS and e_o >= EVIDENCE_NATS:
+            masses = {ib: ADOPT_MASS}  # the target's scans cannot tell; the observer's can
+        elif both and e_o < WEAK_NATS and e_t >= EVIDENCE_NATS:
+            masses = {ia: ADOPT_MASS}
+        elif all(e < EVIDENCE_NATS for e in evidence.values()):
+            masses = dict.fromkeys(claims, cfg.widen_mass)
+        else:
+            return
+        for i, mass in masses.items():
+            pf = self.filters[i]
+            parts, weights, placed = widen(pf.particles, pf.weights, claims[i], mass,
+                                           cfg.mode_radius, self.rng)
+            if placed:
+                pf.set_particles(parts, weights)
 
     def _detection_reset(
         self, ib: int, rec: RobotDetection, observer: ParticleFilter, target: ParticleFilter
@@ -408,10 +577,21 @@ class MCLBackend(EstimatorBackend):
         Without it the transfer can only reweight particles the target already
         has, and a target whose set collapsed onto a wrong mode of a symmetric
         map has none near the truth (sensor resetting, Lenser and Veloso 2000).
+        With the consistency check on (:attr:`check`) an observer seeds only a target
+        whose spread is larger than its own and that has no main mode holding
+        ``confident_mass`` of its weight (a confident target that disagrees is a
+        conflict, handled by :meth:`_widen`, never re-seeded).
         """
-        if observer.position_std() > RESET_STD:
+        obs_std = observer.position_std()
+        if obs_std > RESET_STD:
             return
-        if target.position_std() <= RESET_STD and not self._confirmed_conflict(
+        if self.check is not None:
+            if target.position_std() <= obs_std:
+                return
+            _, mode = main_mode(target.particles[:, :2], target.weights, self.check.mode_radius)
+            if target.weights[mode].sum() >= self.check.confident_mass:
+                return
+        elif target.position_std() <= RESET_STD and not self._confirmed_conflict(
             ib, rec, observer, target
         ):
             return
@@ -433,7 +613,8 @@ class MCLBackend(EstimatorBackend):
         target.set_particles(parts, weights)
 
     def _confirmed_conflict(
-        self, ib: int, rec: RobotDetection, observer: ParticleFilter, target: ParticleFilter
+        self, ib: int, rec: RobotDetection, observer: ParticleFilter, target: ParticleFilter,
+        conflict: bool = False,
     ) -> bool:
         """Whether a confident target's disagreement with detections is confirmed.
 
@@ -445,14 +626,20 @@ class MCLBackend(EstimatorBackend):
         one matches, within ``CONFLICT_M``, the distance the target's own belief
         moved meanwhile (false positives imply unrelated positions; a target
         locked onto a rotated copy of the map moves the same distances).
+        With ``conflict`` (the consistency check already found one) the target's
+        position is the centre of its main mode, and no distance test is made.
         """
         mean_o = observer.mean_pose()
         implied = mean_o[:2] + rec.range * np.array(
             [np.cos(mean_o[2] + rec.bearing), np.sin(mean_o[2] + rec.bearing)]
         )
-        mean_t = target.mean_pose()[:2]
-        if np.hypot(*(implied - mean_t)) <= CONFLICT_M:
-            return False
+        if conflict:
+            mean_t, _ = main_mode(target.particles[:, :2], target.weights,
+                                  self.check.mode_radius)
+        else:
+            mean_t = target.mean_pose()[:2]
+            if np.hypot(*(implied - mean_t)) <= CONFLICT_M:
+                return False
         now = self._t * self.cfg.dt
         history = [c for c in self._conflicts.get(ib, []) if now - c[2] <= CONFLICT_WINDOW_S]
         confirmed = any(
@@ -585,11 +772,15 @@ class MCLBackend(EstimatorBackend):
 
     def extra_info(self, true_poses: np.ndarray) -> dict[int, dict]:
         """``particle_spread`` (weighted mean particle distance from the truth, m),
-        ``n_particles`` and ``detections_used`` (belief transfers received) per robot."""
+        ``n_particles``, ``detections_used`` (belief transfers received) and
+        ``detection_conflicts`` (detections this robot made or received this episode that
+        contradicted a confident detected robot, so were not transferred) per robot."""
         spread = particle_spreads(self.filters, np.asarray(true_poses)[self.robots, :2])
         return {
-            g: {"particle_spread": s, "n_particles": pf.n_particles, "detections_used": used}
-            for g, s, pf, used in zip(self.robots.tolist(), spread.tolist(), self.filters,
-                                      self.transfers_applied.tolist(), strict=True)
+            g: {"particle_spread": s, "n_particles": pf.n_particles, "detections_used": used,
+                "detection_conflicts": c}
+            for g, s, pf, used, c in zip(self.robots.tolist(), spread.tolist(), self.filters,
+                                         self.transfers_applied.tolist(),
+                                         self.detection_conflicts.tolist(), strict=True)
         }
 

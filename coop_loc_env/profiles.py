@@ -16,7 +16,7 @@ alone, and the ablation tables in ``docs/`` show what each addition buys:
   simulation runs drew it (from the robots' positions and the map's visibility,
   1 Hz, the learned mean errors 48.3 cm and 2.2 degrees, range and bearing only,
   no false positives), a few uniform random particles after every estimation
-  step, no sensor resetting.
+  step, no sensor resetting, no consistency check of the detections.
 
 :func:`with_profile` merges a profile's overrides under the user's (``extras``
 dicts are merged key by key, the user's winning).
@@ -57,6 +57,8 @@ _FOX = {
     "false_positive_prob": 0.0,  # "false-positive detections were not considered"
     "extras": {
         "mcl_detection_reset": 0.0,
+        # Eq. 10/13 alone: no consistency check of the detections against both beliefs
+        "mcl_detection_check": False,
         # resample at every step (sampling importance resampling, as the paper's MCL)
         # so that a few uniform particles (random_fraction) enter after every step;
         # a constant fraction, not augmented MCL's adaptive injection

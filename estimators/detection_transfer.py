@@ -70,6 +70,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from estimators.density_tree import DensityTree
+from estimators.detection_consistency import ConsistencyConfig, assess_detection, tree_bayes_factor
 from estimators.geometry import compose_relative, wrap_angle
 from estimators.particle_filter import ParticleFilter, low_variance_indices
 
@@ -164,7 +165,10 @@ class TransferConfig:
     updates the observer from the target's belief. ``exponent`` tempers the
     detection likelihood: the factor applied to the target's weights is
     ``((1 - p_fp) tree_pdf + p_fp / V) ** exponent`` (1, the default, is the
-    paper's Eq. 14; see the module docstring for when less is needed).
+    paper's Eq. 14; see the module docstring for when less is needed). ``consistency``
+    (``None``, the paper's transfer, by default) checks every detection against both
+    beliefs first and skips the transfer when it conflicts with a confident detected
+    robot (:mod:`estimators.detection_consistency`).
     """
 
     lockout_distance: float = 2.5
@@ -174,6 +178,7 @@ class TransferConfig:
     heading_scale: float = 1.0
     symmetric: bool = False
     exponent: float = 1.0
+    consistency: ConsistencyConfig | None = None
 
     def __post_init__(self) -> None:
         if not math.isfinite(self.lockout_distance) or self.lockout_distance < 0:
@@ -195,16 +200,22 @@ class TransferResult:
     """Outcome of one detection: whether it was used, why not, and diagnostics.
 
     ``reason`` is ``"applied"``, ``"negative"`` (not a positive sighting),
-    ``"locked"`` (within the lockout distance), ``"unknown_robot"`` or
-    ``"outside_map"`` (no sample of the target fell inside the map).
+    ``"locked"`` (within the lockout distance), ``"unknown_robot"``,
+    ``"outside_map"`` (no sample of the target fell inside the map) or
+    ``"conflict"`` (the consistency check found the detection contradicts a
+    confident target; the lockout is recorded as for an applied one).
     ``false_positive_posterior`` is the probability, after the update, that
-    the detection was spurious (``None`` when not applied).
+    the detection was spurious (``None`` when not applied); ``bayes_factor``
+    the detection's consistency with both beliefs
+    (:func:`estimators.detection_consistency.tree_bayes_factor`; ``None`` when
+    no tree was grown).
     """
 
     applied: bool
     reason: str
     false_positive_posterior: float | None = None
     symmetric_applied: bool = False
+    bayes_factor: float | None = None
 
 
 def _draw_particles(pf: ParticleFilter, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -330,8 +341,10 @@ class DetectionTransfer:
             low, high, scale = np.array([xmin, ymin]), np.array([xmax, ymax]), None
         return DensityTree(pts, low=low, high=high, scale=scale, leaf_size=cfg.leaf_size)
 
-    def _reweight(self, pf: ParticleFilter, tree: DensityTree, use_heading: bool) -> float:
-        """Multiply ``pf``'s weights by the mixture factors; return the false-positive posterior."""
+    def _factors(self, pf: ParticleFilter, tree: DensityTree, use_heading: bool
+                 ) -> tuple[np.ndarray, np.ndarray, float]:
+        """The tree's density at ``pf``'s particles, the (tempered) mixture factors and
+        the false-positive posterior."""
         p_fp = self.config.false_positive_prob
         parts = pf.particles if use_heading else pf.particles[:, :2]
         pdf = tree.pdf(parts)
@@ -342,8 +355,13 @@ class DetectionTransfer:
         posterior_fp = p_fp * uniform / denom if denom > 0 else 1.0
         if self.config.exponent != 1.0:
             factors = factors ** self.config.exponent
+        return pdf, factors, float(posterior_fp)
+
+    def _reweight(self, pf: ParticleFilter, tree: DensityTree, use_heading: bool) -> float:
+        """Multiply ``pf``'s weights by the mixture factors; return the false-positive posterior."""
+        _, factors, posterior_fp = self._factors(pf, tree, use_heading)
         pf.apply_weight_factors(factors)
-        return float(posterior_fp)
+        return posterior_fp
 
     def apply(
         self,
@@ -373,8 +391,15 @@ class DetectionTransfer:
         tree = self._tree(target_samples, target_pf, use_heading)
         if tree is None:
             return TransferResult(False, "outside_map")
-        posterior_fp = self._reweight(target_pf, tree, use_heading)
+        pdf, factors, posterior_fp = self._factors(target_pf, tree, use_heading)
+        bayes = tree_bayes_factor(pdf, target_pf.weights, tree.volume)
         self.lockout.record(det.observer, det.target, observer_pf.odometer)
+        if cfg.consistency is not None:
+            check = assess_detection(target_pf.particles[:, :2], target_pf.weights, factors,
+                                     bayes, cfg.consistency)
+            if check.conflict:
+                return TransferResult(False, "conflict", posterior_fp, bayes_factor=bayes)
+        target_pf.apply_weight_factors(factors)
         sym = False
         if observer_samples is not None:
             # the observer's heading is always constrained by the inverse model
@@ -383,7 +408,7 @@ class DetectionTransfer:
                 self._reweight(observer_pf, tree_m, True)
                 self.lockout.record(det.target, det.observer, target_pf.odometer)
                 sym = True
-        return TransferResult(True, "applied", posterior_fp, sym)
+        return TransferResult(True, "applied", posterior_fp, sym, bayes)
 
     def apply_all(
         self,

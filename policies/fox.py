@@ -33,6 +33,7 @@ CONDITIONS = ("without_detections", "with_detections")
 __all__ = [
     "CONDITIONS",
     "LOCALIZED_M",
+    "bootstrap_over_seeds",
     "WanderPolicy",
     "plot_error_vs_time",
     "run_fox_episode",
@@ -163,6 +164,34 @@ def run_fox_episode(
     }
 
 
+def bootstrap_over_seeds(
+    per_seed: dict[str, np.ndarray], stat, n_boot: int = 10000, seed: int = 0,
+) -> tuple[float, float]:
+    """95 % percentile bootstrap interval of ``stat(per_seed)`` resampling whole seeds.
+
+    ``per_seed`` maps names to ``(S, ...)`` arrays with one row per seed (the same seeds
+    in every array, so paired conditions stay paired); ``stat`` takes such a dict.
+    """
+    sizes = {len(v) for v in per_seed.values()}
+    if len(sizes) != 1 or 0 in sizes:
+        raise ValueError(f"per_seed arrays must have the same number (>= 1) of seeds, "
+                         f"got {sorted(sizes)}")
+    n = sizes.pop()
+    rng = np.random.default_rng(seed)
+    boots = np.empty(n_boot)
+    for b in range(n_boot):
+        idx = rng.integers(0, n, size=n)
+        boots[b] = stat({k: np.asarray(v)[idx] for k, v in per_seed.items()})
+    lo, hi = np.percentile(boots, [2.5, 97.5])
+    return float(lo), float(hi)
+
+
+def _reduction(per_seed: dict[str, np.ndarray]) -> float:
+    """% reduction of the mean time to localize with detections vs without."""
+    return 100.0 * (1.0 - per_seed["with_detections"].mean()
+                    / per_seed["without_detections"].mean())
+
+
 def summarize_times(times: np.ndarray, reached: np.ndarray) -> dict[str, float | int]:
     """``mean_s``, ``std_s`` over robots (time limit for those that never localized),
     ``not_localized`` (how many never did) and ``robots``."""
@@ -236,8 +265,10 @@ def run_hallway_experiment(
     """``symmetric_hallway`` with and without detections over ``seeds``.
 
     Returns per condition ``{"mean_s", "std_s", "not_localized", "robots"}``,
-    ``reduction_pct`` (of the mean time with detections vs without) and
-    ``curves`` (mean spread vs time per condition, for the plot).
+    ``reduction_pct`` (of the mean time with detections vs without) with
+    ``reduction_ci95_pct`` (95 % bootstrap interval over seeds),
+    ``per_seed_mean_s`` (per condition, one mean per seed) and ``curves``
+    (mean spread vs time per condition, for the plot).
     """
     runs = _run_conditions("symmetric_hallway", seeds, duration_s, progress, **overrides)
     result: dict[str, Any] = {}
@@ -245,8 +276,19 @@ def run_hallway_experiment(
         result[cond], _, _ = _condition_figures(runs[cond])
     alone = result["without_detections"]["mean_s"]
     result["reduction_pct"] = 100.0 * (1.0 - result["with_detections"]["mean_s"] / alone)
+    _seed_statistics(result, runs)
     result["curves"] = _curves(runs)
     return result
+
+
+def _seed_statistics(result: dict[str, Any], runs: dict[str, list[dict[str, Any]]]) -> None:
+    """Per-seed mean times per condition (``per_seed_mean_s``) and the reduction's bootstrap
+    interval over seeds (``reduction_ci95_pct``; every seed has as many robots, so the
+    mean of the seed means is the mean over robots)."""
+    per_seed = {c: np.array([time_to_localize(ep["spread_m"], ep["dt"])[0].mean()
+                             for ep in runs[c]]) for c in CONDITIONS}
+    result["per_seed_mean_s"] = {c: per_seed[c].tolist() for c in CONDITIONS}
+    result["reduction_ci95_pct"] = list(bootstrap_over_seeds(per_seed, _reduction))
 
 
 def run_hexagon_experiment(
@@ -260,7 +302,8 @@ def run_hexagon_experiment(
     Returns the hallway's figures over all robots, plus ``by_sensor``: per
     sensor type and condition, ``localized_at_end`` (robots whose final spread
     is below 1.5 m), ``localized_last_60s`` (below 1.5 m at every step of the
-    last ``HOLD_S`` seconds), ``ever_localized``, ``robots``,
+    last ``HOLD_S`` seconds), ``localized_at_end_ci95`` (of the fraction
+    localized at the end, 95 % bootstrap interval over seeds), ``ever_localized``, ``robots``,
     ``mean_final_spread_m`` and the time figures; and ``curves`` per condition
     and sensor type. In the hexagon a robot alone keeps two or three copies of
     its pose, whose mean distance from the truth drops below 1.5 m whenever it
@@ -274,6 +317,7 @@ def run_hexagon_experiment(
         result[cond], _, _ = _condition_figures(runs[cond])
     alone = result["without_detections"]["mean_s"]
     result["reduction_pct"] = 100.0 * (1.0 - result["with_detections"]["mean_s"] / alone)
+    _seed_statistics(result, runs)
     by_sensor: dict[str, dict[str, Any]] = {}
     curves: dict[str, Any] = {}
     for sensor in ("sonar", "laser"):
@@ -291,9 +335,13 @@ def run_hexagon_experiment(
                  ).all(axis=0)
                 for ep, c in zip(eps, cols, strict=True)
             ])
+            at_end = np.array([(ep["spread_m"][-1, c] < LOCALIZED_M).mean()
+                               for ep, c in zip(eps, cols, strict=True)])
             by_sensor[sensor][cond] = {
                 **summarize_times(times, reached),
                 "localized_at_end": int((final < LOCALIZED_M).sum()),
+                "localized_at_end_ci95": list(bootstrap_over_seeds(
+                    {"f": at_end}, lambda d: float(d["f"].mean()))),
                 "localized_last_60s": int(held.sum()),
                 "ever_localized": int(reached.sum()),
                 "mean_final_spread_m": float(final.mean()),

@@ -56,7 +56,9 @@ def _print_times(name: str, result: dict) -> None:
         print(f"  {cond:20s} {r['mean_s']:7.1f} +/- {r['std_s']:5.1f} s   "
               f"({r['not_localized']} of {r['robots']} robots never localized, counted at the "
               f"time limit)")
-    print(f"  reduction with detections: {result['reduction_pct']:.1f} %")
+    lo, hi = result["reduction_ci95_pct"]
+    print(f"  reduction with detections: {result['reduction_pct']:.1f} % "
+          f"(95 % bootstrap interval over seeds {lo:.1f} to {hi:.1f} %)")
 
 
 def _print_hexagon(result: dict) -> None:
@@ -65,9 +67,11 @@ def _print_hexagon(result: dict) -> None:
     for sensor, conds in result["by_sensor"].items():
         for cond in CONDITIONS:
             r = conds[cond]
+            lo, hi = r["localized_at_end_ci95"]
             print(f"  {sensor:6s} {cond:20s} {r['localized_at_end']:3d} / "
                   f"{r['localized_last_60s']:3d} / {r['ever_localized']:3d} of {r['robots']}"
-                  f"   final spread {r['mean_final_spread_m']:5.2f} m")
+                  f"   final spread {r['mean_final_spread_m']:5.2f} m   at end "
+                  f"{100 * lo:.0f}-{100 * hi:.0f} % (95 % over seeds)")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -76,6 +80,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--experiment", choices=("hallway", "hexagon", "all"), default="all")
     p.add_argument("--seeds", type=int, default=8, help="episodes per condition (hallway)")
     p.add_argument("--hexagon-seeds", type=int, default=4, help="episodes per condition (hexagon)")
+    p.add_argument("--first-seed", type=int, default=0,
+                   help="seeds are FIRST_SEED, FIRST_SEED + 1, ... (default 0)")
     p.add_argument("--duration", type=float, default=None,
                    help="simulated seconds per episode (default: the scenario's max_cycles)")
     p.add_argument("--json", type=Path, default=None, help="write the figures here")
@@ -99,12 +105,15 @@ def main(argv: list[str] | None = None) -> int:
         suffix = "" if args.profile == "default" else f"_{args.profile}"
         if args.experiment in ("hallway", "all"):
             overrides = with_profile("symmetric_hallway", args.profile, user)
-            res = run_hallway_experiment(range(args.seeds), args.duration,
+            res = run_hallway_experiment(range(args.first_seed, args.first_seed + args.seeds),
+                                         args.duration,
                                          not args.no_progress, **overrides)
             _print_times("hallway", res)
             out["hallway"] = {
                 **{c: {k: res[c][k] for k in KEYS} for c in CONDITIONS},
                 "reduction_pct": res["reduction_pct"],
+                "reduction_ci95_pct": res["reduction_ci95_pct"],
+                "per_seed_mean_s": res["per_seed_mean_s"],
             }
             if args.plot_dir:
                 path = plot_error_vs_time(res["curves"],
@@ -113,13 +122,16 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"  wrote {path}")
         if args.experiment in ("hexagon", "all"):
             overrides = with_profile("hexagon", args.profile, user)
-            res = run_hexagon_experiment(range(args.hexagon_seeds), args.duration,
+            res = run_hexagon_experiment(
+                range(args.first_seed, args.first_seed + args.hexagon_seeds), args.duration,
                                          not args.no_progress, **overrides)
             _print_times("hexagon", res)
             _print_hexagon(res)
             out["hexagon"] = {
                 **{c: {k: res[c][k] for k in KEYS} for c in CONDITIONS},
                 "reduction_pct": res["reduction_pct"],
+                "reduction_ci95_pct": res["reduction_ci95_pct"],
+                "per_seed_mean_s": res["per_seed_mean_s"],
                 "by_sensor": res["by_sensor"],
             }
             if args.plot_dir:

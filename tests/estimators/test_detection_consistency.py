@@ -1,0 +1,213 @@
+"""Tests of the detection consistency measure and the conflict handling helpers."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from estimators.density_tree import DensityTree
+from estimators.detection_consistency import (
+    ConsistencyConfig,
+    assess_detection,
+    backtrack,
+    detection_bayes_factor,
+    main_mode,
+    target_pose_density,
+    tree_bayes_factor,
+    widen,
+)
+from estimators.detection_transfer import (
+    DetectionTransfer,
+    RobotDetection,
+    TransferConfig,
+    sample_detected_poses,
+)
+from estimators.geometry import relative_pose
+from estimators.occupancy import OccupancyGrid
+from estimators.particle_filter import MCLConfig, ParticleFilter
+
+BOX = (20.0, 20.0)
+OBSERVER = np.array([[10.0, 10.0, 0.4]])
+
+
+def _grid_points(centre: np.ndarray, half: float, step: float) -> np.ndarray:
+    ax = np.arange(-half, half + 1e-9, step)
+    gx, gy = np.meshgrid(centre[0] + ax, centre[1] + ax)
+    return np.stack([gx.ravel(), gy.ravel()], axis=1)
+
+
+def test_target_density_integrates_to_one():
+    # k(. | x_m, z) is a density over the target's position: a fine quadrature sums to 1
+    z, std = np.array([4.0, 0.3]), np.array([0.3, 0.05])
+    pts = _grid_points(np.array([13.6, 11.2]), 2.5, 0.01)
+    pts3 = np.c_[pts, np.zeros(len(pts))]
+    k = target_pose_density(OBSERVER, pts3, z, std)
+    assert k.sum() * 0.01**2 == pytest.approx(1.0, abs=2e-3)
+
+
+@pytest.mark.parametrize("orientation", [False, True])
+def test_bayes_factor_of_an_uninformed_target_is_one(orientation):
+    # A target uniform over the box (here an equal-weight grid of poses over all of it):
+    # E[k] = 1 / V for any observer whose prediction lies in the box, so B = 1. Grid
+    # points far from the prediction add nothing; only the near ones are evaluated, and
+    # the mean is taken over the whole grid.
+    z = np.array([4.0, 0.3, 0.7]) if orientation else np.array([4.0, 0.3])
+    std = np.array([0.3, 0.05, 0.1]) if orientation else np.array([0.3, 0.05])
+    step = 0.02
+    n_xy = (BOX[0] / step) * (BOX[1] / step)
+    xy = _grid_points(np.array([13.6, 11.2]), 2.5, step)  # 4 m ahead, bearing 0.7 world
+    heads = np.linspace(-math.pi, math.pi, 128, endpoint=False) if orientation else [0.0]
+    pts = np.concatenate([np.c_[xy, np.full(len(xy), h)] for h in heads])
+    volume = BOX[0] * BOX[1] * (2 * math.pi if orientation else 1.0)
+    b_near = detection_bayes_factor(OBSERVER, pts, z, std, volume)
+    b = b_near * len(pts) / (n_xy * len(heads))
+    assert b == pytest.approx(1.0, abs=0.01)
+
+
+def test_bayes_factor_matches_the_gaussian_integral():
+    # Observer at (5, 10) facing east sees the target 5 m ahead; with a tight bearing the
+    # predicted density is nearly Gaussian N((10, 10), diag(0.3^2, (5 * 0.01)^2)), and for
+    # a Gaussian target belief N(mu, s^2 I) the integral of the product is the Gaussian
+    # N(mu - (10, 10); 0, Sigma_q + s^2 I): B = V times that.
+    observer = np.array([[5.0, 10.0, 0.0]])
+    z, std = np.array([5.0, 0.0]), np.array([0.3, 0.01])
+    s = 0.5
+    volume = BOX[0] * BOX[1]
+    for mu in (np.array([10.0, 10.0]), np.array([10.4, 10.3]), np.array([11.5, 9.0])):
+        pts = _grid_points(mu, 4 * s, 0.02)
+        w = np.exp(-0.5 * np.sum((pts - mu) ** 2, axis=1) / s**2)
+        b = detection_bayes_factor(observer, np.c_[pts, np.zeros(len(pts))], z, std, volume,
+                                   target_weights=w)
+        var = np.array([0.3**2 + s**2, 0.05**2 + s**2])
+        d = mu - np.array([10.0, 10.0])
+        analytic = volume * math.exp(-0.5 * np.sum(d**2 / var)) / (2 * math.pi
+                                                                   * math.sqrt(var.prod()))
+        assert b == pytest.approx(analytic, rel=0.03)
+    # far apart: the factor is essentially zero (the beliefs contradict each other)
+    pts = _grid_points(np.array([16.0, 4.0]), 2.0, 0.05)
+    far = detection_bayes_factor(observer, np.c_[pts, np.zeros(len(pts))], z, std, volume)
+    assert far < 1e-6
+
+
+def test_tree_bayes_factor_of_an_uninformed_target_is_about_one():
+    rng = np.random.default_rng(0)
+    det = RobotDetection(0, 1, range=4.0, bearing=0.3, range_std=0.3, bearing_std=0.05)
+    samples = sample_detected_poses(np.repeat(OBSERVER, 1000, axis=0), det, rng)[:, :2]
+    tree = DensityTree(samples, low=np.zeros(2), high=np.array(BOX))
+    target = _grid_points(np.array([10.0, 10.0]), 10.0 - 0.01, 0.02)  # uniform, as a grid
+    b = tree_bayes_factor(tree.pdf(target), np.full(len(target), 1 / len(target)),
+                          tree.volume)
+    assert b == pytest.approx(1.0, abs=0.02)
+
+
+def test_main_mode_finds_the_heaviest_cluster():
+    rng = np.random.default_rng(1)
+    a = rng.normal([3.0, 3.0], 0.2, size=(700, 2))
+    b = rng.normal([15.0, 12.0], 0.2, size=(300, 2))
+    xy = np.concatenate([a, b])
+    centre, mode = main_mode(xy, np.full(1000, 1e-3), 2.0)
+    assert np.hypot(*(centre - [3.0, 3.0])) < 0.3  # inside the heavier cluster
+    assert mode[:700].all() and not mode[700:].any()
+
+
+def _confident(rng, centre, n=1000, sd=0.2):
+    return rng.normal(centre, sd, size=(n, 2))
+
+
+def test_assessment_separates_agreement_conflict_and_ignorance():
+    rng = np.random.default_rng(2)
+    cfg = ConsistencyConfig()
+    xy = _confident(rng, [5.0, 5.0])
+    w = np.full(len(xy), 1 / len(xy))
+    ones = np.ones(len(xy))
+    # agreement: the factors favour the robot's own mode
+    agree = assess_detection(xy, w, 1 + ones * 50, 500.0, cfg)
+    assert agree.confident and not agree.conflict
+    # contradiction: B far below 1 for a confident robot
+    assert assess_detection(xy, w, ones * 1e-5, 1e-4, cfg).conflict
+    # a few stray particles far away agree with the observer: the transfer would move it
+    stray = xy.copy()
+    stray[:5] = [15.0, 15.0]
+    factors = np.where(np.arange(len(xy)) < 5, 1e3, 1e-5)
+    moved = assess_detection(stray, w, factors, 5.0, cfg)
+    assert moved.mode_mass_after < 0.01 and moved.conflict
+    # a lost robot is never in conflict, whatever the detection says
+    lost = rng.uniform(0, 20, size=(1000, 2))
+    assert not assess_detection(lost, w, factors, 1e-4, cfg).conflict
+
+
+def test_widen_tops_up_a_minority_hypothesis_without_stacking():
+    rng = np.random.default_rng(3)
+    xy = _confident(rng, [5.0, 5.0])
+    parts = np.c_[xy, np.zeros(len(xy))]
+    w = np.full(len(xy), 1 / len(xy))
+    claimed = np.c_[_confident(rng, [15.0, 12.0], n=100), np.zeros(100)]
+    p1, w1, placed = widen(parts, w, claimed, 0.05, 2.0, rng)
+    near = np.hypot(p1[:, 0] - 15, p1[:, 1] - 12) < 2
+    assert placed == 50 and w1[near].sum() == pytest.approx(0.05)
+    own = np.hypot(p1[:, 0] - 5, p1[:, 1] - 5) < 2
+    assert w1[own].sum() == pytest.approx(0.95)
+    p2, w2, placed2 = widen(p1, w1, claimed, 0.05, 2.0, rng)  # again: nothing to add
+    assert placed2 == 0 and np.allclose(w2, w1) and np.array_equal(p2, p1)
+
+
+def test_backtrack_inverts_the_odometry():
+    rng = np.random.default_rng(4)
+    deltas = np.c_[rng.uniform(0, 0.5, 30), rng.uniform(-0.05, 0.05, 30),
+                   rng.uniform(-0.3, 0.3, 30)]
+    pose = np.array([2.0, 3.0, 0.5])
+    truth = []
+    for dx, dy, dth in deltas:
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        pose = np.array([pose[0] + c * dx - s * dy, pose[1] + s * dx + c * dy, pose[2] + dth])
+        truth.append(pose)
+    back = backtrack(pose, deltas)
+    d = back - np.array(truth)
+    d[:, 2] = (d[:, 2] + math.pi) % (2 * math.pi) - math.pi
+    assert np.abs(d).max() < 1e-9
+    assert backtrack(np.stack([pose, pose]), deltas).shape == (2, 30, 3)
+
+
+@pytest.mark.parametrize("bad", [dict(min_bayes_factor=-1.0), dict(mode_radius=0.0),
+                                 dict(confident_mass=1.5), dict(widen_mass=0.6)])
+def test_consistency_config_rejects_bad_values(bad):
+    name = next(iter(bad))
+    with pytest.raises(ValueError, match=name):
+        ConsistencyConfig(**bad)
+
+
+def _room() -> OccupancyGrid:
+    occ = np.zeros((100, 200), dtype=bool)
+    occ[0, :] = occ[-1, :] = occ[:, 0] = occ[:, -1] = True
+    return OccupancyGrid(occ, 0.1, (0.0, 0.0))
+
+
+def test_checked_transfer_does_not_move_a_confident_robot_to_stray_particles():
+    # Robot 1 is localized at its true pose but, as with any injection of random
+    # particles, holds a few strays; a confident observer on a wrong pose detects it and
+    # predicts it where the strays are. Fox's transfer follows the strays; the checked
+    # transfer reports a conflict and leaves the belief alone.
+    grid = _room()
+    truth_m, truth_n = np.array([4.0, 5.0, 0.0]), np.array([7.0, 5.0, 0.0])
+    wrong_m = np.array([12.0, 2.0, 0.0])  # where the observer believes it is
+    z = relative_pose(truth_m, truth_n)
+    det = RobotDetection(0, 1, range=float(z[0]), bearing=float(z[1]), range_std=0.3,
+                         bearing_std=0.04, orientation=float(z[2]), orientation_std=0.1)
+    moved = {}
+    for name, cfg in (("fox", TransferConfig()),
+                      ("checked", TransferConfig(consistency=ConsistencyConfig()))):
+        m = ParticleFilter(grid, np.random.default_rng(5), MCLConfig(n_particles=1000))
+        m.init_gaussian(wrong_m, np.diag([0.1, 0.1, 0.03]) ** 2)
+        n = ParticleFilter(grid, np.random.default_rng(6), MCLConfig(n_particles=1000))
+        n.init_gaussian(truth_n, np.diag([0.1, 0.1, 0.03]) ** 2)
+        parts = n.particles.copy()
+        parts[:5] = [15.0, 2.0, 0.0]  # the strays, where the observer's claim points
+        n.set_particles(parts)
+        res = DetectionTransfer(cfg).apply(det, m, n, np.random.default_rng(7))
+        moved[name] = (res, float(np.hypot(*(n.mean_pose()[:2] - truth_n[:2]))))
+    assert moved["fox"][0].applied and moved["fox"][1] > 5.0
+    res, err = moved["checked"]
+    assert not res.applied and res.reason == "conflict" and err < 0.2
+    assert res.bayes_factor is not None
