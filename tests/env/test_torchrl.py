@@ -15,7 +15,7 @@ MIXED = (RobotSpec(estimator="ekf"), RobotSpec(estimator="mcl"))
 
 
 def _wrapped(**overrides) -> PettingZooWrapper:
-    kw = dict(n_robots=2, max_cycles=6, n_particles=100, reward_terms_dict=False) | overrides
+    kw = dict(n_robots=2, max_cycles=6, n_particles=100) | overrides
     pz = coop_loc_env.parallel_env("outdoor_terrain", **kw)
     return PettingZooWrapper(env=pz, use_mask=True, done_on_any=False, seed=0)
 
