@@ -70,7 +70,6 @@ def test_log_info_is_nan_aware_and_counts_steps_to_localize():
     assert logged[prefix + "steps_to_localize"] == pytest.approx((2 + 3 + 2 + 1) / 4)
 
 
-@pytest.mark.slow
 def test_a_tiny_mappo_run_on_rendezvous(tmp_path):
     from benchmarl.algorithms import MappoConfig
     from benchmarl.experiment import Experiment, ExperimentConfig

@@ -54,7 +54,6 @@ def test_tip_over_terminates_one_agent_the_other_drives_on(steep_and_flat):
     env.close()
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("scenario", coop_loc_env.list_scenarios())
 def test_wrapper_with_default_arguments_on_every_scenario(scenario):
     env = PettingZooWrapper(env=coop_loc_env.parallel_env(scenario), use_mask=True)
@@ -65,7 +64,6 @@ def test_wrapper_with_default_arguments_on_every_scenario(scenario):
     env.close()
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("scenario", coop_loc_env.list_scenarios())
 def test_torchrl_env_specs_and_rollout_on_every_scenario(scenario):
     env = coop_loc_env.torchrl_env(scenario, seed=0)
