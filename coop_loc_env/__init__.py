@@ -50,6 +50,7 @@ __all__ = [
     "parallel_env",
     "raw_env",
     "register_scenario",
+    "torchrl_env",
 ]
 
 
@@ -69,6 +70,25 @@ def raw_env(scenario: str = "outdoor_terrain", render_mode: str | None = None, *
 def env(scenario: str = "outdoor_terrain", render_mode: str | None = None, **overrides: Any):
     """The AEC environment with PettingZoo's standard order-enforcing wrapper."""
     return wrappers.OrderEnforcingWrapper(raw_env(scenario, render_mode=render_mode, **overrides))
+
+
+def torchrl_env(
+    scenario: str = "outdoor_terrain",
+    seed: int | None = None,
+    device: str = "cpu",
+    **overrides: Any,
+):
+    """The TorchRL environment of ``scenario``, ready for a collector.
+
+    A native ``torchrl.envs.EnvBase`` (:class:`coop_loc_env.native_torchrl.CoopLocTorchRLEnv`)
+    that steps the team as one batch: group ``robot`` with ``observation``, ``action``,
+    ``reward``, per-robot ``done``/``terminated``/``truncated`` and ``mask``, and the scalar
+    infos under ``(robot, info)`` (``info_keys=[...]`` picks them). Any config field is
+    overridable by keyword. Needs the ``torchrl`` extra.
+    """
+    from coop_loc_env.native_torchrl import make_torchrl_env
+
+    return make_torchrl_env(scenario, seed=seed, device=device, **overrides)
 
 
 def env_id(scenario: str) -> str:

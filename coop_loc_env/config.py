@@ -16,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -259,9 +260,11 @@ class ScenarioConfig:
     reward_uncertainty_weight: float = _non_negative(0.0)
     collision_penalty: float = _non_negative(0.1)
     tip_over_penalty: float = _non_negative(10.0)
-    # --- infos: False leaves out the ``reward_terms`` dict, so that every info value is a
-    # number or a fixed-shape array (TorchRL, BenchMARL); ``reward_<term>`` keys are always there
-    reward_terms_dict: bool = True
+    # --- infos: every value is a number or a fixed-shape array (TorchRL, BenchMARL stack them);
+    # True adds the dict ``reward_terms`` beside the ``reward_<term>`` keys (always there)
+    reward_terms_dict: bool = False
+    # the info keys to keep (None: all); an unknown key raises ValueError at the first step
+    info_keys: tuple[str, ...] | None = None
     # --- estimator options read by one backend; every key is declared (and checked) in
     # coop_loc_env.extras.EXTRAS_SCHEMA
     extras: dict[str, Any] = field(default_factory=dict)
@@ -295,9 +298,11 @@ class ScenarioConfig:
                     f"unknown config key {key!r} for scenario {self.name!r}; "
                     f"known keys: {', '.join(sorted(known))}"
                 )
-        for key in ("team", "obstacles", "world_size", "start_region", "start_poses"):
+        for key in ("team", "obstacles", "world_size", "start_region", "start_poses", "info_keys"):
             if key in overrides and isinstance(overrides[key], list):
                 overrides[key] = tuple(overrides[key])
+        if "team" in overrides:
+            overrides["team"] = _team_specs(overrides["team"])
         if "estimator" in overrides and "team" not in overrides:
             # An explicit estimator= overrides the per-robot estimators of this config's team
             # (a team passed alongside it keeps its own: estimator= is then their default).
@@ -330,6 +335,13 @@ class ScenarioConfig:
         if not isinstance(self.reward_terms_dict, bool):
             raise ValueError(
                 f"reward_terms_dict must be True or False, got {self.reward_terms_dict!r}"
+            )
+        if self.info_keys is not None and (
+            not isinstance(self.info_keys, tuple)
+            or not all(isinstance(k, str) for k in self.info_keys)
+        ):
+            raise ValueError(
+                f"info_keys must be None or a list of key names, got {self.info_keys!r}"
             )
         if not isinstance(self.global_localization, bool):
             raise ValueError(
@@ -372,7 +384,7 @@ class ScenarioConfig:
             raise ValueError("team must hold at least one RobotSpec, got ()")
         for spec in self.team:
             if not isinstance(spec, RobotSpec):
-                raise ValueError(f"team entries must be RobotSpec, got {spec!r}")
+                raise ValueError(f"team entries must be RobotSpec or dict, got {spec!r}")
             spec.validate()
         for obstacle in self.obstacles:
             if not isinstance(obstacle, Obstacle):
@@ -467,3 +479,28 @@ def _number(
         if upper is not None:
             bound += f" and <= {upper}"
         raise ValueError(f"{key} must be a finite number {bound}, got {value!r}")
+
+
+def _team_specs(team: Any) -> Any:
+    """``team=`` as a tuple of :class:`RobotSpec`: dict entries (YAML, ``--set``) become specs.
+
+    A mapping's keys must be :class:`RobotSpec` fields (else ``ValueError`` naming the
+    key); entries of any other type are left for :meth:`ScenarioConfig.validate` to refuse.
+    """
+    if isinstance(team, (RobotSpec, Mapping)):
+        team = (team,)
+    if not isinstance(team, (tuple, list)):
+        return team
+    fields = {f.name for f in dataclasses.fields(RobotSpec)}
+    specs = []
+    for entry in team:
+        if isinstance(entry, Mapping):
+            unknown = [k for k in entry if k not in fields]
+            if unknown:
+                raise ValueError(
+                    f"unknown RobotSpec key(s) {unknown} in team entry {dict(entry)!r}; "
+                    f"known keys: {', '.join(sorted(fields))}"
+                )
+            entry = RobotSpec(**entry)
+        specs.append(entry)
+    return tuple(specs)

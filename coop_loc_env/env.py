@@ -52,8 +52,8 @@ class CoopLocParallelEnv(ParallelEnv):
     Infos (per agent): ``true_pose``, ``est_pose`` (x, y, heading), ``pose_cov``
     (3x3), ``position_error`` (m), ``heading_error`` (rad), the reward terms as
     ``reward_localization``, ``reward_coverage``, ``reward_collision`` and
-    ``reward_tip_over`` (and as the dict ``reward_terms`` unless the config's
-    ``reward_terms_dict`` is False), ``gps_fix``, ``satellites``, ``collisions``
+    ``reward_tip_over`` (and also as the dict ``reward_terms`` with the config's
+    ``reward_terms_dict=True``), ``gps_fix``, ``satellites``, ``collisions``
     (new contacts this step), ``in_contact`` (touched something this step: the
     collision penalty applies), ``tipped_over``, ``new_cells`` (team-map cells
     this robot newly mapped this step, at its estimated pose), ``covered_cells``
@@ -63,8 +63,9 @@ class CoopLocParallelEnv(ParallelEnv):
     over mapped cells), plus the estimators' own entries (MCL:
     ``particle_spread``, ``n_particles``, ``detections_used``), NaN for robots
     whose estimator does not report them: every agent of a team has the same
-    keys. With ``reward_terms_dict=False`` every value is a number or a
-    fixed-shape array (what TorchRL needs).
+    keys. By default every value is a number or a fixed-shape array (what
+    TorchRL and BenchMARL stack); ``info_keys=("position_error", ...)`` keeps
+    only the named entries (an unknown name raises ``ValueError`` at reset).
     """
 
     metadata = {
@@ -439,6 +440,7 @@ class CoopLocParallelEnv(ParallelEnv):
         terms = self._reward_terms(err_xy, err_th, in_contact, tipped, cov)
         totals = _sum_terms(terms)
         terms_dict = cfg.reward_terms_dict
+        keep = cfg.info_keys
         n = cfg.n_robots
         if readings is not None:
             fix, sats = readings.gps_mask.tolist(), readings.satellites.tolist()
@@ -463,7 +465,7 @@ class CoopLocParallelEnv(ParallelEnv):
                 covered) in columns:
             rewards[agent] = totals[i]
             values = per_robot[i]
-            own_terms = dict(zip(names, values, strict=True))
+            own_terms = dict(zip(names, values, strict=True)) if terms_dict else None
             info = {
                 "true_pose": poses[i],
                 "est_pose": est[i],
@@ -484,7 +486,7 @@ class CoopLocParallelEnv(ParallelEnv):
             }
             if terms_dict:
                 info["reward_terms"] = own_terms
-            infos[agent] = info
+            infos[agent] = info if keep is None else _keep_keys(info, keep)
         return infos, rewards
 
     def _reward_terms(
@@ -597,6 +599,17 @@ def _sum_terms(terms: dict[str, list[float]]) -> list[float]:
     for values in terms.values():
         totals = [total + v for total, v in zip(totals, values, strict=True)]
     return totals
+
+
+def _keep_keys(info: dict[str, Any], keep: tuple[str, ...]) -> dict[str, Any]:
+    """The entries of ``info`` named in ``keep`` (the config's ``info_keys``), in that order."""
+    try:
+        return {key: info[key] for key in keep}
+    except KeyError as err:
+        raise ValueError(
+            f"info_keys names {err.args[0]!r}, not an info key of this env; "
+            f"its keys: {', '.join(info)}"
+        ) from None
 
 
 @functools.lru_cache(maxsize=64)

@@ -45,7 +45,7 @@ def main() -> None:
         obs, rewards, terminations, truncations, infos = env.step(actions)
     for agent, info in infos.items():
         print(f"{agent}: position error {info['position_error']:.2f} m, "
-              f"reward terms {info['reward_terms']}")
+              f"localization reward {info['reward_localization']:.2f}")
 
 
 if __name__ == "__main__":

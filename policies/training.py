@@ -1,6 +1,6 @@
 """Train one policy shared by all robots with stable-baselines3 (the library of train.py).
 
-:func:`train` builds a :class:`~policies.vec_env.ParallelEnvVecEnv` (every agent
+:func:`train` builds a :class:`~policies.sb3_vec_env.ParallelEnvVecEnv` (every agent
 of ``n_envs`` env copies is one slot, copies stepped in ``n_procs`` processes),
 wraps it in ``VecNormalize`` (rewards only: observations are already scaled
 by the env, and an unnormalized-input model is what ``scripts/evaluate.py``
@@ -51,7 +51,7 @@ import numpy as np
 from policies.imitation import behaviour_clone, collect_demonstrations, make_teacher
 from policies.learned import LearnedPolicy
 from policies.runner import make_policy, run_episode
-from policies.vec_env import REWARD_MODES, ParallelEnvVecEnv, TimeToLocalizeReward, make_env_fn
+from policies.vec_env import REWARD_MODES, TimeToLocalizeReward, make_env_fn
 
 ALGOS = ("PPO", "SAC")
 EVAL_SEED = 100_000  # evaluation episodes use seeds EVAL_SEED + k, apart from training seeds
@@ -185,6 +185,8 @@ def trained_timesteps(cfg: TrainConfig) -> int:
 def make_vec_env(cfg: TrainConfig):
     """The training ``VecEnv``: slots per agent, reward-normalized when asked."""
     from stable_baselines3.common.vec_env import VecNormalize
+
+    from policies.sb3_vec_env import ParallelEnvVecEnv
 
     venv = ParallelEnvVecEnv(cfg.env_fn(), n_envs=cfg.n_envs, n_procs=cfg.n_procs)
     if cfg.normalize_reward:

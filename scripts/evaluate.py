@@ -3,7 +3,7 @@
 Examples::
 
     python scripts/evaluate.py --scenario outdoor_terrain --policy fsm --episodes 3 \\
-        --json outputs/eval.json --plot-dir outputs
+        --max-cycles 6000 --json outputs/eval.json --plot-dir outputs
     python scripts/evaluate.py --policy seek --episodes 5 --set n_robots=4 --set estimator=ekf
     python scripts/evaluate.py --policy models/ppo_coop.zip --episodes 10 --max-cycles 300
     python scripts/evaluate.py --compare fsm,random,runs/ppo/final_model.zip --episodes 20 \

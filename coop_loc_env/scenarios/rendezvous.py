@@ -13,7 +13,7 @@ bearing, distance and uncertainty of the nearest teammate with GPS and of the
 nearest without, from the estimates the team shares) and the reward adds
 ``reward_team_weight = 0.5`` times minus the team's mean position error and
 ``reward_uncertainty_weight = 1`` times minus the change of the robot's own
-``0.5 log det`` position covariance (``info["reward_terms"]``).
+``0.5 log det`` position covariance (``info["reward_<term>"]``).
 
 The scenario also carries the training defaults of ``scripts/train.py
 --scenario rendezvous`` (:data:`TRAINING_DEFAULTS`, read through

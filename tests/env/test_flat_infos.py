@@ -19,7 +19,8 @@ def _step(env, value=0.3):
 
 
 def test_reward_terms_flat_keys_match_the_dict_and_sum_to_the_reward():
-    env = coop_loc_env.parallel_env(max_cycles=5, reward_coverage_weight=0.5)
+    env = coop_loc_env.parallel_env(max_cycles=5, reward_coverage_weight=0.5,
+                                    reward_terms_dict=True)
     _, infos = env.reset(seed=3)
     assert all(infos[a]["reward_localization"] == infos[a]["reward_terms"]["localization"]
                for a in env.agents)
@@ -39,7 +40,8 @@ def test_a_reward_term_added_in_reward_terms_reaches_the_reward_and_the_infos():
             terms = super()._reward_terms(*args)
             return {**terms, "bonus": [0.25] * self.config.n_robots}
 
-    plain, bonus = CoopLocParallelEnv(max_cycles=3), WithBonus(max_cycles=3)
+    plain = CoopLocParallelEnv(max_cycles=3)
+    bonus = WithBonus(max_cycles=3, reward_terms_dict=True)
     plain.reset(seed=1)
     bonus.reset(seed=1)
     _, base_rewards, _, _, _ = _step(plain)
@@ -49,8 +51,8 @@ def test_a_reward_term_added_in_reward_terms_reaches_the_reward_and_the_infos():
         assert rewards[agent] == pytest.approx(base_rewards[agent] + 0.25)
 
 
-def test_reward_terms_dict_false_leaves_only_numbers_and_arrays():
-    env = coop_loc_env.parallel_env(max_cycles=5, reward_terms_dict=False)
+def test_default_infos_hold_only_numbers_and_arrays():
+    env = coop_loc_env.parallel_env(max_cycles=5)
     _, infos = env.reset(seed=0)
     _, _, _, _, step_infos = _step(env)
     for info in [*infos.values(), *step_infos.values()]:
@@ -108,3 +110,39 @@ def test_render_accepts_the_env_render_mode_as_argument():
     with pytest.raises(ValueError, match="human"):
         env.render("human")
     env.close()
+
+
+def test_info_keys_keeps_only_the_named_entries_in_that_order():
+    keys = ["coverage", "position_error", "particle_spread"]
+    env = coop_loc_env.parallel_env(n_robots=2, team=MIXED, max_cycles=5, n_particles=100,
+                                    info_keys=keys)
+    full = coop_loc_env.parallel_env(n_robots=2, team=MIXED, max_cycles=5, n_particles=100)
+    _, infos = env.reset(seed=2)
+    full.reset(seed=2)
+    _, rewards, _, _, step_infos = _step(env)
+    _, full_rewards, _, _, full_infos = _step(full)
+    assert rewards == full_rewards  # the rewards do not depend on what the infos keep
+    for agent, info in step_infos.items():
+        assert list(info) == keys and list(infos[agent]) == keys
+        np.testing.assert_equal(info, {k: full_infos[agent][k] for k in keys})
+    with pytest.raises(ValueError, match="'nope'"):
+        coop_loc_env.parallel_env(max_cycles=5, info_keys=["nope"]).reset(seed=0)
+    with pytest.raises(ValueError, match="info_keys"):
+        coop_loc_env.parallel_env(info_keys="coverage")
+
+
+def test_team_entries_may_be_dicts_of_robot_spec_fields():
+    from policies.runner import parse_overrides
+
+    overrides = parse_overrides(["team=[{'estimator': 'ekf'}, {'estimator': 'mcl', "
+                                 "'has_gps': False}]"])
+    env = coop_loc_env.parallel_env(n_robots=4, n_particles=100, **overrides)
+    assert env.config.team == (RobotSpec(estimator="ekf"),
+                               RobotSpec(estimator="mcl", has_gps=False))
+    assert env.config.estimators == ("ekf", "mcl", "ekf", "mcl")
+    single = coop_loc_env.parallel_env(n_robots=2, team={"has_gps": False})
+    assert single.config.team == (RobotSpec(has_gps=False),)
+    with pytest.raises(ValueError, match="'estimatr'"):
+        coop_loc_env.parallel_env(team=[{"estimatr": "ekf"}])
+    with pytest.raises(ValueError, match="team entries"):
+        coop_loc_env.parallel_env(team=["ekf"])

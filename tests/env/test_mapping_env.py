@@ -31,7 +31,7 @@ def test_coverage_monotone_and_reward_term_counts_truly_covered_cells():
         prev = cov
         for info in infos.values():
             assert info["coverage"] == cov  # a team figure
-            assert info["reward_terms"]["coverage"] == pytest.approx(0.25 * info["covered_cells"])
+            assert info["reward_coverage"] == pytest.approx(0.25 * info["covered_cells"])
             total_new += info["new_cells"]
             total_covered += info["covered_cells"]
             assert np.isfinite(info["map_rmse"])

@@ -71,10 +71,11 @@ def test_collision_penalty_is_paid_for_every_step_in_contact():
     for _ in range(60):  # reaches the rock after ~2.5 s and keeps pushing
         _, rewards, _, _, infos = env.step({"robot_0": FORWARD})
         info = infos["robot_0"]
-        terms.append(info["reward_terms"]["collision"])
+        terms.append(info["reward_collision"])
         touching.append(info["in_contact"])
         new += info["collisions"]
-        assert rewards["robot_0"] == pytest.approx(sum(info["reward_terms"].values()))
+        assert rewards["robot_0"] == pytest.approx(
+            sum(v for k, v in info.items() if k.startswith("reward_")))
     touching = np.array(touching)
     assert not touching[:15].any() and touching[-30:].all()
     np.testing.assert_array_equal(np.array(terms), np.where(touching, -0.1, 0.0))
@@ -127,7 +128,7 @@ def test_coverage_reward_counts_true_coverage_not_estimate_drift():
         info = infos["robot_0"]
         mapped += info["new_cells"]
         covered += info["covered_cells"]
-        reward += info["reward_terms"]["coverage"]
+        reward += info["reward_coverage"]
     assert info["position_error"] > 0.5  # the estimate wandered off
     assert mapped > 5 and covered == 0 and reward == 0.0
     # Driving covers ground: truly new drivable cells only, each counted once.

@@ -75,7 +75,8 @@ def test_teammate_features_by_hand():
 
 def test_teammate_obs_block_and_shaping_terms():
     env = coop_loc_env.parallel_env("rendezvous", teammate_obs=True, reward_team_weight=0.5,
-                                    reward_uncertainty_weight=2.0, **FAST)
+                                    reward_uncertainty_weight=2.0, reward_terms_dict=True,
+                                    **FAST)
     names = env.observations.names
     assert names[names.index("last_w") + 1] == "team_own_gps"
     obs, infos = env.reset(seed=1)

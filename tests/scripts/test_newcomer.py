@@ -119,7 +119,7 @@ def test_readme_lists_every_scenario_and_reward_term():
     table = README[README.index("## Scenarios"):README.index("## Reward")]
     for name in coop_loc_env.list_scenarios():
         assert f"| `{name}` | `{coop_loc_env.env_id(name)}` |" in table
-    env = _env()
+    env = _env(reward_terms_dict=True)
     _, rewards, _, _, infos = env.step({a: np.zeros(2) for a in env.agents})
     reward_section = README[README.index("## Reward"):README.index("## Design notes")]
     for key in infos["robot_0"]["reward_terms"]:

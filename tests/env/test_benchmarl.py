@@ -1,0 +1,101 @@
+"""BenchMARL tasks shipped in the package: YAML, hydra's search path, logging, a tiny MAPPO."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+from tensordict import TensorDict
+
+import coop_loc_env
+from coop_loc_env.benchmarl import INFO_NAME, CoopLocClass, CoopLocTask
+
+
+def test_one_task_per_shipped_scenario_with_its_yaml():
+    assert [t.name.lower() for t in CoopLocTask] == coop_loc_env.list_scenarios()
+    for task in CoopLocTask:
+        loaded = task.get_from_yaml()
+        assert loaded.config["max_cycles"] == coop_loc_env.make_config(
+            task.name.lower()).max_cycles
+        assert loaded.supports_continuous_actions() and not loaded.supports_discrete_actions()
+
+
+def test_task_env_specs_and_a_team_written_as_dicts():
+    task = CoopLocTask.RENDEZVOUS.get_task(
+        {"max_cycles": 6, "n_particles": 100,
+         "team": [{"estimator": "ekf"}, {"estimator": "mcl", "has_gps": False}]})
+    env = task.get_env_fun(num_envs=1, continuous_actions=True, seed=0, device="cpu")()
+    assert task.group_map(env) == {"robot": [f"robot_{i}" for i in range(4)]}
+    assert task.max_steps(env) == 6
+    assert list(task.observation_spec(env)["robot"].keys()) == ["observation"]
+    assert "particle_spread" in task.info_spec(env)["robot", INFO_NAME].keys()
+    td = env.rollout(10)
+    assert td.batch_size == torch.Size([6])
+    assert env.env.config.estimators == ("ekf", "mcl", "ekf", "mcl")
+    with pytest.raises(ValueError, match="continuous"):
+        task.get_env_fun(num_envs=1, continuous_actions=False, seed=0, device="cpu")
+
+
+def test_hydra_finds_the_tasks_through_the_package_plugin():
+    from benchmarl.hydra_config import load_task_config_from_hydra
+    from hydra import compose, initialize_config_module
+
+    with initialize_config_module(config_module="benchmarl.conf", version_base=None):
+        cfg = compose(config_name="config", overrides=[
+            "algorithm=mappo", "task=coop_loc/active_hallway", "task.max_cycles=30"])
+    task = load_task_config_from_hydra(cfg.task, "coop_loc/active_hallway")
+    assert isinstance(task, CoopLocClass) and task.name == "ACTIVE_HALLWAY"
+    assert task.config["max_cycles"] == 30
+
+
+def test_log_info_is_nan_aware_and_counts_steps_to_localize():
+    # two robots over 8 steps: robot 1 runs no particle filter (NaN); episodes end after
+    # steps 1, 4 and 7, so two whole episodes (steps 2-4 and 5-7) start inside the batch
+    err = torch.tensor([[3.0, 0.2], [2.0, 2.0], [2.0, 2.0], [1.0, 2.0], [2.0, 2.0],
+                        [2.0, 1.4], [1.2, 1.0], [0.5, 0.5]])
+    spread = torch.stack([torch.full((8,), 0.4), torch.full((8,), math.nan)], 1)
+    done = torch.zeros(8, 1, dtype=torch.bool)
+    done[[1, 4, 7]] = True
+    info = TensorDict({"position_error": err, "particle_spread": spread,
+                       "coverage": torch.full((8, 2), 0.25)}, batch_size=(8, 2))
+    batch = TensorDict({"next": {"robot": {INFO_NAME: info}, "done": done}}, batch_size=(8,))
+    logged = CoopLocClass.log_info(batch)
+    prefix = "collection/robot/info/"
+    assert logged[prefix + "particle_spread"] == pytest.approx(0.4)
+    assert logged[prefix + "coverage"] == pytest.approx(0.25)
+    assert logged[prefix + "position_error"] == pytest.approx(err.mean().item())
+    # episode 2-4: robot 0 within 1.5 m at its 2nd step, robot 1 never (its 3 steps count);
+    # episode 5-7: robot 0 at its 2nd step, robot 1 at its 1st
+    assert logged[prefix + "steps_to_localize"] == pytest.approx((2 + 3 + 2 + 1) / 4)
+
+
+def test_a_tiny_mappo_run_on_rendezvous(tmp_path):
+    from benchmarl.algorithms import MappoConfig
+    from benchmarl.experiment import Experiment, ExperimentConfig
+    from benchmarl.models import MlpConfig
+
+    torch.set_num_threads(1)
+    task = CoopLocTask.RENDEZVOUS.get_from_yaml()
+    task.config.update(max_cycles=50)
+    cfg = ExperimentConfig.get_from_yaml()
+    cfg.sampling_device = cfg.train_device = "cpu"
+    cfg.max_n_frames = 1200
+    cfg.on_policy_collected_frames_per_batch = 600
+    cfg.on_policy_n_envs_per_worker = 2
+    cfg.on_policy_n_minibatch_iters = 1
+    cfg.on_policy_minibatch_size = 200
+    cfg.evaluation = False
+    cfg.loggers = []
+    cfg.checkpoint_interval = 0
+    cfg.create_json = False
+    cfg.render = False
+    cfg.save_folder = str(tmp_path)
+    returns = []
+    for _ in range(2):  # same seed, same returns
+        exp = Experiment(task=task, algorithm_config=MappoConfig.get_from_yaml(),
+                         model_config=MlpConfig.get_from_yaml(), seed=0, config=cfg)
+        exp.run()
+        assert exp.total_frames == 1200
+        returns.append(exp.mean_return)
+    assert math.isfinite(returns[0]) and returns[0] == returns[1]
