@@ -10,8 +10,10 @@ robot's landmark readings of the last ``window_s`` seconds, accepted or not
 (none taken while turning faster than ``max_turn_rate``), and overrules the
 belief only when
 
-* the rejected ones among them come from at least ``min_landmarks`` distinct
-  landmarks;
+* at least ``min_landmarks`` landmarks, some two of them ``min_baseline`` or
+  more apart, contradict the belief: the gate rejected most of their readings
+  (a biased landmark among well-read ones is the only one that does; landmarks
+  closer together constrain a pose like one);
 * one pose explains *all* of them, the accepted ones too, with the odometry
   between them (:func:`fit_pose`: chi-square test of the residuals, the
   odometry's noise over each reading's age added to its covariance), so an
@@ -171,7 +173,8 @@ class Relocalizer:
         motion: ``motion(row_a, row_b, heading_a) -> (delta (3,), q (3, 3))``, the
             odometry between two table rows (:meth:`OdometryTrack.motion`).
         min_readings: rejected readings needed (``None``: never recover).
-        min_landmarks: distinct landmarks among them.
+        min_landmarks: landmarks whose readings the gate mostly rejected.
+        min_baseline: the largest distance between two of them (m), at least.
         window_s: readings older than this (s) are forgotten.
         max_turn_rate: readings taken while turning faster (rad/s) are not kept.
         agree_prob: probability of the chi-square tests (the readings agree on one
@@ -185,6 +188,7 @@ class Relocalizer:
         motion: Callable[[np.ndarray, np.ndarray, float], tuple[np.ndarray, np.ndarray]],
         min_readings: int | None = 3,
         min_landmarks: int = 2,
+        min_baseline: float = 1.0,
         window_s: float = 10.0,
         max_turn_rate: float = 0.3,
         agree_prob: float = 0.999,
@@ -192,15 +196,18 @@ class Relocalizer:
     ) -> None:
         if min_readings is not None and (
             isinstance(min_readings, bool) or not isinstance(min_readings, int | np.integer)
-            or min_readings < 2
+            or min_readings < 1
         ):
-            raise ValueError(f"min_readings must be an int >= 2 or None, got {min_readings!r}")
+            raise ValueError(f"min_readings must be a positive int or None, got {min_readings!r}")
         if isinstance(min_landmarks, bool) or not isinstance(min_landmarks, int | np.integer) \
                 or min_landmarks < 2:
             raise ValueError(f"min_landmarks must be an int >= 2, got {min_landmarks!r}")
         for name, value in (("window_s", window_s), ("max_turn_rate", max_turn_rate)):
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be finite and > 0, got {value!r}")
+        if not (np.isfinite(min_baseline) and min_baseline >= 0):
+            raise ValueError(f"min_baseline must be finite and >= 0, got {min_baseline!r}")
+        self.min_baseline = float(min_baseline)
         chi2_threshold(agree_prob, 1)
         if len(max_std) != 2 or not all(np.isfinite(v) and v > 0 for v in max_std):
             raise ValueError(f"max_std must be two finite values > 0, got {max_std!r}")
@@ -251,9 +258,7 @@ class Relocalizer:
         keep = self._readings[i]
         if not self.enabled or not keep or not keep[-1].rejected:
             return None
-        rejected = [k for k in keep if k.rejected]
-        if len(rejected) < self.min_readings \
-                or len({k.landmark for k in rejected}) < self.min_landmarks:
+        if sum(k.rejected for k in keep) < self.min_readings or not self._contradicted(keep):
             return None
         last = keep[-1].row
         rel = np.empty((len(keep), 3))
@@ -281,3 +286,17 @@ class Relocalizer:
         if d @ np.linalg.solve(cov + p_fit, d) <= chi2_threshold(self.agree_prob, 3):
             return None
         return pose, p_fit
+
+    def _contradicted(self, keep: list[_Reading]) -> bool:
+        """Whether ``min_landmarks`` landmarks with mostly rejected readings, two of them
+        ``min_baseline`` apart, are among ``keep``."""
+        votes: dict[Hashable, int] = {}
+        marks: dict[Hashable, np.ndarray] = {}
+        for k in keep:
+            votes[k.landmark] = votes.get(k.landmark, 0) + (1 if k.rejected else -1)
+            marks[k.landmark] = k.mark
+        against = np.array([marks[lm] for lm, v in votes.items() if v > 0])
+        if len(against) < self.min_landmarks:
+            return False
+        gaps = np.linalg.norm(against[:, None] - against[None], axis=-1)
+        return bool(gaps.max() >= self.min_baseline)

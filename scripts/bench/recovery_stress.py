@@ -76,7 +76,8 @@ def turn_bursts(data: MrclamDataset, late_s: float = LATE_S) -> MrclamDataset:
     return dataclasses.replace(data, robots=robots)
 
 
-def _run(data, estimator, params, start, duration, kidnap: bool) -> dict:
+def run_case(data, estimator: str, params, start: float, duration: float, kidnap: bool) -> dict:
+    """Replay one case; its figures (see the module doc)."""
     original = runner.TeamEKF
     if kidnap:
         class Kidnapped(original):
@@ -181,7 +182,7 @@ def main(argv: list[str] | None = None) -> int:
                 continue
             for est in args.estimators:
                 key = f"{start:g}:{duration:g} {name} {est}"
-                out[key] = _run(d, est, params, start, duration, kidnap)
+                out[key] = run_case(d, est, params, start, duration, kidnap)
                 print(key, json.dumps(out[key]), flush=True)
     if args.json:
         with open(args.json, "w") as fh:
