@@ -1,27 +1,32 @@
-"""Lock-out recovery of a landmark filter: re-localize a robot that the gate has locked out.
+"""Lock-out recovery of a landmark filter: re-localize a robot whose belief is wrong.
 
 A validation gate can lock a filter out: once its estimate has drifted away
-with a small covariance, every later landmark reading fails the gate. But a
-run of rejected readings is not by itself evidence that the *filter* is wrong:
-one biased or misidentified landmark, or a burst of bearings taken while the
-robot turns, also fails the gate again and again, and readings of one landmark
-agree with each other however wrong they are. :class:`Relocalizer` keeps each
-robot's landmark readings of the last ``window_s`` seconds, accepted or not
-(none taken while turning faster than ``max_turn_rate``), and overrules the
-belief only when
+with a small covariance, every later landmark reading fails the gate (or, with
+a generous gate, passes it narrowly while the filter creeps back over a
+minute). But a run of rejected readings is not by itself evidence that the
+*filter* is wrong: one biased or misidentified landmark, or a burst of bearings
+taken while the robot turns, also fails the gate again and again, and readings
+of one landmark agree with each other however wrong they are.
+:class:`Relocalizer` keeps each robot's landmark readings of the last
+``window_s`` seconds, accepted or not (none taken while turning faster than
+``max_turn_rate``), and looks into them when the gate statistics of several
+landmarks' readings sum above the median of their chi-square distribution
+(those of an accurate filter sit well below it). It overrules the belief only
+when
 
-* at least ``min_landmarks`` landmarks, some two of them ``min_baseline`` or
-  more apart, contradict the belief: the gate rejected most of their readings
-  (a biased landmark among well-read ones is the only one that does; landmarks
-  closer together constrain a pose like one);
 * one pose explains *all* of them, the accepted ones too, with the odometry
   between them (:func:`fit_pose`: chi-square test of the residuals, the
-  odometry's noise over each reading's age added to its covariance), so an
+  odometry's noise over each reading's age added to their covariance), so an
   accurate filter, whose accepted readings contradict the outliers, is left
   alone;
-* that pose is well determined (readings of one cluster of landmarks seen from
-  afar leave it loose: wait for more) and where the belief says the robot is
-  not (chi-square test of the difference, with both covariances).
+* that pose is well determined (``max_std``: readings of one cluster of
+  landmarks seen from afar leave it loose);
+* it explains the readings of at least ``min_landmarks`` landmarks, some two
+  of them ``min_baseline`` or more apart, better than the belief does
+  (chi-square gain per landmark): a biased landmark is one landmark, and
+  landmarks a few decimetres apart constrain a pose like one;
+* and the belief rules it out (chi-square test of the difference, with both
+  covariances).
 
 The robot's belief is then replaced by the fitted pose and its covariance (no
 correlation with the others: it rests on the landmarks and the robot's own
@@ -154,6 +159,19 @@ def fit_pose(
     return best
 
 
+def residuals(
+    pose: np.ndarray, rel: np.ndarray, marks: np.ndarray, z: np.ndarray, r: np.ndarray,
+    q: np.ndarray, offset: np.ndarray,
+) -> np.ndarray:
+    """Each reading's chi-square ``(k,)`` at the reference pose ``pose`` (the arguments of
+    :func:`fit_pose`)."""
+    pred, _, j_own = _predict(np.asarray(pose, dtype=float), rel, marks, offset)
+    nu = z - pred
+    nu[:, 1] = _wrap(nu[:, 1])
+    s = r + j_own @ q @ np.swapaxes(j_own, 1, 2)
+    return np.einsum("ka,kab,kb->k", nu, np.linalg.inv(s), nu)
+
+
 @dataclass
 class _Reading:
     time: float
@@ -162,6 +180,7 @@ class _Reading:
     mark: np.ndarray
     z: np.ndarray
     r: np.ndarray
+    d2: float  # its gate statistic (chi-square, 2 dof)
     rejected: bool
 
 
@@ -172,14 +191,18 @@ class Relocalizer:
         n: number of robots.
         motion: ``motion(row_a, row_b, heading_a) -> (delta (3,), q (3, 3))``, the
             odometry between two table rows (:meth:`OdometryTrack.motion`).
-        min_readings: rejected readings needed (``None``: never recover).
-        min_landmarks: landmarks whose readings the gate mostly rejected.
+        min_readings: readings of the landmarks that refute the belief, at least
+            (``None``: never recover).
+        min_landmarks: landmarks whose readings the fitted pose explains better than the
+            belief does, at least.
         min_baseline: the largest distance between two of them (m), at least.
         window_s: readings older than this (s) are forgotten.
         max_turn_rate: readings taken while turning faster (rad/s) are not kept.
         agree_prob: probability of the chi-square tests (the readings agree on one
             pose; that pose is not the belief's).
         max_std: the largest position std (m) and heading std (rad) of the fitted pose.
+        check_every_s: after an accepted reading, a robot's readings are looked into at
+            most this often (s).
     """
 
     def __init__(
@@ -193,6 +216,7 @@ class Relocalizer:
         max_turn_rate: float = 0.3,
         agree_prob: float = 0.999,
         max_std: tuple[float, float] = (1.0, 0.2),
+        check_every_s: float = 0.5,
     ) -> None:
         if min_readings is not None and (
             isinstance(min_readings, bool) or not isinstance(min_readings, int | np.integer)
@@ -218,7 +242,11 @@ class Relocalizer:
         self.max_turn_rate = float(max_turn_rate)
         self.agree_prob = float(agree_prob)
         self.max_std = (float(max_std[0]), float(max_std[1]))
+        if not (np.isfinite(check_every_s) and check_every_s >= 0):
+            raise ValueError(f"check_every_s must be finite and >= 0, got {check_every_s!r}")
+        self.check_every_s = float(check_every_s)
         self._readings: list[list[_Reading]] = [[] for _ in range(int(n))]
+        self._checked = np.full(int(n), -np.inf)
         self.recoveries = 0
 
     @property
@@ -232,11 +260,12 @@ class Relocalizer:
 
     def add(
         self, i: int, time: float, row: np.ndarray, turn_rate: float, landmark: Hashable,
-        mark: np.ndarray, z: np.ndarray, r: np.ndarray, rejected: bool,
+        mark: np.ndarray, z: np.ndarray, r: np.ndarray, d2: float, rejected: bool,
     ) -> None:
         """Keep a reading ``z`` (noise ``r``) of robot ``i`` of the landmark named
-        ``landmark`` at ``mark``, and whether the gate ``rejected`` it; ``row``: the
-        robot's odometry table row at ``time``; ``turn_rate``: its turn rate then."""
+        ``landmark`` at ``mark``, its gate statistic ``d2`` and whether the gate
+        ``rejected`` it; ``row``: the robot's odometry table row at ``time``;
+        ``turn_rate``: its turn rate then."""
         if not self.enabled:
             return
         keep = self._readings[i]
@@ -246,21 +275,31 @@ class Relocalizer:
             return
         keep.append(_Reading(float(time), np.array(row, dtype=float), landmark,
                              np.array(mark, dtype=float), np.array(z, dtype=float),
-                             np.array(r, dtype=float), bool(rejected)))
+                             np.array(r, dtype=float), float(d2), bool(rejected)))
 
     def propose(
         self, i: int, offset: np.ndarray, mean: np.ndarray, cov: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray] | None:
         """The pose ``(3,)`` and covariance ``(3, 3)``, at robot ``i``'s newest kept reading,
         that its kept readings agree on, when that pose refutes the belief ``mean``,
-        ``cov``; ``None`` otherwise (too few rejected readings or landmarks, no agreement,
-        a loose fit, or the belief is not refuted)."""
+        ``cov``; ``None`` otherwise.
+
+        Looked into when the gate statistics of the readings of ``min_landmarks``
+        landmarks, two of them ``min_baseline`` apart, sum above the median of their
+        chi-square distribution: after a rejected reading, and at most every
+        ``check_every_s`` after an accepted one (a belief that has settled on a wrong
+        pose, where readings still pass the gate one by one, but narrowly)."""
         keep = self._readings[i]
-        if not self.enabled or not keep or not keep[-1].rejected:
+        if not self.enabled or len(keep) < 3:
             return None
-        if sum(k.rejected for k in keep) < self.min_readings or not self._contradicted(keep):
+        newest = keep[-1]
+        if not newest.rejected and newest.time - self._checked[i] < self.check_every_s:
             return None
-        last = keep[-1].row
+        if not self._suspects(keep):
+            return None
+        self._checked[i] = newest.time
+        marks = np.array([k.mark for k in keep])
+        last = newest.row
         rel = np.empty((len(keep), 3))
         q = np.empty((len(keep), 3, 3))
         for k, reading in enumerate(keep):
@@ -269,10 +308,10 @@ class Relocalizer:
             # motion between them (integrated forward: the noise integrals only grow).
             rel[k] = self.motion(last, reading.row, 0.0)[0]
             q[k] = self.motion(reading.row, last, float(rel[k, 2]))[1]
-        fit = fit_pose(
-            rel, np.array([k.mark for k in keep]), np.array([k.z for k in keep]),
-            np.array([k.r for k in keep]), q, np.asarray(offset, dtype=float),
-        )
+        z = np.array([k.z for k in keep])
+        r = np.array([k.r for k in keep])
+        offset = np.asarray(offset, dtype=float)
+        fit = fit_pose(rel, marks, z, r, q, offset)
         if fit is None:
             return None
         pose, p_fit, chi = fit
@@ -281,22 +320,51 @@ class Relocalizer:
         if np.linalg.eigvalsh(p_fit[:2, :2])[-1] > self.max_std[0] ** 2 \
                 or p_fit[2, 2] > self.max_std[1] ** 2:
             return None
+        gain = residuals(mean, rel, marks, z, r, q, offset) - residuals(
+            pose, rel, marks, z, r, q, offset)
+        if not self._contradicted(keep, gain):
+            return None
         d = pose - mean
         d[2] = _wrap(d[2])
         if d @ np.linalg.solve(cov + p_fit, d) <= chi2_threshold(self.agree_prob, 3):
             return None
         return pose, p_fit
 
-    def _contradicted(self, keep: list[_Reading]) -> bool:
-        """Whether ``min_landmarks`` landmarks with mostly rejected readings, two of them
-        ``min_baseline`` apart, are among ``keep``."""
-        votes: dict[Hashable, int] = {}
+    def _suspects(self, keep: list[_Reading]) -> bool:
+        """Whether ``min_landmarks`` landmarks, two of them ``min_baseline`` apart, have gate
+        statistics summing above the median of their chi-square distribution (a cheap
+        test before the fit: an accurate filter's readings sit well below it)."""
+        total: dict[Hashable, float] = {}
+        count: dict[Hashable, int] = {}
         marks: dict[Hashable, np.ndarray] = {}
         for k in keep:
-            votes[k.landmark] = votes.get(k.landmark, 0) + (1 if k.rejected else -1)
+            total[k.landmark] = total.get(k.landmark, 0.0) + k.d2
+            count[k.landmark] = count.get(k.landmark, 0) + 1
             marks[k.landmark] = k.mark
-        against = np.array([marks[lm] for lm, v in votes.items() if v > 0])
-        if len(against) < self.min_landmarks:
+        odd = [lm for lm, t in total.items() if t > chi2_threshold(0.5, 2 * count[lm])]
+        return len(odd) >= self.min_landmarks and _spread(np.array([marks[lm] for lm in odd])) \
+            >= self.min_baseline
+
+    def _contradicted(self, keep: list[_Reading], gain: np.ndarray) -> bool:
+        """Whether the fitted pose explains the readings of ``min_landmarks`` landmarks, two
+        of them ``min_baseline`` apart and ``min_readings`` readings in all, better than the
+        belief (chi-square gain ``gain (k,)`` per reading, summed per landmark, above the
+        bound of 2 dof)."""
+        total: dict[Hashable, float] = {}
+        count: dict[Hashable, int] = {}
+        marks: dict[Hashable, np.ndarray] = {}
+        for k, g in zip(keep, gain.tolist(), strict=True):
+            total[k.landmark] = total.get(k.landmark, 0.0) + g
+            count[k.landmark] = count.get(k.landmark, 0) + 1
+            marks[k.landmark] = k.mark
+        bound = chi2_threshold(self.agree_prob, 2)
+        against = [lm for lm, g in total.items() if g > bound]
+        if len(against) < self.min_landmarks \
+                or sum(count[lm] for lm in against) < self.min_readings:
             return False
-        gaps = np.linalg.norm(against[:, None] - against[None], axis=-1)
-        return bool(gaps.max() >= self.min_baseline)
+        return _spread(np.array([marks[lm] for lm in against])) >= self.min_baseline
+
+
+def _spread(points: np.ndarray) -> float:
+    """The largest distance between two of ``points (k, 2)``."""
+    return float(np.linalg.norm(points[:, None] - points[None], axis=-1).max())

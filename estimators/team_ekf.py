@@ -18,10 +18,10 @@ with range-bearing instead of a Cartesian relative pose).
 * Every update passes a chi-square validation gate (``scipy.stats.chi2``);
   the covariance update is the Joseph form followed by symmetrization. A robot
   is taken to be lost (locked out by the gate), not the landmarks wrong, only
-  when its recent landmark readings, rejected ones from several landmarks
-  among them, all agree on one well-determined pose, odometry included, that
-  the belief rules out; its belief is then replaced by that pose
-  (:class:`~estimators.relocalization.Relocalizer`).
+  when its recent landmark readings all agree on one well-determined pose,
+  odometry included, that explains the readings of several landmarks metres
+  apart better than the belief does and that the belief rules out; its belief
+  is then replaced by that pose (:class:`~estimators.relocalization.Relocalizer`).
 
 Independent per-robot EKFs are the same class with ``cooperative=False``:
 robot-to-robot updates are then skipped and the covariance stays block
@@ -207,9 +207,10 @@ class TeamEKF:
         sensor_offset: ``(n, 2)`` position of each robot's range-bearing sensor
             in its body frame (default: at the pose's origin). Targets (landmarks,
             other robots' poses) are points.
-        recover_after: rejected landmark readings of a robot (from at least two
-            landmarks, agreeing on one pose) that prove it lost and re-localize it
-            (:class:`~estimators.relocalization.Relocalizer`; ``None``: never).
+        recover_after: landmark readings of a robot (of at least two landmarks 1 m
+            apart, agreeing on one pose the belief rules out) that prove it lost and
+            re-localize it (:class:`~estimators.relocalization.Relocalizer`;
+            ``None``: never).
     """
 
     def __init__(
@@ -295,6 +296,7 @@ class TeamEKF:
         the Joseph form ``(I - K H) P (I - K H)^T + K R K^T`` expands to
         ``P - K B - B^T K^T + K S K^T``: rank-2 terms, no ``3n x 3n`` products.
         """
+        self._last_d2 = np.inf  # the gate statistic of this reading, for the relocalizer
         b = h @ self.P[idx, :]  # (2, 3n)
         s = b[:, idx] @ h.T + r
         det = s[0, 0] * s[1, 1] - s[0, 1] * s[1, 0]
@@ -304,6 +306,7 @@ class TeamEKF:
         s_inv = np.array([[s[1, 1], -s[0, 1]], [-s[1, 0], s[0, 0]]]) / det
         d2 = float(nu @ s_inv @ nu)
         passed = bool(np.isfinite(d2) and d2 <= self.gate)
+        self._last_d2 = d2 if np.isfinite(d2) else np.inf
         if not passed:
             self.rejected[who] += 1
             return False
@@ -368,18 +371,17 @@ class TeamEKF:
         a = 3 * i
         mark = np.asarray(landmark, dtype=float)
         reloc.add(i, self.time[i], self._table[i], self.tracks[i].turn_rate(self.time[i]),
-                  tuple(mark.tolist()), mark, z, r, rejected=not passed)
-        if passed:
-            return True
+                  tuple(mark.tolist()), mark, z, r, self._last_d2, not passed)
         fix = reloc.propose(i, self.sensor_offset[i], self.x[a : a + 3],
                             self.P[a : a + 3, a : a + 3])
         if fix is None:
-            return False
+            return passed
         self._relocate(i, *fix)
         reloc.clear(i)
         reloc.recoveries += 1
-        self.rejected[i] -= 1
-        self.accepted[i] += 1
+        if not passed:
+            self.rejected[i] -= 1
+            self.accepted[i] += 1
         return True
 
     def _relocate(self, i: int, pose: np.ndarray, cov: np.ndarray) -> None:
