@@ -169,12 +169,17 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     try:
         windows = [tuple(float(x) for x in w.split(":")) for w in args.windows]
-        if any(len(w) != 2 for w in windows):
+        if any(len(w) != 2 or not (w[0] >= 0 and w[1] > 0) for w in windows):
             raise ValueError
     except ValueError:
-        print(f"--windows takes START:DURATION pairs, got {args.windows!r}", file=sys.stderr)
+        print(f"--windows takes START:DURATION pairs (START >= 0, DURATION > 0), got "
+              f"{args.windows!r}", file=sys.stderr)
         return 2
-    data = load_mrclam(args.dataset_dir)
+    try:
+        data = load_mrclam(args.dataset_dir)
+    except (OSError, ValueError) as err:
+        print(f"cannot read the dataset: {err}", file=sys.stderr)
+        return 2
     bad = [lm for lm in args.landmarks if lm not in data.landmarks]
     if bad:
         print(f"--landmarks: no such landmark {bad[0]!r}", file=sys.stderr)

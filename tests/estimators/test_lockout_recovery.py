@@ -191,3 +191,13 @@ def test_a_misidentified_landmark_on_mrclam_costs_little(excerpt, script_module)
     assert bad["recoveries"] == 0
     for mean, rmse, _ in bad["per_robot"].values():
         assert rmse < 2.0 * mean
+
+
+def test_recovery_stress_script_refuses_bad_input(script_main, tmp_path, capsys):
+    main = script_main("bench/recovery_stress")
+    assert main([str(tmp_path / "missing")]) == 2
+    assert "dataset" in capsys.readouterr().err
+    for bad in (["--windows", "0-300"], ["--windows", "0:0"], ["--landmarks", "99"],
+                ["--cases", "kidnapped", "--kidnap", "9"]):
+        assert main([str(EXCERPT), *bad]) == 2
+        assert capsys.readouterr().err.count("\n") == 1
