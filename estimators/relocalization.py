@@ -21,9 +21,10 @@ when
   alone;
 * that pose is well determined (``max_std``: readings of one cluster of
   landmarks seen from afar leave it loose);
-* it explains the readings of at least ``min_landmarks`` landmarks, some two
-  of them ``min_baseline`` or more apart, better than the belief does
-  (chi-square gain per landmark): a biased landmark is one landmark, and
+* it explains the readings of at least ``min_landmarks`` landmarks (each read
+  twice or more), some two of them ``min_baseline`` or more apart, better than
+  the belief does (chi-square gain per landmark): a biased landmark is one
+  landmark, a single outlier reading is no landmark's verdict, and
   landmarks a few decimetres apart constrain a pose like one;
 * and the belief rules it out (chi-square test of the difference, with both
   covariances).
@@ -349,7 +350,7 @@ class Relocalizer:
         """Whether the fitted pose explains the readings of ``min_landmarks`` landmarks, two
         of them ``min_baseline`` apart and ``min_readings`` readings in all, better than the
         belief (chi-square gain ``gain (k,)`` per reading, summed per landmark, above the
-        bound of 2 dof)."""
+        bound of 2 dof). A landmark read once is no verdict (one outlier would do)."""
         total: dict[Hashable, float] = {}
         count: dict[Hashable, int] = {}
         marks: dict[Hashable, np.ndarray] = {}
@@ -358,7 +359,7 @@ class Relocalizer:
             count[k.landmark] = count.get(k.landmark, 0) + 1
             marks[k.landmark] = k.mark
         bound = chi2_threshold(self.agree_prob, 2)
-        against = [lm for lm, g in total.items() if g > bound]
+        against = [lm for lm, g in total.items() if g > bound and count[lm] >= 2]
         if len(against) < self.min_landmarks \
                 or sum(count[lm] for lm in against) < self.min_readings:
             return False
