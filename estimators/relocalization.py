@@ -214,7 +214,7 @@ class Relocalizer:
         min_landmarks: int = 2,
         min_baseline: float = 1.0,
         window_s: float = 10.0,
-        max_turn_rate: float = 0.3,
+        max_turn_rate: float = 0.1,
         agree_prob: float = 0.999,
         max_std: tuple[float, float] = (1.0, 0.2),
         check_every_s: float = 0.5,
