@@ -5,8 +5,9 @@ Everything here consumes plain arrays, so it runs on simulated data and on
 real robot logs alike:
 
 - :class:`PoseEKF` — per-robot EKFs in numpy batches (Madhavan et al.), with
-  :class:`TeamEKF` the centralized full-covariance variant used on real logs,
-  and :class:`GateMonitor`, their recovery from validation-gate lock-out;
+  :class:`TeamEKF` the centralized full-covariance variant used on real logs;
+  :class:`GateMonitor` (simulated sensors) and :class:`Relocalizer` (landmark
+  readings) recover them from validation-gate lock-out;
 - :class:`ParticleFilter`, :class:`DensityTree`, :class:`DetectionTransfer` —
   multi-robot Monte Carlo localization (Fox et al.), with per-map beam-model
   tables (:mod:`estimators.beam_table`) and team-level batched updates
@@ -37,6 +38,7 @@ from estimators.relative_metrics import (
     relative_errors,
     relative_errors_per_robot,
 )
+from estimators.relocalization import Relocalizer
 from estimators.team_ekf import TeamEKF
 from estimators.terrain_fusion import fuse_elevation, fusion_weights, paper_delta_z
 from estimators.terrain_map import TerrainMap
@@ -51,6 +53,7 @@ __all__ = [
     "ParticleFilter",
     "PoseEKF",
     "PoseGraph",
+    "Relocalizer",
     "RobotDetection",
     "TeamEKF",
     "TeamMLE",

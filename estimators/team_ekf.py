@@ -17,10 +17,11 @@ with range-bearing instead of a Cartesian relative pose).
   one joint update of both poses and everything correlated with them.
 * Every update passes a chi-square validation gate (``scipy.stats.chi2``);
   the covariance update is the Joseph form followed by symmetrization. A robot
-  whose landmark readings fail the gate ``recover_after`` times in a row is
-  taken to be lost, not the landmarks wrong: its pose covariance is scaled up
-  until the reading is an ordinary one, and the reading is fused
-  (:class:`~estimators.gating.GateMonitor`).
+  is taken to be lost (locked out by the gate), not the landmarks wrong, only
+  when its recent landmark readings all agree on one well-determined pose,
+  odometry included, that explains the readings of several landmarks metres
+  apart better than the belief does and that the belief rules out; its belief
+  is then replaced by that pose (:class:`~estimators.relocalization.Relocalizer`).
 
 Independent per-robot EKFs are the same class with ``cooperative=False``:
 robot-to-robot updates are then skipped and the covariance stays block
@@ -30,14 +31,14 @@ diagonal.
 from __future__ import annotations
 
 import math
-from collections.abc import Hashable
 from dataclasses import dataclass
 
 import numpy as np
 
 from estimators.ekf import Belief
-from estimators.gating import GateMonitor, chi2_threshold
+from estimators.gating import chi2_threshold
 from estimators.geometry import wrap_angle
+from estimators.relocalization import Relocalizer
 
 __all__ = ["MotionNoise", "OdometryTrack", "TeamEKF"]
 
@@ -159,6 +160,11 @@ class OdometryTrack:
         row[_Y] = self._cum[k, _Y] + step * math.sin(mid)
         return row
 
+    def turn_rate(self, t: float) -> float:
+        """The (calibrated) turn rate command in force at time ``t`` (0 before the log)."""
+        k = int(np.searchsorted(self.times, t, side="right")) - 1
+        return float(self._w[k]) if k >= 0 else 0.0
+
     @staticmethod
     def motion(ca: np.ndarray, cb: np.ndarray, heading_a: float) -> tuple[np.ndarray, np.ndarray]:
         """World-frame pose increment and process covariance between two table rows.
@@ -201,8 +207,10 @@ class TeamEKF:
         sensor_offset: ``(n, 2)`` position of each robot's range-bearing sensor
             in its body frame (default: at the pose's origin). Targets (landmarks,
             other robots' poses) are points.
-        recover_after: consecutive gate rejections of a robot's landmark readings
-            before the lock-out recovery (``None``: never).
+        recover_after: landmark readings of a robot (of at least two landmarks 1 m
+            apart, agreeing on one pose the belief rules out) that prove it lost and
+            re-localize it (:class:`~estimators.relocalization.Relocalizer`;
+            ``None``: never).
     """
 
     def __init__(
@@ -248,7 +256,7 @@ class TeamEKF:
         self.sensor_offset = off
         self.accepted = np.zeros(n, dtype=int)
         self.rejected = np.zeros(n, dtype=int)
-        self.monitor = GateMonitor(n, recover_after)
+        self.relocalizer = Relocalizer(n, OdometryTrack.motion, min_readings=recover_after)
 
     @property
     def n(self) -> int:
@@ -279,22 +287,16 @@ class TeamEKF:
         return Belief(self.x[a : a + 3].copy(), self.P[a : a + 3, a : a + 3].copy())
 
     def _apply(
-        self,
-        idx: np.ndarray,
-        h: np.ndarray,
-        nu: np.ndarray,
-        r: np.ndarray,
-        who: int,
-        channel: Hashable | None = None,
+        self, idx: np.ndarray, h: np.ndarray, nu: np.ndarray, r: np.ndarray, who: int
     ) -> bool:
-        """Gated Joseph-form update with the Jacobian ``h`` over state indices ``idx``.
+        """Gated Joseph-form update with the Jacobian ``h`` over state indices ``idx``
+        (a reading of robot ``who``).
 
-        ``channel`` names the sensor for the lock-out recovery of robot ``who``,
-        whose pose must be the first three of ``idx`` (``None``: no recovery).
         With ``B = H P`` (nonzero columns of ``H`` only) and ``S = H P H^T + R``,
         the Joseph form ``(I - K H) P (I - K H)^T + K R K^T`` expands to
         ``P - K B - B^T K^T + K S K^T``: rank-2 terms, no ``3n x 3n`` products.
         """
+        self._last_d2 = np.inf  # the gate statistic of this reading, for the relocalizer
         b = h @ self.P[idx, :]  # (2, 3n)
         s = b[:, idx] @ h.T + r
         det = s[0, 0] * s[1, 1] - s[0, 1] * s[1, 0]
@@ -304,17 +306,7 @@ class TeamEKF:
         s_inv = np.array([[s[1, 1], -s[0, 1]], [-s[1, 0], s[0, 0]]]) / det
         d2 = float(nu @ s_inv @ nu)
         passed = bool(np.isfinite(d2) and d2 <= self.gate)
-        if channel is not None and self.monitor.record_one(channel, who, passed) and not passed:
-            # One landmark's range and bearing leave a direction of the pose unseen: widen
-            # the whole pose (not only the seen part), or the next landmark would be locked
-            # out of a pose fitted to this one.
-            a = np.ix_(idx[:3], idx[:3])
-            self.P[a] *= max(d2 / 2.0, 1.0)
-            b = h @ self.P[idx, :]
-            s = b[:, idx] @ h.T + r
-            det = s[0, 0] * s[1, 1] - s[0, 1] * s[1, 0]
-            s_inv = np.array([[s[1, 1], -s[0, 1]], [-s[1, 0], s[0, 0]]]) / det
-            passed = True
+        self._last_d2 = d2 if np.isfinite(d2) else np.inf
         if not passed:
             self.rejected[who] += 1
             return False
@@ -372,7 +364,35 @@ class TeamEKF:
             self.rejected[i] += 1
             return False
         nu, h_i, _ = res
-        return self._apply(np.arange(3 * i, 3 * i + 3), h_i, nu, r, i, "landmark")
+        passed = self._apply(np.arange(3 * i, 3 * i + 3), h_i, nu, r, i)
+        reloc = self.relocalizer
+        if not reloc.enabled:
+            return passed
+        a = 3 * i
+        mark = np.asarray(landmark, dtype=float)
+        reloc.add(i, self.time[i], self._table[i], self.tracks[i].turn_rate(self.time[i]),
+                  tuple(mark.tolist()), mark, z, r, self._last_d2, not passed)
+        fix = reloc.propose(i, self.sensor_offset[i], self.x[a : a + 3],
+                            self.P[a : a + 3, a : a + 3])
+        if fix is None:
+            return passed
+        self._relocate(i, *fix)
+        reloc.clear(i)
+        reloc.recoveries += 1
+        if not passed:
+            self.rejected[i] -= 1
+            self.accepted[i] += 1
+        return True
+
+    def _relocate(self, i: int, pose: np.ndarray, cov: np.ndarray) -> None:
+        """Replace robot ``i``'s belief by ``pose`` with covariance ``cov``, uncorrelated
+        with the others' (a re-localization from its own readings)."""
+        a = 3 * i
+        self.x[a : a + 3] = pose
+        self.x[a + 2] = wrap_angle(self.x[a + 2])
+        self.P[a : a + 3, :] = 0.0
+        self.P[:, a : a + 3] = 0.0
+        self.P[a : a + 3, a : a + 3] = 0.5 * (cov + cov.T)
 
     def update_robot(
         self, i: int, j: int, z: np.ndarray, r: np.ndarray, t: float | None = None
