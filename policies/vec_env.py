@@ -51,6 +51,7 @@ from typing import Any
 
 import cloudpickle
 import numpy as np
+from gymnasium import spaces
 
 import coop_loc_env
 
