@@ -108,6 +108,29 @@ def _starts(rel, marks, z, r, offset) -> np.ndarray:
     return np.column_stack([mean[best], _HEADINGS[best]])
 
 
+def _innovation(
+    pose: np.ndarray, rel: np.ndarray, marks: np.ndarray, z: np.ndarray, offset: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Readings minus their prediction at ``pose`` (bearings wrapped), with the Jacobians
+    of :func:`_predict`."""
+    pred, j, j_own = _predict(pose, rel, marks, offset)
+    nu = z - pred
+    nu[:, 1] = _wrap(nu[:, 1])
+    return nu, j, j_own
+
+
+def _linearize(
+    pose: np.ndarray, rel: np.ndarray, marks: np.ndarray, z: np.ndarray, r: np.ndarray,
+    q: np.ndarray, offset: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Innovation, Jacobian, inverse innovation covariances and the information matrix of
+    the reference pose at ``pose``."""
+    nu, j, j_own = _innovation(pose, rel, marks, z, offset)
+    s_inv = np.linalg.inv(r + j_own @ q @ np.swapaxes(j_own, 1, 2))
+    info = np.einsum("kai,kab,kbj->ij", j, s_inv, j)
+    return nu, j, s_inv, info
+
+
 def fit_pose(
     rel: np.ndarray,
     marks: np.ndarray,
@@ -131,11 +154,7 @@ def fit_pose(
     best = None
     for pose in _starts(rel, marks, z, r, offset):
         for _ in range(iterations):
-            pred, j, j_own = _predict(pose, rel, marks, offset)
-            nu = z - pred
-            nu[:, 1] = _wrap(nu[:, 1])
-            s_inv = np.linalg.inv(r + j_own @ q @ np.swapaxes(j_own, 1, 2))
-            info = np.einsum("kai,kab,kbj->ij", j, s_inv, j)
+            nu, j, s_inv, info = _linearize(pose, rel, marks, z, r, q, offset)
             if not np.all(np.isfinite(info)) or np.linalg.cond(info) > 1e12:
                 break
             step = np.linalg.solve(info, np.einsum("kai,kab,kb->i", j, s_inv, nu))
@@ -144,16 +163,10 @@ def fit_pose(
             if np.abs(step).max() < 1e-6:
                 break
         else:
-            pred, j, j_own = _predict(pose, rel, marks, offset)
-            nu = z - pred
-            nu[:, 1] = _wrap(nu[:, 1])
-            s_inv = np.linalg.inv(r + j_own @ q @ np.swapaxes(j_own, 1, 2))
-            info = np.einsum("kai,kab,kbj->ij", j, s_inv, j)
+            nu, j, s_inv, info = _linearize(pose, rel, marks, z, r, q, offset)
         if not np.all(np.isfinite(info)) or np.linalg.cond(info) > 1e12:
             continue
-        pred, _, _ = _predict(pose, rel, marks, offset)
-        nu = z - pred
-        nu[:, 1] = _wrap(nu[:, 1])
+        nu = _innovation(pose, rel, marks, z, offset)[0]
         chi = float(np.einsum("ka,kab,kb->", nu, s_inv, nu))
         if best is None or chi < best[2]:
             best = (pose.copy(), np.linalg.inv(info), chi)
@@ -166,9 +179,7 @@ def residuals(
 ) -> np.ndarray:
     """Each reading's chi-square ``(k,)`` at the reference pose ``pose`` (the arguments of
     :func:`fit_pose`)."""
-    pred, _, j_own = _predict(np.asarray(pose, dtype=float), rel, marks, offset)
-    nu = z - pred
-    nu[:, 1] = _wrap(nu[:, 1])
+    nu, _, j_own = _innovation(np.asarray(pose, dtype=float), rel, marks, z, offset)
     s = r + j_own @ q @ np.swapaxes(j_own, 1, 2)
     return np.einsum("ka,kab,kb->k", nu, np.linalg.inv(s), nu)
 
