@@ -130,7 +130,7 @@ def howard_circuit_graph(duration_s: float = 175.0, seed: int = 0) -> PoseGraph:
     import coop_loc_env
     from coop_loc_env.mle_backend import MLEBackend
     from coop_loc_env.profiles import with_profile
-    from policies.howard import CircuitPolicy
+    from policies.scripted.circuit import CircuitPolicy
 
     overrides = with_profile("circuit", "paper")
     # A short window while recording: the same factors, far cheaper than re-solving them all.
