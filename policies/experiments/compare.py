@@ -4,7 +4,7 @@ Used by ``scripts/evaluate.py --compare fsm,random,PATH.zip``. Every policy
 runs the same seeded episodes (episode ``k`` seeded ``seed + k``); policies
 are the specs of :func:`policies.learning.loader.make_policy` (a registered name, e.g.
 ``wander:0.8``, or a saved model).
-Figures per episode are those of :mod:`policies.experiments.runner` plus
+Figures per episode are those of :mod:`policies.episode` plus
 ``time_to_localize_s``: per robot, the first time its spread falls below
 1.5 m (MCL: ``info["particle_spread"]``, the weighted mean particle distance
 from the truth; otherwise ``sqrt(var_x + var_y)`` of the belief), averaged

@@ -11,7 +11,7 @@ from pathlib import Path
 INFERENCE_THREADS = 1
 """Torch threads for acting: a forward pass of one team observation is too small to gain
 from more (on a shared 2-core machine, 14.0-27.3 ms per predict with torch's default of 2
-threads vs 0.96-1.08 ms with 1: ``python scripts/_bench_inference.py``)."""
+threads vs 0.96-1.08 ms with 1: ``python scripts/bench/inference.py``)."""
 
 
 def check_observation_shape(name: str, expected: tuple, env) -> None:

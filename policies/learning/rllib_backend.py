@@ -14,7 +14,7 @@
   ``checkpoint_freq`` agent steps while training), TensorBoard scalars
   (``DIR/tb``), ``DIR/train_config.json`` and ``DIR/train_summary.json``.
 * :class:`RLlibPolicy` loads the trained network from such a ``DIR`` for
-  :mod:`policies.experiments.runner` (``scripts/evaluate.py --policy DIR``).
+  :func:`policies.learning.loader.load_learned_policy` (``scripts/evaluate.py --policy DIR``).
 
 Ray is imported only by this module (``pip install -e ".[rllib]"``).
 """

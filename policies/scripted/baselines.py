@@ -15,7 +15,7 @@ from policies.scripted.view import RobotView, ViewBuilder
 
 
 class Policy(Protocol):
-    """What :func:`policies.experiments.runner.run_episodes` needs from a policy."""
+    """What :func:`policies.episode.run_episode` needs from a policy."""
 
     name: str
 

@@ -81,25 +81,25 @@ register_policy("wander", _wander, "Fox et al.'s wander behaviour; wander:SPEED 
 
 
 def _gather(arg: str) -> Policy:
-    from policies.scripted import GatherPolicy
+    from policies.scripted.gather import GatherPolicy
 
     return _no_argument(GatherPolicy, "gather")(arg)
 
 
 def _infogain(arg: str) -> Policy:
-    from policies.scripted import InfoGainPolicy
+    from policies.scripted.infogain import InfoGainPolicy
 
     return _no_argument(InfoGainPolicy, "infogain")(arg)
 
 
 def _corridor(arg: str) -> Policy:
-    from policies.scripted import CorridorPolicy
+    from policies.scripted.corridor import CorridorPolicy
 
     return _with_speed(CorridorPolicy, "corridor", arg)
 
 
 def _hypothesis(arg: str) -> Policy:
-    from policies.scripted import HypothesisPolicy
+    from policies.scripted.hypothesis import HypothesisPolicy
 
     return _no_argument(HypothesisPolicy, "hypothesis")(arg)
 

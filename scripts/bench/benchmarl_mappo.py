@@ -7,7 +7,7 @@ evaluation episodes (seeds ``--seed-eval`` on) of the trained policy (determinis
 actions) and of every ``--compare`` policy (a name or a training directory, as for
 ``scripts/evaluate.py``), with a 95 % interval of the team localization error::
 
-    python scripts/_bench_benchmarl.py --scenario rendezvous --minutes 6 --episodes 20 \\
+    python scripts/bench/benchmarl_mappo.py --scenario rendezvous --minutes 6 --episodes 20 \\
         --compare runs/ppo_rdv,gather --json runs/mappo_rdv.json
 """
 

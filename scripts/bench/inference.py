@@ -7,7 +7,7 @@ synchronization. This script times ``model.predict`` on one team observation
 with torch's default thread count and with one thread, in one run, and prints
 both and their ratio::
 
-    python scripts/_bench_inference.py [--calls 2000] [--model PATH.zip]
+    python scripts/bench/inference.py [--calls 2000] [--model PATH.zip]
 
 Without ``--model`` it builds an untrained PPO ``MlpPolicy`` (64x64, the
 training default) for ``outdoor_terrain`` with 3 robots: the cost of a forward

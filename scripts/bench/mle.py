@@ -3,7 +3,7 @@
 ``bench_mle()`` returns a flat ``dict[str, float]`` (``scripts/benchmark.py``
 prints it); run this file to print it standalone::
 
-    python scripts/_bench_mle.py [--quick]
+    python scripts/bench/mle.py [--quick]
 
 * **batch**: a random dispersal graph of 20 robots x 30 sampled times
   (:func:`estimators.pose_graph.random_team_graph`: each ordered pair within 8 m

@@ -2,7 +2,7 @@
 
 Example::
 
-    python scripts/_bench_policies.py --scenario rendezvous --policies gather,infogain,fsm \\
+    python scripts/bench/policy_step.py --scenario rendezvous --policies gather,infogain,fsm \\
         --episodes 2
 
 Prints, per policy, the mean time of ``policy.act`` and of ``env.step`` per team

@@ -3,7 +3,7 @@
 ``bench_rllib()`` returns a flat ``dict[str, float]`` (``scripts/benchmark.py``
 prints it; empty when Ray is not installed); run this file to print it standalone::
 
-    python scripts/_bench_rllib.py [--scenario outdoor_terrain] [--steps 600]
+    python scripts/bench/rllib.py [--scenario outdoor_terrain] [--steps 600]
 
 Agent steps (one per robot per env step) per wall-clock second of *sampling*
 with the current, untrained policy acting (stochastic actions, one torch

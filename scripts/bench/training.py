@@ -3,7 +3,7 @@
 ``bench_training()`` returns a flat ``dict[str, float]`` (``scripts/benchmark.py``
 prints it); run this file to print it standalone::
 
-    python scripts/_bench_training.py [--timesteps 6144]
+    python scripts/bench/training.py [--timesteps 6144]
 
 PPO (``MlpPolicy`` 64x64, ``n_steps=128``, batch 256, 5 epochs, one torch
 thread) on ``outdoor_terrain`` (3 robots, EKF) through
