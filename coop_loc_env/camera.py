@@ -1,7 +1,7 @@
 """The camera pipeline, run when its output is read.
 
 No observation, reward or estimator of the env uses the camera: its records
-feed the scripted policies (:mod:`policies.fsm`) and whoever calls
+feed the scripted policies (:mod:`policies.scripted.fsm`) and whoever calls
 :meth:`~coop_loc_env.env.CoopLocParallelEnv.camera_readings`. So a step only
 queues its camera frame (the true poses, and which cameras fired), and the
 sensor model (:meth:`~coop_loc_env.sensors.SensorSuite.camera_frame`) and depth

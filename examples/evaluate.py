@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import argparse
 
-from policies.runner import format_table, run_episodes, summarize
+from policies.experiments.report import format_table, summarize
+from policies.experiments.runner import run_episodes
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -10,9 +10,10 @@ from __future__ import annotations
 
 import argparse
 
-from policies.learned import load_learned_policy
-from policies.runner import run_episodes, summarize
-from policies.training import TrainConfig, train
+from policies.experiments.report import summarize
+from policies.experiments.runner import run_episodes
+from policies.learning.loader import load_learned_policy
+from policies.learning.training import TrainConfig, train
 
 ENV = {"n_robots": 2, "max_cycles": 100}  # evaluate with the same overrides as in training
 

@@ -1,14 +1,24 @@
-"""Policies for coop-loc-env: the terrain-traversal state machine, baselines, evaluation.
+"""Policies for coop-loc-env, by job.
 
-* :class:`~policies.fsm.FSMPolicy` - Madhavan et al.'s Fig. 7 traversal logic per robot.
-* :class:`~policies.baselines.RandomPolicy`, :class:`~policies.baselines.SeekTeammatePolicy`.
-* :mod:`policies.runner` - :func:`~policies.runner.make_policy` (names or a saved
-  stable-baselines3 model), :func:`~policies.runner.run_episodes`,
-  :func:`~policies.runner.summarize`.
+* :mod:`policies.scripted` - the scripted controllers: Madhavan et al.'s
+  traversal state machine (:class:`~policies.scripted.fsm.FSMPolicy`), the
+  baselines (:mod:`~policies.scripted.baselines`), Fox et al.'s wander, Howard
+  et al.'s dispersal and circuit, the active-localization policies, and the
+  registry of policy names (:mod:`~policies.scripted.registry`).
+* :mod:`policies.learning` - training plumbing and saved policies:
+  :func:`~policies.learning.loader.make_policy` (a registered name or a saved
+  SB3/RLlib model) and :func:`~policies.learning.loader.load_learned_policy`.
+* :mod:`policies.experiments` - runs: the papers' experiments,
+  :func:`~policies.experiments.runner.run_episodes`,
+  :func:`~policies.experiments.report.summarize`, comparisons and plots.
+* :mod:`policies.episode` - the episode loop all of them share.
+
+Imports flow one way: experiments -> learning -> scripted (``policies.episode``
+below all three).
 """
 
-from policies.baselines import Policy, RandomPolicy, SeekTeammatePolicy
-from policies.fsm import FSMParams, FSMPolicy, State, TraversalFSM
+from policies.scripted.baselines import Policy, RandomPolicy, SeekTeammatePolicy
+from policies.scripted.fsm import FSMParams, FSMPolicy, State, TraversalFSM
 
 __all__ = [
     "FSMParams",

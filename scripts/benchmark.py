@@ -7,11 +7,11 @@ process and alternating in short slices of CPU time, over a few rounds; the
 ratio (env / mpe2 steps per second) of each round, the ratio at the smallest
 team against its target (>= 1.5, at least 1.1) and how much longer the step of
 the largest team takes (target <= 6x; the two teams alternating likewise); plus
-the estimator micro-benchmarks of the other modules (``scripts/_bench_*.py``)
-when present, among them the multi-robot MCL step of ``symmetric_hallway`` over a bare gather
-(``hallway_ratio``) and PPO agent steps per second on that hallway with 4
-robots x 1000 particles (``ppo_hallway_agent_steps_per_s``, from
-``scripts/_bench_mcl_team.py``).
+the micro-benchmarks of the modules of ``scripts/bench/`` (each ``NAME.py`` that
+defines ``bench_NAME()``), among them the multi-robot MCL step of
+``symmetric_hallway`` over a bare gather (``hallway_ratio``) and PPO agent steps
+per second on that hallway with 4 robots x 1000 particles (``ppo_hallway_agent_steps_per_s``, from
+``scripts/bench/mcl_team.py``).
 
     python scripts/benchmark.py [--seconds 1] [--rounds 3] [--sizes 4 8 20 50] [--json PATH]
 """
@@ -154,14 +154,17 @@ def _span(values: list[float], fmt: str) -> str:
 
 
 def _extra_benchmarks() -> dict[str, dict]:
-    """Run ``scripts/_bench_*.py`` modules' ``bench_*()`` functions."""
+    """Run the ``bench_NAME()`` function of each ``scripts/bench/NAME.py`` that has one."""
     results = {}
-    for path in sorted(Path(__file__).parent.glob("_bench_*.py")):
-        spec = importlib.util.spec_from_file_location(path.stem, path)
+    for path in sorted((Path(__file__).parent / "bench").glob("*.py")):
+        name = path.stem
+        if f"def bench_{name}(" not in path.read_text():
+            continue
+        module_name = f"_bench_{name}"  # not NAME, which may be a package's name (torchrl)
+        spec = importlib.util.spec_from_file_location(module_name, path)
         module = importlib.util.module_from_spec(spec)
-        sys.modules[path.stem] = module
+        sys.modules[module_name] = module
         spec.loader.exec_module(module)
-        name = path.stem.removeprefix("_bench_")
         fn = getattr(module, f"bench_{name}", None)
         if fn is not None:
             print(f"\n== {name} ==", flush=True)

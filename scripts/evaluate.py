@@ -23,7 +23,7 @@ beside the true height field.
 unless ``--episodes`` says otherwise) and prints one table of means with 95 %
 confidence intervals (plus the time to localize, spread < 1.5 m), saves a bar
 plot ``SCENARIO_compare.png`` in ``--plot-dir`` (default ``outputs``) and the
-report as JSON with ``--json`` (see :mod:`policies.compare`), and the paired
+report as JSON with ``--json`` (see :mod:`policies.experiments.compare`), and the paired
 difference (same seeds) in time to localize of every other policy vs the
 first listed one. Where every robot is localized from the first step (e.g. with
 DGPS on ``outdoor_terrain``), the time to localize is left out.
@@ -35,14 +35,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from policies.runner import (
-    format_table,
-    parse_overrides,
-    policy_help,
-    report,
-    run_episodes,
-    write_json,
-)
+from policies.experiments.report import format_table, report, write_json
+from policies.experiments.runner import parse_overrides, run_episodes
+from policies.scripted.registry import policy_help
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -95,7 +90,7 @@ def main(argv: list[str] | None = None) -> int:
         write_json(data, args.json)
         print(f"wrote {args.json}")
     if args.plot_dir is not None:
-        from policies.plots import plot_errors, plot_terrain
+        from policies.experiments.plots import plot_errors, plot_terrain
 
         stem = f"{args.scenario}_{Path(args.policy).stem}"
         a = plot_errors(episodes, args.plot_dir / f"{stem}_error.png",
@@ -108,7 +103,7 @@ def main(argv: list[str] | None = None) -> int:
 def _compare(args: argparse.Namespace, overrides: dict) -> int:
     """The ``--compare`` mode (raises ``ValueError`` on bad input)."""
     from coop_loc_env import make_config
-    from policies.compare import (
+    from policies.experiments.compare import (
         COMPARE_FIGURES,
         SPREAD_THRESHOLD,
         compare,

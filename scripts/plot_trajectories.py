@@ -20,8 +20,9 @@ from pathlib import Path
 import numpy as np
 
 import coop_loc_env
-from policies.compare import parse_policy_list, policy_label, resolve_policy
-from policies.runner import parse_overrides, run_episode
+from policies.episode import run_episode
+from policies.experiments.compare import parse_policy_list, policy_label, resolve_policy
+from policies.experiments.runner import parse_overrides
 
 
 def record_paths(scenario: str, spec: str, seed: int, overrides: dict) -> tuple[np.ndarray, dict]:

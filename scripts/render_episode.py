@@ -12,7 +12,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from policies.runner import parse_overrides, policy_names, record_frames
+from policies.experiments.runner import parse_overrides, record_frames
+from policies.scripted.registry import policy_names
 
 
 def main(argv: list[str] | None = None) -> int:

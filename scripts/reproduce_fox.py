@@ -38,13 +38,14 @@ import sys
 from pathlib import Path
 
 from coop_loc_env.profiles import PROFILES, with_profile
-from policies.fox import (
+from policies.experiments.fox import (
     CONDITIONS,
     plot_error_vs_time,
     run_hallway_experiment,
     run_hexagon_experiment,
 )
-from policies.runner import parse_overrides, write_json
+from policies.experiments.report import write_json
+from policies.experiments.runner import parse_overrides
 
 KEYS = ("mean_s", "std_s", "not_localized")
 

@@ -34,8 +34,9 @@ import numpy as np
 from coop_loc_env import make_config
 from coop_loc_env.mle_backend import ANCHORING
 from coop_loc_env.profiles import PROFILES, with_profile
-from policies.howard import plot_howard, run_circuit, run_dispersal
-from policies.runner import parse_overrides, write_json
+from policies.experiments.howard import plot_howard, run_circuit, run_dispersal
+from policies.experiments.report import write_json
+from policies.experiments.runner import parse_overrides
 
 EXPERIMENTS = ("dispersal", "circuit")
 

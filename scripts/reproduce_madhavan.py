@@ -22,8 +22,9 @@ import sys
 from pathlib import Path
 
 from coop_loc_env.profiles import PROFILES, with_profile
-from policies.madhavan import plot_dgps_outage, run_dgps_outage
-from policies.runner import parse_overrides, write_json
+from policies.experiments.madhavan import plot_dgps_outage, run_dgps_outage
+from policies.experiments.report import write_json
+from policies.experiments.runner import parse_overrides
 
 KEYS = ("std_before_outage_m", "std_peak_m", "std_after_first_coop_update_m")
 

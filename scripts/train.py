@@ -34,9 +34,10 @@ import argparse
 import os
 import sys
 
-from policies.runner import parse_overrides, policy_names
-from policies.training import ALGOS, TrainConfig, train, trained_timesteps
-from policies.vec_env import REWARD_MODES
+from policies.experiments.runner import parse_overrides
+from policies.learning.training import ALGOS, TrainConfig, train, trained_timesteps
+from policies.learning.vec_env import REWARD_MODES
+from policies.scripted.registry import policy_names
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -81,7 +82,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--clip-range", type=float, default=d.clip_range, help="PPO clip range")
     p.add_argument("--reward", dest="reward_mode", default=d.reward_mode, choices=REWARD_MODES,
                    help="env: the env's rewards; localize: minus the time to localize "
-                        "(spread < 1.5 m, policies.vec_env.TimeToLocalizeReward)")
+                        "(spread < 1.5 m, policies.learning.vec_env.TimeToLocalizeReward)")
     p.add_argument("--localize-step-reward", type=float, default=d.localize_step_reward,
                    help="--reward localize: penalty per step not yet localized")
     p.add_argument("--localize-team-weight", type=float, default=d.localize_team_weight,
@@ -94,7 +95,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="behaviour-clone this teacher before PPO: wander, wander:SPEED, fsm, "
                         "gather, ... ('none': no cloning, e.g. over a scenario's default)")
     p.add_argument("--bc-episodes", type=int, default=d.bc_episodes,
-                   help="teacher episodes to clone (seeds from policies.training.BC_SEED)")
+                   help="teacher episodes to clone (seeds from policies.learning.training.BC_SEED)")
     p.add_argument("--bc-epochs", type=int, default=d.bc_epochs)
     p.add_argument("--bc-log-std", type=float, default=d.bc_log_std,
                    help="log standard deviation of the actions after cloning")
@@ -105,7 +106,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     p.add_argument("--backend", default="sb3", choices=("sb3", "rllib"),
                    help="sb3: stable-baselines3 on this machine; rllib: Ray RLlib's PPO "
-                        "(policies.rllib_backend, the rllib extra)")
+                        "(policies.learning.rllib_backend, the rllib extra)")
     p.add_argument("--num-env-runners", type=int, default=None,
                    help="rllib: parallel sampling processes (default 1; 0 = in this process)")
     p.add_argument("--address", default=None,
@@ -202,7 +203,7 @@ def main(argv: list[str] | None = None) -> int:
 def _train_rllib(cfg: TrainConfig, args: argparse.Namespace) -> int:
     """``--backend rllib`` (raises ``ValueError`` on options that path does not have)."""
     try:
-        from policies.rllib_backend import run_from_train_config, train_rllib
+        from policies.learning.rllib_backend import run_from_train_config, train_rllib
     except ImportError as err:
         raise ValueError(f"--backend rllib needs the rllib extra (pip install -e "
                          f"'.[rllib]'): {err}") from err

@@ -10,13 +10,13 @@ does), one that wanders slowly takes longer, and one that drives the
 corridors at full speed without stalling against the walls sees the bay
 sooner and meets its teammates more often.
 
-The figure of merit is the time to localize (:mod:`policies.compare`: the first
+The figure of merit is the time to localize (:mod:`policies.experiments.compare`: the first
 time a robot's particle spread -- the mean particle distance from the true
 pose -- falls below 1.5 m, the episode length for a robot that never gets
 there). For learning, the scenario carries the training defaults of
 ``scripts/train.py --scenario active_hallway`` (:data:`TRAINING_DEFAULTS`):
 the reward is minus the time to localize
-(:class:`policies.vec_env.TimeToLocalizeReward`), paid per robot.
+(:class:`policies.learning.vec_env.TimeToLocalizeReward`), paid per robot.
 """
 
 from __future__ import annotations

@@ -16,12 +16,12 @@ robot that stands still stays (nearly) put.
 
 * ``dispersal``: 20 robots start crowded in one 8 m x 10 m room (bottom left)
   of a 32 m x 20 m building of eight rooms joined by doorways, then spread out
-  (drive them with :class:`policies.howard.DispersalPolicy`). Expected
+  (drive them with :class:`policies.scripted.dispersal.DispersalPolicy`). Expected
   (paper): relative error lowest while crowded, growing as they spread.
 * ``circuit``: 7 robots around a 18 m x 10 m block. Six stand still at fixed
   places along the outer wall, out of each other's detector range (and sight);
   the seventh (``robot_6``) drives the ~76 m loop around the block past each of
-  them and back to the first (:class:`policies.howard.CircuitPolicy`).
+  them and back to the first (:class:`policies.scripted.circuit.CircuitPolicy`).
   Expected (paper): error drops at each sighting, sharply at loop closure.
   The start-pose priors are weak (``init_pos_std = 2 m``) so that, as in the
   paper, the stationary robots' relative poses come from the sightings.

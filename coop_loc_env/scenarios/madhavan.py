@@ -13,7 +13,7 @@ during the outage and falls at each of these laser-based updates.
 Odometry is sampled at 10 Hz with a larger velocity noise than the default so
 that dead reckoning drifts visibly over the ~17 s outage; the robots are meant
 to be driven straight east at ``0.5 m/s`` (see
-:func:`policies.madhavan.run_dgps_outage`).
+:func:`policies.experiments.madhavan.run_dgps_outage`).
 """
 
 from __future__ import annotations

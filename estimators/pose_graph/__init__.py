@@ -37,7 +37,7 @@ sparse problems and by dense Cholesky for small or well-filled ones (e.g. a
 sliding window with a dense marginalization prior). Updates are additive on
 ``(x, y, heading)`` with the heading wrapped. On the same graph and start it
 reaches the same minimum as GTSAM's Levenberg-Marquardt (see
-``scripts/_bench_mle.py``). :func:`marginal_covariances` reads 3x3 blocks of the
+``scripts/bench/mle.py``). :func:`marginal_covariances` reads 3x3 blocks of the
 inverse information matrix; :func:`marginalize` replaces nodes by a dense prior
 on their Markov blanket (Schur complement at the current estimate).
 

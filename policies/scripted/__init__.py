@@ -1,4 +1,17 @@
-"""Scripted active-localization baselines: drive where the team's beliefs say information is.
+"""Scripted controllers, and the registry of policy names (:mod:`policies.scripted.registry`).
+
+Every policy here follows :class:`~policies.scripted.baselines.Policy`
+(``reset(env, seed)``, ``act(obs)``). Besides the baselines
+(:mod:`~policies.scripted.baselines`: ``random``, ``seek``, ``still``) and
+Madhavan et al.'s traversal state machine (:mod:`~policies.scripted.fsm`,
+``fsm``), the reactive behaviours of the papers' experiments read only the
+robot's own scan (:class:`~policies.scripted.view.ScanView`):
+:class:`~policies.scripted.wander.WanderPolicy` (``wander``, Fox et al.),
+:class:`~policies.scripted.dispersal.DispersalPolicy` and
+:class:`~policies.scripted.circuit.CircuitPolicy` (Howard et al.; the circuit's
+driver steers by its true pose, a stand-in for a human driver).
+
+The active-localization baselines drive where the team's beliefs say information is:
 
 * :class:`~policies.scripted.gather.GatherPolicy` (``gather``): drive toward the
   communicated estimates of the teammates that can inform you (GPS-equipped

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from estimators.geometry import wrap_angle
-from policies.view import RobotView
+from policies.scripted.view import RobotView
 
 FRONT = 0.7  # half-width (rad) of the sector checked for obstacles ahead
 BLOCKED = 1.2  # an obstacle nearer than this (m) ahead makes the robot turn away

@@ -11,7 +11,7 @@ corridors it keeps circling instead of reversing at random, and passes the
 symmetry-breaking feature within one lap.
 
 Reads only the robot's own last scan (``env.last_readings`` with
-``env.sensors.beam_angles``, as :class:`policies.fox.WanderPolicy`); never the
+``env.sensors.beam_angles``, as :class:`policies.scripted.wander.WanderPolicy`); never the
 true poses.
 """
 
@@ -19,7 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from policies.fox import WanderPolicy, _ScanView
+from policies.scripted.view import ScanView
+from policies.scripted.wander import WanderPolicy
 
 TURN_PENALTY = 0.8  # m of free range given up per radian off the current heading
 SIDE = (1.2, 1.95)  # rad: the sectors (each side) that measure the clearance to the side walls
@@ -28,7 +29,7 @@ CLOSE = 0.6  # m: anything nearer than this ahead makes the robot turn in place
 SLOW = 2.0  # m: the robot slows down linearly when the way ahead is nearer than this
 
 
-def follow(view: _ScanView, speed: float = 1.0, gain: float = 3.0) -> np.ndarray:
+def follow(view: ScanView, speed: float = 1.0, gain: float = 3.0) -> np.ndarray:
     """One corridor-following action ``[forward, turn]`` from a robot's own scan."""
     bearing = np.arctan2(np.sin(view.angles), np.cos(view.angles))
     ahead = np.abs(bearing) <= np.pi / 2 + 1e-6

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from policies.scripted.common import Steering, gps_flags
-from policies.view import ViewBuilder
+from policies.scripted.view import ViewBuilder
 
 
 class GatherPolicy:

@@ -42,7 +42,7 @@ from coop_loc_env.mcl_backend import MCLBackend
 from estimators.geometry import wrap_angle
 from policies.scripted.common import Steering, gps_flags
 from policies.scripted.infogain_mcl import MCLInfoGainPlanner
-from policies.view import ViewBuilder
+from policies.scripted.view import ViewBuilder
 
 STOP = -1
 

@@ -22,7 +22,7 @@ import numpy as np
 
 import coop_loc_env
 from coop_loc_env.belief_map import TeamBeliefs
-from policies.runner import make_policy
+from policies.learning.loader import make_policy
 
 
 def _episode(env, seed: int, blocks: list[float] | None) -> list[float]:

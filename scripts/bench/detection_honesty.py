@@ -31,7 +31,8 @@ import time
 import numpy as np
 
 import coop_loc_env
-from policies.runner import make_policy, parse_overrides
+from policies.experiments.runner import parse_overrides
+from policies.learning.loader import make_policy
 
 CONFIDENT_STD_M = 1.0
 WRONG_M = 3.0

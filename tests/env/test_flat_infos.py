@@ -132,7 +132,7 @@ def test_info_keys_keeps_only_the_named_entries_in_that_order():
 
 
 def test_team_entries_may_be_dicts_of_robot_spec_fields():
-    from policies.runner import parse_overrides
+    from policies.experiments.runner import parse_overrides
 
     overrides = parse_overrides(["team=[{'estimator': 'ekf'}, {'estimator': 'mcl', "
                                  "'has_gps': False}]"])

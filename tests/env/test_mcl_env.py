@@ -295,7 +295,7 @@ def _kidnap_recovered(seed: int, **overrides) -> bool:
     """Track for 40 steps, move the robot's body to the free spot farthest away (odometry
     does not notice), drive on for 100 steps: is the particle spread below 0.5 m over the
     last 10?"""
-    from policies.fox import WanderPolicy
+    from policies.scripted.wander import WanderPolicy
 
     room = tuple(coop_loc_env.Obstacle("rock", "polygon",
                                        vertices=((x0, y0), (x1, y0), (x1, y1), (x0, y1)))

@@ -60,7 +60,7 @@ def test_particle_subsample_follows_the_weights():
 def test_error_plot_names_the_faint_lines(tmp_path, monkeypatch):
     from matplotlib.figure import Figure
 
-    from policies import plots
+    from policies.experiments import plots
 
     saved = {}
     real = Figure.savefig

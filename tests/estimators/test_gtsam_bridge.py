@@ -12,7 +12,7 @@ from coop_loc_env.profiles import with_profile
 from estimators.geometry import wrap_angle
 from estimators.gtsam_bridge import dead_reckoning, gtsam_solve, to_gtsam
 from estimators.pose_graph import PoseGraph, optimize
-from policies.howard import CircuitPolicy
+from policies.scripted.circuit import CircuitPolicy
 
 
 def _circuit_graph(seconds: float) -> PoseGraph:

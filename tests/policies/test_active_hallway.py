@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 import coop_loc_env
-from policies.fox import _ScanView
-from policies.runner import make_policy
+from policies.learning.loader import make_policy
 from policies.scripted.corridor import follow
+from policies.scripted.view import ScanView
 
 
 def test_active_hallway_config():
@@ -22,9 +22,9 @@ def test_active_hallway_config():
     assert defaults["reward_mode"] == "localize"
 
 
-def _scan(ranges: np.ndarray) -> _ScanView:
+def _scan(ranges: np.ndarray) -> ScanView:
     angles = np.linspace(-np.pi, np.pi, len(ranges), endpoint=False)
-    return _ScanView(np.asarray(ranges, dtype=float), angles, 6.0)
+    return ScanView(np.asarray(ranges, dtype=float), angles, 6.0)
 
 
 def test_follow_steers_toward_the_open_side_and_turns_in_place_when_blocked():

@@ -8,7 +8,7 @@ import pytest
 
 import coop_loc_env
 from coop_loc_env.observations import teammate_features
-from policies.runner import make_policy
+from policies.learning.loader import make_policy
 
 FAST = {"max_cycles": 60, "false_positive_prob": 0.0}
 
@@ -124,7 +124,7 @@ def test_dagger_collection_labels_the_actor_states():
     """With an actor, the actor drives and the teacher only labels."""
     from functools import partial
 
-    from policies.imitation import collect_demonstrations
+    from policies.learning.imitation import collect_demonstrations
     from policies.scripted import GatherPolicy
 
     env_fn = partial(coop_loc_env.parallel_env, "rendezvous", max_cycles=30,
@@ -140,7 +140,7 @@ def test_dagger_collection_labels_the_actor_states():
 
 
 def test_dagger_rounds_need_a_teacher():
-    from policies.training import TrainConfig
+    from policies.learning.training import TrainConfig
 
     with pytest.raises(ValueError, match="dagger_rounds"):
         TrainConfig(out="x", dagger_rounds=2).validate()

@@ -7,13 +7,13 @@ import json
 import numpy as np
 import pytest
 
-from policies.compare import (
+from policies.experiments.compare import (
     compare,
+    episode_time_to_localize,
     format_compare_table,
     mean_ci,
     merge_reports,
     parse_policy_list,
-    time_to_localize,
 )
 
 
@@ -43,11 +43,11 @@ def test_time_to_localize_first_crossing_and_censoring():
     std = np.full((10, 2), 5.0)
     std[4:, 0] = 1.0  # robot 0: spread sqrt(2) * 1.0 = 1.41 < 1.5 from step index 4
     ep = {"series": {"position_std_m": std}}
-    t, frac = time_to_localize(ep, dt=0.1)
+    t, frac = episode_time_to_localize(ep, dt=0.1)
     assert t == pytest.approx((0.5 + 1.0) / 2)  # robot 1 never: counted as the episode length
     assert frac == 0.5
     std[4:, 0] = 1.1  # spread 1.556 > 1.5: not localized
-    assert time_to_localize(ep, dt=0.1) == (pytest.approx(1.0), 0.0)
+    assert episode_time_to_localize(ep, dt=0.1) == (pytest.approx(1.0), 0.0)
 
 
 def test_parse_policy_list_rejects_bad_lists():
@@ -89,16 +89,16 @@ def test_particle_spread_is_used_when_present():
     std = np.full((4, 1), 0.1)  # covariance says localized from the start
     spread = np.array([[3.0], [2.0], [1.0], [0.5]])  # particles: localized at step 3
     ep = {"series": {"position_std_m": std, "particle_spread_m": spread}}
-    assert time_to_localize(ep, dt=0.5) == (pytest.approx(1.5), 1.0)
+    assert episode_time_to_localize(ep, dt=0.5) == (pytest.approx(1.5), 1.0)
 
 
 def test_localized_at_end_counts_a_lost_belief_out():
-    from policies.compare import localized_at_end
+    from policies.experiments.compare import localized_at_end
 
     # robot 0 localizes and stays; robot 1 localizes at step 2 and loses it again
     spread = np.array([[3.0, 3.0], [1.0, 1.0], [0.5, 9.0]])
     ep = {"series": {"position_std_m": np.zeros((3, 2)), "particle_spread_m": spread}}
-    assert time_to_localize(ep, dt=0.5) == (pytest.approx(1.0), 1.0)
+    assert episode_time_to_localize(ep, dt=0.5) == (pytest.approx(1.0), 1.0)
     assert localized_at_end(ep) == 0.5
 
 
@@ -128,7 +128,7 @@ def test_still_policy_covers_less_than_random():
 
 
 def test_localized_from_the_start():
-    from policies.compare import localized_from_the_start
+    from policies.experiments.compare import localized_from_the_start
 
     at_start = {"time_to_localize_s": 0.5, "localized_fraction": 1.0}
     later = {"time_to_localize_s": 3.0, "localized_fraction": 1.0}

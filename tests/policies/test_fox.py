@@ -12,12 +12,12 @@ import coop_loc_env
 from coop_loc_env.mcl_backend import known_map
 from coop_loc_env.sensors import Detections
 from estimators.geometry import relative_pose, wrap_angle
-from policies.fox import (
+from policies.experiments.fox import (
     plot_error_vs_time,
+    robot_times_to_localize,
     run_fox_episode,
     run_hallway_experiment,
     summarize_times,
-    time_to_localize,
 )
 
 
@@ -82,7 +82,7 @@ def test_hexagon_features_and_symmetry():
 def test_wander_reads_each_robots_own_scan():
     """Sonar robots in the mixed hexagon team turn away from walls instead of pushing
     into them (their odometry then matches their motion)."""
-    from policies.fox import WanderPolicy
+    from policies.scripted.wander import WanderPolicy
 
     env = coop_loc_env.parallel_env("hexagon", n_particles=50, cooperative_updates=False)
     obs, _ = env.reset(seed=0)
@@ -225,16 +225,16 @@ def test_a_single_false_detection_leaves_a_confident_robot_alone():
 
 def test_time_to_localize_and_summary():
     spread = np.array([[5.0, 9.0, 1.0], [1.4, 8.0, 2.0], [0.5, 7.0, 1.2]])
-    t, reached = time_to_localize(spread, dt=0.5)
+    t, reached = robot_times_to_localize(spread, dt=0.5)
     np.testing.assert_allclose(t, [1.0, 1.5, 0.5])
     np.testing.assert_array_equal(reached, [True, False, True])
     s = summarize_times(t, reached)
     assert s["mean_s"] == pytest.approx(1.0) and s["not_localized"] == 1 and s["robots"] == 3
     assert s["std_s"] == pytest.approx(0.5)
     with pytest.raises(ValueError, match="spread"):
-        time_to_localize(np.zeros(3), dt=0.5)
+        robot_times_to_localize(np.zeros(3), dt=0.5)
     with pytest.raises(ValueError, match="dt"):
-        time_to_localize(spread, dt=0.0)
+        robot_times_to_localize(spread, dt=0.0)
 
 
 def test_fox_episode_is_deterministic_and_shaped():

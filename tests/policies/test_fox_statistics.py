@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from policies.fox import bootstrap_over_seeds
+from policies.experiments.fox import bootstrap_over_seeds
 
 
 def test_bootstrap_interval_covers_the_mean_and_shrinks_with_more_seeds():

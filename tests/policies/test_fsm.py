@@ -7,8 +7,8 @@ import pytest
 
 import coop_loc_env
 from coop_loc_env import Obstacle
-from policies.baselines import RandomPolicy, SeekTeammatePolicy
-from policies.fsm import FSMParams, FSMPolicy, State
+from policies.scripted.baselines import RandomPolicy, SeekTeammatePolicy
+from policies.scripted.fsm import FSMParams, FSMPolicy, State
 
 # layout_seed 6 puts the single steep mound of this flat 30 m world here:
 MOUND = np.array([15.801451380910807, 11.708688266080106])
@@ -141,7 +141,7 @@ def test_random_policy_is_seeded():
 
 def _view(heading=0.0, camera=(), front=15.0, team_objects=(), pitch=0.0, incl_new=False):
     from coop_loc_env.depth_from_motion import CameraRecord
-    from policies.view import RobotView
+    from policies.scripted.view import RobotView
 
     lo = np.linspace(-np.pi / 2, np.pi / 2, 17)[:-1]
     hi = lo + np.pi / 16
@@ -167,7 +167,7 @@ def _full_scan(fsm, **kw):
 
 
 def test_scan_locks_on_unless_a_teammate_marked_the_object():
-    from policies.fsm import TraversalFSM
+    from policies.scripted.fsm import TraversalFSM
 
     fsm = TraversalFSM()
     _full_scan(fsm)
@@ -178,7 +178,7 @@ def test_scan_locks_on_unless_a_teammate_marked_the_object():
 
 
 def test_obstacle_ahead_interrupts_driving_and_steep_reading_wins():
-    from policies.fsm import TraversalFSM
+    from policies.scripted.fsm import TraversalFSM
 
     fsm = TraversalFSM()
     fsm.state, fsm.waypoint = State.ELEV_GRADIENT, np.array([20.0, 5.0])

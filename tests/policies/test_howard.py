@@ -11,7 +11,9 @@ import pytest
 
 import coop_loc_env
 from coop_loc_env.scenarios.howard import DRIVER, START_ROOM
-from policies.howard import CircuitPolicy, DispersalPolicy, run_circuit, run_dispersal
+from policies.experiments.howard import run_circuit, run_dispersal
+from policies.scripted.circuit import CircuitPolicy
+from policies.scripted.dispersal import DispersalPolicy
 
 ROOT = Path(__file__).resolve().parents[2]
 

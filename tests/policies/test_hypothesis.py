@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 
 import coop_loc_env
-from policies.runner import make_policy, policy_names
+from policies.learning.loader import make_policy
 from policies.scripted import HypothesisPolicy
 from policies.scripted.hypothesis import distinctive_cells
 from policies.scripted.planning import PlanGrid
+from policies.scripted.registry import policy_names
 
 
 @pytest.fixture(scope="module")

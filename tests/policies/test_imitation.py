@@ -1,4 +1,5 @@
-"""Behaviour cloning (policies.imitation), the time-to-localize reward and train.py --bc-from."""
+"""Behaviour cloning (policies.learning.imitation), the time-to-localize reward and
+train.py --bc-from."""
 
 from __future__ import annotations
 
@@ -8,15 +9,15 @@ import numpy as np
 import pytest
 
 import coop_loc_env
-from policies.compare import paired_difference, resolve_policy
-from policies.imitation import (
+from policies.experiments.compare import paired_difference, resolve_policy
+from policies.learning.imitation import (
     behaviour_clone,
     collect_demonstrations,
     discounted_returns,
     make_teacher,
 )
-from policies.training import TrainConfig, make_model, make_vec_env
-from policies.vec_env import TimeToLocalizeReward, make_env_fn
+from policies.learning.training import TrainConfig, make_model, make_vec_env
+from policies.learning.vec_env import TimeToLocalizeReward, make_env_fn
 
 HALL = dict(n_robots=2, n_particles=100, max_cycles=6)
 

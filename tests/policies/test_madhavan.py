@@ -17,7 +17,7 @@ from coop_loc_env.sensors import (
     scan_minimum_detections,
     without_orientation,
 )
-from policies.madhavan import run_dgps_outage
+from policies.experiments.madhavan import run_dgps_outage
 
 ROOT = Path(__file__).resolve().parents[2]
 

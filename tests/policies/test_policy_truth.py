@@ -12,8 +12,10 @@ import numpy as np
 import pytest
 
 import coop_loc_env
-from policies.howard import DRIVER, CircuitPolicy, DispersalPolicy
-from policies.runner import make_policy
+from coop_loc_env.scenarios.howard import DRIVER
+from policies.learning.loader import make_policy
+from policies.scripted.circuit import CircuitPolicy
+from policies.scripted.dispersal import DispersalPolicy
 
 # policy -> (scenario, overrides)
 CASES = {

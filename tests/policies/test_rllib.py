@@ -13,8 +13,8 @@ from ray.rllib.utils.postprocessing.value_predictions import compute_value_targe
 from ray.tune.registry import register_env
 
 import coop_loc_env
-from policies.learned import load_learned_policy
-from policies.rllib_backend import CoopLocMultiAgentEnv, RLlibPolicy, ppo_config
+from policies.learning.loader import load_learned_policy
+from policies.learning.rllib_backend import CoopLocMultiAgentEnv, RLlibPolicy, ppo_config
 
 GAMMA, VALUE = 0.9, 5.0
 

@@ -7,7 +7,9 @@ import pytest
 from gymnasium import spaces
 
 import coop_loc_env
-from policies.vec_env import EnvCopies, ParallelEnvVecEnv, make_env_fn
+from policies.learning.env_copies import EnvCopies
+from policies.learning.sb3_vec_env import ParallelEnvVecEnv
+from policies.learning.vec_env import make_env_fn
 
 
 def _venv(n_envs=1, n_procs=1, **overrides):

@@ -11,9 +11,10 @@ import numpy as np
 import pytest
 
 import coop_loc_env
-from policies.learned import LearnedPolicy, load_learned_policy
-from policies.runner import make_policy, run_episode
-from policies.training import TrainConfig, find_checkpoint, train
+from policies.episode import run_episode
+from policies.learning.learned import LearnedPolicy
+from policies.learning.loader import load_learned_policy, make_policy
+from policies.learning.training import TrainConfig, find_checkpoint, train
 
 ROOT = Path(__file__).resolve().parents[2]
 TINY = ["--scenario", "outdoor_terrain", "--estimator", "ekf", "--set", "n_robots=2",
@@ -130,7 +131,7 @@ def test_train_rejects_bad_input(tmp_path, capsys):
 
 
 def test_train_says_when_timesteps_round_up_to_whole_rollouts(tmp_path, capsys):
-    from policies.training import trained_timesteps
+    from policies.learning.training import trained_timesteps
 
     cfg = TrainConfig(out=str(tmp_path / "x"), scenario="outdoor_terrain", timesteps=200,
                       n_envs=2, n_steps=32, overrides={"n_robots": 2})

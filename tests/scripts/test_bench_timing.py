@@ -4,7 +4,7 @@ from __future__ import annotations
 
 
 def test_timed_steps_reports_each_case_and_the_gathers(script_module):
-    timed_steps = script_module("_bench_mcl_team").timed_steps
+    timed_steps = script_module("bench/mcl_team").timed_steps
     out = timed_steps("outdoor_terrain", {"ekf": {"estimator": "ekf"},
                                           "mcl": {"estimator": "mcl", "n_particles": 50}},
                       steps=4, warmup=1, copies=2, gather_n=500, tables=(2**10, 2**12),

@@ -7,15 +7,11 @@ import json
 import numpy as np
 import pytest
 
-from policies.runner import (
-    FIGURES,
-    SB3Policy,
-    detect_sb3_algo,
-    make_policy,
-    parse_overrides,
-    run_episodes,
-    summarize,
-)
+from policies.episode import FIGURES
+from policies.experiments.report import summarize
+from policies.experiments.runner import parse_overrides, run_episodes
+from policies.learning.learned import SB3Policy, detect_sb3_algo
+from policies.learning.loader import make_policy
 
 
 def test_evaluate_writes_valid_json_and_plots(tmp_path, capsys, script_main):
@@ -116,7 +112,7 @@ def test_render_episode_saves_gif(tmp_path, script_main):
 
 
 def test_one_policy_registry_for_policy_and_compare(capsys, script_main):
-    from policies.runner import policy_names
+    from policies.scripted.registry import policy_names
 
     assert {"fsm", "random", "seek", "still", "wander"} <= set(policy_names())
     main = script_main("evaluate")

@@ -18,9 +18,9 @@ import train
 args = train.parse_args(["--backend", "rllib", "--scenario", "rendezvous", "--out", "x"])
 cfg = train.config_from_args(args)
 cfg.validate()
-from policies.rllib_backend import run_from_train_config
+from policies.learning.rllib_backend import run_from_train_config
 run = run_from_train_config(cfg, None, None)
-import policies.vec_env
+import policies.learning.vec_env
 print("ok", type(run).__name__, "stable_baselines3" in sys.modules and
       sys.modules["stable_baselines3"] is not None)
 """
@@ -34,6 +34,6 @@ def test_train_rllib_path_needs_no_stable_baselines3():
 
 
 def test_the_sb3_vec_env_is_still_reachable_from_policies_vec_env():
-    from policies import sb3_vec_env, vec_env
+    from policies.learning import sb3_vec_env, vec_env
 
     assert vec_env.ParallelEnvVecEnv is sb3_vec_env.ParallelEnvVecEnv

@@ -3,7 +3,7 @@
 ``bench_mcl()`` returns timings in microseconds for one full update with 1000
 particles and 30 beams, next to a bare ``numpy.take`` of 30,000 floats from the
 same log-likelihood field, measured in the same run, and their ratio.
-``scripts/benchmark.py`` imports it; ``python scripts/_bench_mcl.py`` prints it.
+``scripts/benchmark.py`` imports it; ``python scripts/bench/mcl.py`` prints it.
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ synchronization. This script times ``model.predict`` on one team observation
 with torch's default thread count and with one thread, in one run, and prints
 both and their ratio::
 
-    python scripts/_bench_inference.py [--calls 2000] [--model PATH.zip]
+    python scripts/bench/inference.py [--calls 2000] [--model PATH.zip]
 
 Without ``--model`` it builds an untrained PPO ``MlpPolicy`` (64x64, the
 training default) for ``outdoor_terrain`` with 3 robots: the cost of a forward
@@ -42,14 +42,14 @@ def main(argv: list[str] | None = None) -> int:
     from stable_baselines3 import PPO
 
     import coop_loc_env
-    from policies.learned import SB3Policy
+    from policies.learning.learned import SB3Policy
 
     env = coop_loc_env.parallel_env("outdoor_terrain", n_robots=3)
     obs, _ = env.reset(seed=0)
     if args.model:
         model = SB3Policy(args.model).model
     else:
-        from policies.vec_env import ParallelEnvVecEnv, make_env_fn
+        from policies.learning.vec_env import ParallelEnvVecEnv, make_env_fn
 
         venv = ParallelEnvVecEnv(make_env_fn("outdoor_terrain", n_robots=3), n_envs=1)
         model = PPO("MlpPolicy", venv, n_steps=64, device="cpu", seed=0)

@@ -1,14 +1,11 @@
-"""A trained stable-baselines3 model as a :class:`~policies.baselines.Policy` for evaluation.
+"""A trained stable-baselines3 model as a :class:`~policies.scripted.baselines.Policy`.
 
 :class:`LearnedPolicy` wraps a model already in memory (the periodic
-evaluation during training uses it) or loads a saved ``.zip``; one network
-acts for every live agent (parameter sharing), deterministically, one batched
-forward pass per step. :func:`load_learned_policy` loads ``DIR/final_model.zip``
-(or any SB3 zip, the algorithm detected from the file), the same file
-``scripts/evaluate.py --policy PATH`` loads through :func:`policies.runner.make_policy`
-(as :class:`SB3Policy`). A directory written by ``scripts/train.py --backend
-rllib`` loads as :class:`policies.rllib_backend.RLlibPolicy`, with the same
-``reset``/``act`` interface.
+evaluation during training uses it); :class:`SB3Policy` loads a saved ``.zip``
+(the algorithm detected from the file). One network acts for every live agent
+(parameter sharing), deterministically, one batched forward pass per step.
+Saved models of either backend load through
+:func:`policies.learning.loader.load_learned_policy`.
 """
 
 from __future__ import annotations
@@ -19,20 +16,7 @@ from typing import Any
 
 import numpy as np
 
-INFERENCE_THREADS = 1
-"""Torch threads for acting: a forward pass of one team observation is too small to gain
-from more (on a shared 2-core machine, 14.0-27.3 ms per predict with torch's default of 2
-threads vs 0.96-1.08 ms with 1: ``python scripts/_bench_inference.py``)."""
-
-
-def check_observation_shape(name: str, expected: tuple, env) -> None:
-    """Raise ``ValueError`` unless ``env``'s observations have the ``expected`` shape."""
-    got = env.observation_space(env.possible_agents[0]).shape
-    if tuple(expected) != tuple(got):
-        raise ValueError(
-            f"model {name!r} expects observations of shape {expected}, the env "
-            f"gives {got}: use the same scenario/config overrides as in training"
-        )
+from policies.learning.inference import INFERENCE_THREADS, check_observation_shape
 
 
 class LearnedPolicy:
@@ -112,32 +96,3 @@ def detect_sb3_algo(path: str | Path) -> str:
         if f"stable_baselines3.{algo}." in data:
             return algo.upper()
     return "PPO"
-
-
-def is_rllib_run(path: str | Path) -> bool:
-    """Whether ``path`` is an RLlib run ``DIR`` (holding ``checkpoint/``) or checkpoint."""
-    path = Path(path)
-    return (path / "checkpoint" / "rllib_checkpoint.json").is_file() or (
-        path / "rllib_checkpoint.json"
-    ).is_file()
-
-
-def load_learned_policy(path: str | Path):
-    """Load a trained policy: a saved SB3 model (``.zip``, or a training ``DIR`` holding
-    ``final_model.zip``) or an RLlib run ``DIR`` / checkpoint
-    (:class:`policies.rllib_backend.RLlibPolicy`, needs the ``rllib`` extra)."""
-    path = Path(path)
-    if is_rllib_run(path):
-        try:
-            from policies.rllib_backend import RLlibPolicy
-        except ImportError as err:
-            raise ValueError(
-                f"{str(path)!r} is an RLlib checkpoint: install the rllib extra "
-                f"(pip install -e \".[rllib]\") to load it ({err})"
-            ) from err
-        return RLlibPolicy(path)
-    if path.is_dir():
-        path = path / "final_model.zip"
-    if not path.is_file():
-        raise ValueError(f"no saved model at {str(path)!r}")
-    return SB3Policy(path)

@@ -1,9 +1,9 @@
 """Behaviour cloning: warm-start a stable-baselines3 actor-critic from a scripted teacher.
 
 :func:`collect_demonstrations` runs a teacher policy (e.g. ``wander``,
-:class:`policies.fox.WanderPolicy`) on seeded episodes of the training env and
+:class:`policies.scripted.wander.WanderPolicy`) on seeded episodes of the training env and
 records, per robot and step, the robot's observation, the teacher's action
-and the reward the training env pays (:class:`policies.vec_env.TimeToLocalizeReward`
+and the reward the training env pays (:class:`policies.learning.vec_env.TimeToLocalizeReward`
 when ``reward_mode="localize"``). :func:`behaviour_clone` then fits an SB3
 ``ActorCriticPolicy`` (PPO's) to them with torch:
 
@@ -37,11 +37,12 @@ __all__ = ["behaviour_clone", "collect_demonstrations", "make_teacher", "discoun
 
 
 def make_teacher(spec: str):
-    """A teacher policy: ``wander`` or ``wander:SPEED`` (:class:`policies.fox.WanderPolicy`),
-    or any spec of :func:`policies.runner.make_policy` (a registered policy name)."""
+    """A teacher policy: ``wander`` or ``wander:SPEED``
+    (:class:`policies.scripted.wander.WanderPolicy`), or any spec of
+    :func:`policies.learning.loader.make_policy` (a registered policy name)."""
     name, _, arg = str(spec).partition(":")
     if name == "wander":
-        from policies.fox import WanderPolicy
+        from policies.scripted.wander import WanderPolicy
 
         if not arg:
             return WanderPolicy()
@@ -52,9 +53,9 @@ def make_teacher(spec: str):
         return WanderPolicy(speed)
     if arg:
         raise ValueError(f"teacher {spec!r}: only wander takes an argument (wander:SPEED)")
-    from policies.compare import resolve_policy
+    from policies.learning.loader import make_policy
 
-    return resolve_policy(spec)
+    return make_policy(spec)
 
 
 def discounted_returns(rewards: np.ndarray, gamma: float, truncated: bool) -> np.ndarray:
@@ -83,7 +84,7 @@ def collect_demonstrations(
     """Run ``teacher`` for ``n_episodes`` episodes (seeds ``seed + k``) of ``env_fn()``.
 
     ``env_fn`` builds the training env (possibly reward-wrapped; see
-    :func:`policies.vec_env.make_env_fn`). With ``actor`` (a function of the
+    :func:`policies.learning.vec_env.make_env_fn`). With ``actor`` (a function of the
     stacked observations of the live agents returning their actions) the
     actor drives and the teacher only labels the states it visits (DAgger).
     Returns ``obs (N, d)``, ``actions (N, 2)`` (clipped to ``[-1, 1]``),

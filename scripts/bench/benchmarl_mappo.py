@@ -7,7 +7,7 @@ evaluation episodes (seeds ``--seed-eval`` on) of the trained policy (determinis
 actions) and of every ``--compare`` policy (a name or a training directory, as for
 ``scripts/evaluate.py``), with a 95 % interval of the team localization error::
 
-    python scripts/_bench_benchmarl.py --scenario rendezvous --minutes 6 --episodes 20 \\
+    python scripts/bench/benchmarl_mappo.py --scenario rendezvous --minutes 6 --episodes 20 \\
         --compare runs/ppo_rdv,gather --json runs/mappo_rdv.json
 """
 
@@ -26,7 +26,7 @@ class _Stop(Exception):
 
 
 class _TrainedPolicy:
-    """A BenchMARL policy acting in the parallel env (for :func:`policies.runner.run_episode`)."""
+    """A BenchMARL policy acting in the parallel env (for :func:`policies.episode.run_episode`)."""
 
     name = "benchmarl"
 
@@ -129,8 +129,9 @@ def main(argv: list[str] | None = None) -> int:
               f"{args.episodes}", file=sys.stderr)
         return 2
     import coop_loc_env
-    from policies.compare import mean_ci
-    from policies.runner import make_policy, run_episode
+    from policies.episode import run_episode
+    from policies.experiments.compare import mean_ci
+    from policies.learning.loader import make_policy
 
     policy, stats = _train(args)
     print(f"{args.algo} on {args.scenario}: {stats['frames']} frames in {stats['wall_s']:.0f} s "

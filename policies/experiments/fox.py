@@ -1,13 +1,12 @@
 """The collaborative-MCL experiments of Fox, Burgard, Kruppa and Thrun as a library.
 
-* :class:`WanderPolicy` drives every robot forward and turns it away from
-  obstacles using only its own range readings (the robots of the paper's
-  simulations move about without knowing where they are).
 * :func:`run_fox_episode` runs one episode of ``symmetric_hallway`` or
   ``hexagon`` with or without robot detections and records each robot's
   ``particle_spread`` (the paper's error: mean distance of the particles from
-  the true pose) over time.
-* :func:`time_to_localize` finds when each robot first brings its spread
+  the true pose) over time, the robots driven by
+  :class:`~policies.scripted.wander.WanderPolicy` (forward and away from
+  obstacles by each robot's own range readings).
+* :func:`robot_times_to_localize` finds when each robot first brings its spread
   below 1.5 m (the paper's "localized").
 * :func:`run_hallway_experiment` / :func:`run_hexagon_experiment` repeat the
   episodes over seeds in both conditions and reduce them to the figures
@@ -24,7 +23,7 @@ from typing import Any
 import numpy as np
 
 import coop_loc_env
-from policies.baselines import wander
+from policies.scripted.wander import WanderPolicy
 
 LOCALIZED_M = 1.5  # Fox et al.: a robot is localized when its error is below 1.5 m
 HOLD_S = 60.0  # s: the hexagon's "stays localized" window at the end of an episode
@@ -34,72 +33,16 @@ __all__ = [
     "CONDITIONS",
     "LOCALIZED_M",
     "bootstrap_over_seeds",
-    "WanderPolicy",
     "plot_error_vs_time",
+    "robot_times_to_localize",
     "run_fox_episode",
     "run_hallway_experiment",
     "run_hexagon_experiment",
     "summarize_times",
-    "time_to_localize",
 ]
 
 
-class _ScanView:
-    """A robot's own last range scan, one entry per beam (what :func:`wander` reads)."""
-
-    def __init__(self, ranges: np.ndarray, angles: np.ndarray, max_range: float) -> None:
-        self.ranges = ranges
-        self.angles = angles
-        self.max_range = max_range
-
-    def min_range(self, lo: float, hi: float) -> float:
-        """Nearest return (m) of the beams pointing into the robot-frame sector ``[lo, hi]``."""
-        sel = (self.angles >= lo) & (self.angles <= hi)
-        return float(self.ranges[sel].min()) if sel.any() else self.max_range
-
-
-class WanderPolicy:
-    """Drive forward at ``speed``; turn in place toward the freer side when blocked.
-
-    Uses each robot's own range scan only, beam by beam (``env.last_readings``
-    with ``env.sensors.beam_angles``; the observation's range bins min-pool the
-    beams of a team's longest scan, which misplaces a sonar's 16 beams in a
-    team that also has 30-beam lasers). Seeded per episode.
-    """
-
-    name = "wander"
-
-    def __init__(self, speed: float = 0.6) -> None:
-        if not 0 < speed <= 1:
-            raise ValueError(f"speed must be in (0, 1], got {speed!r}")
-        self.speed = float(speed)
-        self.env = None
-        self.rng = np.random.default_rng(0)
-
-    def reset(self, env, seed: int | None = None) -> None:
-        """Bind to ``env`` (already reset) and reseed."""
-        self.env = env
-        self.rng = np.random.default_rng(seed)
-        sensors = env.sensors
-        self._angles = [np.asarray(a, dtype=float) for a in sensors.beam_angles]
-        self._rmax = np.asarray(sensors.range_max, dtype=float)
-        # before the first scan every beam reads max range
-        self._scans = [np.full(len(a), r) for a, r in zip(self._angles, self._rmax, strict=True)]
-
-    def _view(self, i: int) -> _ScanView:
-        readings = self.env.last_readings
-        if readings is not None and readings.range_mask[i]:
-            row = np.asarray(readings.ranges[i][: len(self._angles[i])], dtype=float)
-            self._scans[i] = np.where(np.isfinite(row), row, self._rmax[i])
-        return _ScanView(self._scans[i], self._angles[i], float(self._rmax[i]))
-
-    def act(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        """One wander action per live agent."""
-        index = self.env.agent_name_mapping
-        return {a: wander(self._view(index[a]), self.rng, self.speed) for a in self.env.agents}
-
-
-def time_to_localize(
+def robot_times_to_localize(
     spread: np.ndarray, dt: float, threshold: float = LOCALIZED_M
 ) -> tuple[np.ndarray, np.ndarray]:
     """First time (s) each robot's spread falls below ``threshold``, and whether it did.
@@ -238,7 +181,7 @@ def _run_conditions(
 
 def _condition_figures(episodes: list[dict[str, Any]]) -> tuple[dict, np.ndarray, np.ndarray]:
     times, reached = zip(
-        *(time_to_localize(ep["spread_m"], ep["dt"]) for ep in episodes), strict=True
+        *(robot_times_to_localize(ep["spread_m"], ep["dt"]) for ep in episodes), strict=True
     )
     times, reached = np.concatenate(times), np.concatenate(reached)
     return summarize_times(times, reached), times, reached
@@ -285,7 +228,7 @@ def _seed_statistics(result: dict[str, Any], runs: dict[str, list[dict[str, Any]
     """Per-seed mean times per condition (``per_seed_mean_s``) and the reduction's bootstrap
     interval over seeds (``reduction_ci95_pct``; every seed has as many robots, so the
     mean of the seed means is the mean over robots)."""
-    per_seed = {c: np.array([time_to_localize(ep["spread_m"], ep["dt"])[0].mean()
+    per_seed = {c: np.array([robot_times_to_localize(ep["spread_m"], ep["dt"])[0].mean()
                              for ep in runs[c]]) for c in CONDITIONS}
     result["per_seed_mean_s"] = {c: per_seed[c].tolist() for c in CONDITIONS}
     result["reduction_ci95_pct"] = list(bootstrap_over_seeds(per_seed, _reduction))
@@ -326,7 +269,7 @@ def run_hexagon_experiment(
             eps = runs[cond]
             cols = [np.array([s == sensor for s in ep["sensor"]]) for ep in eps]
             final = np.concatenate([ep["spread_m"][-1, c] for ep, c in zip(eps, cols, strict=True)])
-            tr = [time_to_localize(ep["spread_m"][:, c], ep["dt"])
+            tr = [robot_times_to_localize(ep["spread_m"][:, c], ep["dt"])
                   for ep, c in zip(eps, cols, strict=True)]
             times = np.concatenate([t for t, _ in tr])
             reached = np.concatenate([r for _, r in tr])

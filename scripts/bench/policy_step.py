@@ -2,7 +2,7 @@
 
 Example::
 
-    python scripts/_bench_policies.py --scenario rendezvous --policies gather,infogain,fsm \\
+    python scripts/bench/policy_step.py --scenario rendezvous --policies gather,infogain,fsm \\
         --episodes 2
 
 Prints, per policy, the mean time of ``policy.act`` and of ``env.step`` per team
@@ -16,8 +16,8 @@ import sys
 import time
 
 import coop_loc_env
-from policies.compare import parse_policy_list, resolve_policy
-from policies.runner import parse_overrides
+from policies.experiments.compare import parse_policy_list, resolve_policy
+from policies.experiments.runner import parse_overrides
 
 
 def bench(scenario: str, spec: str, episodes: int, overrides: dict) -> tuple[float, float]:

@@ -6,7 +6,7 @@ rounds of ``--steps`` steps each, and the ratios are of the per-round medians.
 ``torchrl_env._step`` and ``torchrl_env.step`` rows call those methods in a loop (what
 the env and this package's tensor work cost, then with TorchRL's own step logic)::
 
-    python scripts/_bench_torchrl.py --scenario rendezvous --steps 400 --reps 5
+    python scripts/bench/torchrl_step.py --scenario rendezvous --steps 400 --reps 5
 """
 
 from __future__ import annotations

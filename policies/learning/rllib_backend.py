@@ -14,7 +14,7 @@
   ``checkpoint_freq`` agent steps while training), TensorBoard scalars
   (``DIR/tb``), ``DIR/train_config.json`` and ``DIR/train_summary.json``.
 * :class:`RLlibPolicy` loads the trained network from such a ``DIR`` for
-  :mod:`policies.runner` (``scripts/evaluate.py --policy DIR``).
+  :func:`policies.learning.loader.load_learned_policy` (``scripts/evaluate.py --policy DIR``).
 
 Ray is imported only by this module (``pip install -e ".[rllib]"``).
 """
@@ -31,7 +31,7 @@ import numpy as np
 from ray.rllib.env.multi_agent_env import MultiAgentEnv
 
 import coop_loc_env
-from policies.learned import INFERENCE_THREADS, check_observation_shape, is_rllib_run
+from policies.learning.inference import INFERENCE_THREADS, check_observation_shape, is_rllib_run
 
 ENV_NAME = "coop_loc_rllib"
 MODULE_ID = "shared"  # the one policy every robot maps to
@@ -218,7 +218,7 @@ class RLlibRun:
 def run_from_train_config(
     cfg: Any, num_env_runners: int | None = None, address: str | None = None
 ) -> RLlibRun:
-    """The :class:`RLlibRun` of a :class:`policies.training.TrainConfig` (``train.py``'s
+    """The :class:`RLlibRun` of a :class:`policies.learning.training.TrainConfig` (``train.py``'s
     options); raises ``ValueError`` on an option the RLlib path does not have.
 
     One PPO update uses ``n_steps * n_envs`` env steps of the team, as in the

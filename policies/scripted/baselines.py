@@ -11,11 +11,11 @@ from typing import Protocol
 import numpy as np
 
 from estimators.geometry import wrap_angle
-from policies.view import RobotView, ViewBuilder
+from policies.scripted.view import RobotView, ViewBuilder
 
 
 class Policy(Protocol):
-    """What :func:`policies.runner.run_episodes` needs from a policy."""
+    """What :func:`policies.episode.run_episode` needs from a policy."""
 
     name: str
 

@@ -25,12 +25,12 @@ contending for the core slows one copy's step, rarely all three (the
   30,000-value gather of the same kind;
 * with ``training=True``, ``ppo_hallway_agent_steps_per_s``: PPO agent steps
   per wall-clock second on ``symmetric_hallway`` with 4 robots and 1000
-  particles (``scripts/_bench_training.py``'s settings otherwise);
+  particles (``scripts/bench/training.py``'s settings otherwise);
 * with ``memory=True``, ``tables_mb_*``: the lookup tables each shipped
   scenario builds (:func:`table_memory_mb`), and ``table_err_*``: the range
   tables' error against exact ray casts (:func:`table_accuracy`).
 
-Run ``python scripts/_bench_mcl_team.py --help`` for the options.
+Run ``python scripts/bench/mcl_team.py --help`` for the options.
 """
 
 from __future__ import annotations
@@ -235,8 +235,8 @@ def table_accuracy(n: int = 20000) -> dict[str, float]:
 
 def ppo_hallway_steps_per_second(timesteps: int = 4096, seed: int = 0) -> float:
     """PPO agent steps per wall-clock second on ``symmetric_hallway`` (4 robots x 1000
-    particles, 4 env copies in this process, ``scripts/_bench_training.py``'s settings)."""
-    path = Path(__file__).with_name("_bench_training.py")
+    particles, 4 env copies in this process, ``scripts/bench/training.py``'s settings)."""
+    path = Path(__file__).with_name("training.py")
     spec = importlib.util.spec_from_file_location("_bench_training", path)
     training = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(training)

@@ -3,11 +3,11 @@
 ``bench_training()`` returns a flat ``dict[str, float]`` (``scripts/benchmark.py``
 prints it); run this file to print it standalone::
 
-    python scripts/_bench_training.py [--timesteps 6144]
+    python scripts/bench/training.py [--timesteps 6144]
 
 PPO (``MlpPolicy`` 64x64, ``n_steps=128``, batch 256, 5 epochs, one torch
 thread) on ``outdoor_terrain`` (3 robots, EKF) through
-:class:`policies.vec_env.ParallelEnvVecEnv` with 4 env copies (12 agent
+:class:`policies.learning.vec_env.ParallelEnvVecEnv` with 4 env copies (12 agent
 slots), stepped in this process (``n_procs=1``) or in 2 worker processes.
 Throughput is agent steps (SB3 timesteps) per wall-clock second over
 ``model.learn`` after one warm-up rollout, rollout collection and gradient
@@ -35,7 +35,7 @@ def ppo_steps_per_second(n_procs: int, timesteps: int = 6144, seed: int = 0,
     import torch
     from stable_baselines3 import PPO
 
-    from policies.vec_env import ParallelEnvVecEnv, make_env_fn
+    from policies.learning.vec_env import ParallelEnvVecEnv, make_env_fn
 
     torch.set_num_threads(1)
     venv = ParallelEnvVecEnv(

@@ -3,7 +3,8 @@
 Policies in this package act on :class:`RobotView` records only: the robot's
 own belief (estimated pose and covariance), its latched sensor features from
 its observation (inclinometer pitch/roll, min-pooled range bins) and its camera
-sightings. Nothing here reads the true poses.
+sightings; or, for the reactive behaviours, on a :class:`ScanView` of the
+robot's own last range scan, beam by beam. Nothing here reads the true poses.
 """
 
 from __future__ import annotations
@@ -121,3 +122,18 @@ class ViewBuilder:
             world_size=tuple(env.config.world_size),
             dt=env.config.dt,
         )
+
+
+class ScanView:
+    """A robot's own last range scan, one entry per beam (what
+    :func:`~policies.scripted.baselines.wander` reads)."""
+
+    def __init__(self, ranges: np.ndarray, angles: np.ndarray, max_range: float) -> None:
+        self.ranges = ranges
+        self.angles = angles
+        self.max_range = max_range
+
+    def min_range(self, lo: float, hi: float) -> float:
+        """Nearest return (m) of the beams pointing into the robot-frame sector ``[lo, hi]``."""
+        sel = (self.angles >= lo) & (self.angles <= hi)
+        return float(self.ranges[sel].min()) if sel.any() else self.max_range

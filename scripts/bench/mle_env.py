@@ -3,7 +3,7 @@
 ``bench_mle_env()`` returns a flat ``dict[str, float]`` (``scripts/benchmark.py``
 prints it); run this file to print it standalone::
 
-    OPENBLAS_NUM_THREADS=1 python scripts/_bench_mle_env.py [--seconds 3]
+    OPENBLAS_NUM_THREADS=1 python scripts/bench/mle_env.py [--seconds 3]
 
 Measured on two scenarios with random actions, after a warm-up of
 ``warmup_steps`` steps so that the MLE's sliding window is full:

@@ -3,7 +3,7 @@
 ``bench_mle()`` returns a flat ``dict[str, float]`` (``scripts/benchmark.py``
 prints it); run this file to print it standalone::
 
-    python scripts/_bench_mle.py [--quick]
+    python scripts/bench/mle.py [--quick]
 
 * **batch**: a random dispersal graph of 20 robots x 30 sampled times
   (:func:`estimators.pose_graph.random_team_graph`: each ordered pair within 8 m
@@ -130,7 +130,7 @@ def howard_circuit_graph(duration_s: float = 175.0, seed: int = 0) -> PoseGraph:
     import coop_loc_env
     from coop_loc_env.mle_backend import MLEBackend
     from coop_loc_env.profiles import with_profile
-    from policies.howard import CircuitPolicy
+    from policies.scripted.circuit import CircuitPolicy
 
     overrides = with_profile("circuit", "paper")
     # A short window while recording: the same factors, far cheaper than re-solving them all.

@@ -3,16 +3,16 @@
 ``bench_rllib()`` returns a flat ``dict[str, float]`` (``scripts/benchmark.py``
 prints it; empty when Ray is not installed); run this file to print it standalone::
 
-    python scripts/_bench_rllib.py [--scenario outdoor_terrain] [--steps 600]
+    python scripts/bench/rllib.py [--scenario outdoor_terrain] [--steps 600]
 
 Agent steps (one per robot per env step) per wall-clock second of *sampling*
 with the current, untrained policy acting (stochastic actions, one torch
 thread per process), no learning:
 
-* RLlib: PPO's env runners (:mod:`policies.rllib_backend`) sampling ``--steps``
+* RLlib: PPO's env runners (:mod:`policies.learning.rllib_backend`) sampling ``--steps``
   env steps each, with 1 and 2 env-runner processes (local Ray, one CPU each);
   the figure for ``n`` runners is the total over all of them.
-* stable-baselines3: the PPO policy and :class:`policies.vec_env.ParallelEnvVecEnv`
+* stable-baselines3: the PPO policy and :class:`policies.learning.vec_env.ParallelEnvVecEnv`
   (2 env copies) stepped in this process and in 2 worker processes, the loop of
   SB3's rollout collection.
 * the bare env with random actions, in this process, for reference.
@@ -53,7 +53,7 @@ def sb3_agent_steps_per_s(scenario: str, steps: int, n_procs: int) -> float:
     import torch
     from stable_baselines3 import PPO
 
-    from policies.vec_env import ParallelEnvVecEnv, make_env_fn
+    from policies.learning.vec_env import ParallelEnvVecEnv, make_env_fn
 
     torch.set_num_threads(1)
     cfg = _env_config(scenario)
@@ -75,7 +75,7 @@ def rllib_agent_steps_per_s(scenario: str, steps: int, num_env_runners: int) -> 
     """Agent steps per wall second of RLlib PPO sampling with ``num_env_runners`` processes."""
     import ray
 
-    from policies.rllib_backend import ppo_config
+    from policies.learning.rllib_backend import ppo_config
 
     ray.init(address="local", num_cpus=num_env_runners + 1, include_dashboard=False,
              log_to_driver=False, configure_logging=False)

@@ -1,4 +1,4 @@
-"""The stable-baselines3 ``VecEnv`` over ParallelEnv copies (see :mod:`policies.vec_env`).
+"""The stable-baselines3 ``VecEnv`` over ParallelEnv copies (see :mod:`policies.learning.vec_env`).
 
 Importing this module imports stable-baselines3 (the ``train`` extra).
 """
@@ -12,7 +12,7 @@ import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
 
-from policies.vec_env import EnvCopies, EnvFn, _RemoteCopies, obs_concat
+from policies.learning.env_copies import EnvCopies, EnvFn, RemoteCopies, obs_concat
 
 
 class ParallelEnvVecEnv(VecEnv):
@@ -27,7 +27,7 @@ class ParallelEnvVecEnv(VecEnv):
         start_method: multiprocessing start method for the workers
             (default ``"forkserver"`` where available, else ``"spawn"``).
 
-    See the module docstring for the done/truncation/padding conventions.
+    See :mod:`policies.learning.vec_env` for the done/truncation/padding conventions.
     """
 
     def __init__(
@@ -58,7 +58,7 @@ class ParallelEnvVecEnv(VecEnv):
             ctx = mp.get_context(start_method)
             try:
                 for b in blocks:
-                    self.groups.append(_RemoteCopies(env_fn, len(b), ctx))
+                    self.groups.append(RemoteCopies(env_fn, len(b), ctx))
             except Exception:
                 for g in self.groups:
                     g.close()

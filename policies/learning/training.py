@@ -1,6 +1,6 @@
 """Train one policy shared by all robots with stable-baselines3 (the library of train.py).
 
-:func:`train` builds a :class:`~policies.sb3_vec_env.ParallelEnvVecEnv` (every agent
+:func:`train` builds a :class:`~policies.learning.sb3_vec_env.ParallelEnvVecEnv` (every agent
 of ``n_envs`` env copies is one slot, copies stepped in ``n_procs`` processes),
 wraps it in ``VecNormalize`` (rewards only: observations are already scaled
 by the env, and an unnormalized-input model is what ``scripts/evaluate.py``
@@ -23,10 +23,10 @@ loads), and runs PPO (default) or SAC with:
   evaluated error so far at ``DIR/best_model.zip`` (when evaluating), and the
   run's settings at ``DIR/train_config.json``;
 * ``reward_mode="localize"``: the env's rewards replaced by minus the time to
-  localize (:class:`policies.vec_env.TimeToLocalizeReward`, weights
+  localize (:class:`policies.learning.vec_env.TimeToLocalizeReward`, weights
   ``localize_step_reward``, ``localize_team_weight``, ``localize_collision_weight``);
 * ``bc_from``: before PPO, behaviour cloning of a scripted teacher
-  (:mod:`policies.imitation`; ``bc_episodes`` seeded episodes from
+  (:mod:`policies.learning.imitation`; ``bc_episodes`` seeded episodes from
   ``BC_SEED``, ``bc_epochs``, exploration ``bc_log_std``); the critic is fitted
   to the teacher's returns too when rewards are not normalized. The clone is
   saved as ``DIR/bc_model.zip``; the wall-clock limit counts the cloning;
@@ -48,10 +48,11 @@ from typing import Any
 
 import numpy as np
 
-from policies.imitation import behaviour_clone, collect_demonstrations, make_teacher
-from policies.learned import LearnedPolicy
-from policies.runner import make_policy, run_episode
-from policies.vec_env import REWARD_MODES, TimeToLocalizeReward, make_env_fn
+from policies.episode import run_episode
+from policies.learning.imitation import behaviour_clone, collect_demonstrations, make_teacher
+from policies.learning.learned import LearnedPolicy
+from policies.learning.loader import make_policy
+from policies.learning.vec_env import REWARD_MODES, TimeToLocalizeReward, make_env_fn
 
 ALGOS = ("PPO", "SAC")
 EVAL_SEED = 100_000  # evaluation episodes use seeds EVAL_SEED + k, apart from training seeds
@@ -152,7 +153,7 @@ class TrainConfig:
                     raise ValueError(f"{key} must be a positive integer, got {value!r}")
 
     def reward_kwargs(self) -> dict[str, float]:
-        """Keyword arguments of :class:`~policies.vec_env.TimeToLocalizeReward`."""
+        """Keyword arguments of :class:`~policies.learning.vec_env.TimeToLocalizeReward`."""
         return {"step_reward": self.localize_step_reward,
                 "team_weight": self.localize_team_weight,
                 "collision_weight": self.localize_collision_weight}
@@ -186,7 +187,7 @@ def make_vec_env(cfg: TrainConfig):
     """The training ``VecEnv``: slots per agent, reward-normalized when asked."""
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from policies.sb3_vec_env import ParallelEnvVecEnv
+    from policies.learning.sb3_vec_env import ParallelEnvVecEnv
 
     venv = ParallelEnvVecEnv(cfg.env_fn(), n_envs=cfg.n_envs, n_procs=cfg.n_procs)
     if cfg.normalize_reward:

@@ -34,7 +34,7 @@ picks an exploration waypoint in the freest laser direction that keeps away
 from hazards and the world edge, and drives there in ElevGradient (a segment
 ``P1 -> P2`` without an object).
 
-The machine sees only a :class:`~policies.view.RobotView`: its belief, its
+The machine sees only a :class:`~policies.scripted.view.RobotView`: its belief, its
 latched pitch/roll and range bins, and its camera records. Its current state
 is :attr:`TraversalFSM.state` (a :class:`State`), and :attr:`TraversalFSM.history`
 counts steps per state, for logging.
@@ -49,7 +49,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from estimators.geometry import wrap_angle
-from policies.view import RobotView, ViewBuilder
+from policies.scripted.view import RobotView, ViewBuilder
 
 
 class State(str, enum.Enum):

@@ -11,7 +11,7 @@ actions) for
 
 each with a fixed particle count (``adaptive`` off) as well, so the figure is
 for exactly 1000 particles per robot. ``scripts/benchmark.py``
-imports it; ``python scripts/_bench_mcl_env.py`` prints it.
+imports it; ``python scripts/bench/mcl_env.py`` prints it.
 """
 
 from __future__ import annotations

@@ -2,9 +2,9 @@
 
 Used by ``scripts/evaluate.py --compare fsm,random,PATH.zip``. Every policy
 runs the same seeded episodes (episode ``k`` seeded ``seed + k``); policies
-are the specs of :func:`policies.runner.make_policy` (a registered name, e.g.
+are the specs of :func:`policies.learning.loader.make_policy` (a registered name, e.g.
 ``wander:0.8``, or a saved model).
-Figures per episode are those of :mod:`policies.runner` plus
+Figures per episode are those of :mod:`policies.episode` plus
 ``time_to_localize_s``: per robot, the first time its spread falls below
 1.5 m (MCL: ``info["particle_spread"]``, the weighted mean particle distance
 from the truth; otherwise ``sqrt(var_x + var_y)`` of the belief), averaged
@@ -26,10 +26,10 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from policies.baselines import StandStillPolicy  # noqa: F401 (re-exported)
-from policies.fox import LOCALIZED_M
-from policies.fox import time_to_localize as robot_times_to_localize
-from policies.runner import FIGURES, episode_figures, make_policy, run_episode
+from policies.episode import FIGURES, episode_figures, run_episode
+from policies.experiments.fox import LOCALIZED_M, robot_times_to_localize
+from policies.learning.loader import make_policy
+from policies.scripted.baselines import StandStillPolicy  # noqa: F401 (re-exported)
 
 COMPARE_FIGURES = FIGURES + ("time_to_localize_s", "localized_fraction", "localized_at_end")
 LABELS = {
@@ -63,11 +63,11 @@ def parse_policy_list(text: str) -> list[str]:
 
 
 def resolve_policy(spec: str):
-    """:func:`policies.runner.make_policy` (kept under this name for existing callers)."""
+    """:func:`policies.learning.loader.make_policy` (kept under this name for existing callers)."""
     return make_policy(spec)
 
 
-def time_to_localize(ep: dict[str, Any], dt: float, threshold: float = SPREAD_THRESHOLD
+def episode_time_to_localize(ep: dict[str, Any], dt: float, threshold: float = SPREAD_THRESHOLD
                      ) -> tuple[float, float]:
     """``(mean time to localize (s), fraction of robots localized)`` of one episode record.
 
@@ -80,7 +80,7 @@ def time_to_localize(ep: dict[str, Any], dt: float, threshold: float = SPREAD_TH
 
 
 def localized_at_end(ep: dict[str, Any], threshold: float = SPREAD_THRESHOLD) -> float:
-    """Fraction of the robots whose spread (as in :func:`time_to_localize`) is below
+    """Fraction of the robots whose spread (as in :func:`episode_time_to_localize`) is below
     ``threshold`` at the episode's last step."""
     return float((_spread(ep)[-1] < threshold).mean())
 
@@ -144,7 +144,7 @@ def compare(
         eps = _run(scenario, policy, n_episodes, seed, overrides or {}, progress, spec)
         records = []
         for ep in eps:
-            t_loc, frac = time_to_localize(ep, dt)
+            t_loc, frac = episode_time_to_localize(ep, dt)
             rec = episode_figures(ep)
             rec["time_to_localize_s"] = t_loc
             rec["localized_fraction"] = frac
@@ -170,7 +170,7 @@ def _report(scenario, n_episodes, seed, specs, overrides, summary, episodes) -> 
 
 def _run(scenario: str, policy, n_episodes: int, seed: int, overrides: dict[str, Any],
          progress: bool, label: str) -> list[dict[str, Any]]:
-    """:func:`policies.runner.run_episode` for each seed, also recording ``particle_spread``
+    """:func:`policies.episode.run_episode` for each seed, also recording ``particle_spread``
     (when the estimator reports it) as ``series["particle_spread_m"]``."""
     import coop_loc_env
 
