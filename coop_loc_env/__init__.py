@@ -35,6 +35,7 @@ from coop_loc_env.scenarios import (
     list_scenarios,
     make_config,
     register_scenario,
+    unregister_scenario,
 )
 
 __version__ = "0.1.0"
@@ -61,6 +62,7 @@ __all__ = [
     "register_reward_term",
     "register_scenario",
     "torchrl_env",
+    "unregister_scenario",
 ]
 
 

@@ -96,6 +96,14 @@ def register_scenario(name: str, factory: ScenarioFactory | Scenario | type[Scen
     _REGISTRY[name] = factory
 
 
+def unregister_scenario(name: str) -> None:
+    """Remove the scenario registered as ``name`` (``ValueError`` if there is none)."""
+    if name not in _REGISTRY:
+        raise ValueError(f"unknown scenario {name!r}; known scenarios: {list_scenarios()}")
+    del _REGISTRY[name]
+    _TRAINING_DEFAULTS.pop(name, None)
+
+
 def scenario_hooks(scenario: str) -> Scenario:
     """The :class:`Scenario` registered as ``scenario`` (:data:`NO_HOOKS` for a function)."""
     factory = _REGISTRY.get(scenario)
