@@ -244,6 +244,7 @@ class ObservationBuilder:
         return self.vectors(x)
 
 
+@register_obs_block("belief")
 class BeliefBlock(ObsBlock):
     """The estimator backend's belief features, zero-padded to ``belief_size``."""
 
@@ -365,8 +366,6 @@ class PrivilegedBlock(ObsBlock):
         px, py, th = x.true_poses.T
         out[:] = np.stack([px / w * 2 - 1, py / h * 2 - 1, np.cos(th), np.sin(th)], 1)
 
-
-register_obs_block("belief", BeliefBlock)
 
 
 def teammate_features(
