@@ -24,13 +24,18 @@ from pettingzoo.env_registry import register
 from pettingzoo.utils import wrappers
 
 from coop_loc_env.aec import CoopLocAECEnv
+from coop_loc_env.backends import register_backend
 from coop_loc_env.config import Obstacle, RobotSpec, ScenarioConfig
 from coop_loc_env.env import CoopLocParallelEnv
+from coop_loc_env.obs_blocks import ObsBlock, register_obs_block
+from coop_loc_env.rewards import RewardTerm, register_reward_term
 from coop_loc_env.scenarios import (
+    Scenario,
     describe_scenario,
     list_scenarios,
     make_config,
     register_scenario,
+    unregister_scenario,
 )
 
 __version__ = "0.1.0"
@@ -39,8 +44,11 @@ REGISTRY_NAMESPACE = "coop_loc"
 __all__ = [
     "CoopLocAECEnv",
     "CoopLocParallelEnv",
+    "ObsBlock",
     "Obstacle",
+    "RewardTerm",
     "RobotSpec",
+    "Scenario",
     "ScenarioConfig",
     "describe_scenario",
     "env",
@@ -49,8 +57,12 @@ __all__ = [
     "make_config",
     "parallel_env",
     "raw_env",
+    "register_backend",
+    "register_obs_block",
+    "register_reward_term",
     "register_scenario",
     "torchrl_env",
+    "unregister_scenario",
 ]
 
 

@@ -19,10 +19,12 @@ With ``obs_format="dict"`` an agent's observation is a Gymnasium ``Dict``:
   the robot's own range sensor sees the layout); then the teammates'
   communicated beliefs, position mass summed over the live teammates.
 
-Particle beliefs (MCL) are binned particle by particle; Gaussian beliefs
-(EKF, MLE) are rasterized: the position density at each cell centre times the
-cell area (normalized over the grid), times the heading mass of each bin
-(the wrapped normal's), so one policy architecture reads every estimator.
+Both are observation blocks (:mod:`coop_loc_env.obs_blocks`), registered as
+``belief_modes`` and ``belief_map``. Particle beliefs (MCL) are binned particle
+by particle; Gaussian beliefs (EKF, MLE) are rasterized: the position density at
+each cell centre times the cell area (normalized over the grid), times the
+heading mass of each bin (the wrapped normal's), so one policy architecture
+reads every estimator.
 Everything comes from the beliefs and the known map (``world.layout``), never
 from the true poses.
 """
@@ -36,6 +38,7 @@ import numpy as np
 from gymnasium import spaces
 from scipy.special import ndtr
 
+from coop_loc_env.obs_blocks import OBS_LIMIT, ObsBlock, ObsInputs, ObsSetup
 from estimators.mcl_batch import team_state, team_weights
 from estimators.particle_modes import MODE_FIELDS, particle_modes, raster_particles
 
@@ -78,13 +81,18 @@ class TeamBeliefs:
             yield robots, flat, w, ends, org
 
 
+def team_beliefs(x: ObsInputs) -> TeamBeliefs:
+    """The team's beliefs at this step (made once for every block that reads them)."""
+    return x.shared("team_beliefs", lambda: TeamBeliefs.from_env(x.env, x.active))
+
+
 def _check_int(name: str, value: object, low: int) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or value < low:
         raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
     return value
 
 
-class BeliefModesBlock:
+class BeliefModesBlock(ObsBlock):
     """The ``belief_modes`` block of the dict observation's vector (module doc)."""
 
     name = "belief_modes"
@@ -97,7 +105,7 @@ class BeliefModesBlock:
 
     def space(self) -> spaces.Box:
         """``Box(-10, 10, (6 K,))`` (the vector's limits)."""
-        return spaces.Box(-10.0, 10.0, shape=(self.size,), dtype=np.float32)
+        return spaces.Box(-OBS_LIMIT, OBS_LIMIT, shape=(self.size,), dtype=np.float32)
 
     def modes(self, beliefs: TeamBeliefs) -> np.ndarray:
         """``(n, K, 6)`` raw modes: weight, world x, y (m), cos, sin heading, spread (m)."""
@@ -116,7 +124,11 @@ class BeliefModesBlock:
                 np.sqrt(np.maximum(c[:, 0, 0] + c[:, 1, 1], 0.0))])
         return out
 
-    def observe(self, beliefs: TeamBeliefs) -> np.ndarray:
+    def observe(self, x: ObsInputs, out: np.ndarray) -> None:
+        """Fill the block's columns ``out`` ``(n, 6 K)``."""
+        out[:] = self.values(team_beliefs(x))
+
+    def values(self, beliefs: TeamBeliefs) -> np.ndarray:
         """``(n, 6 K)`` float32 rows of the block (positions scaled to [-1, 1])."""
         raw = self.modes(beliefs)
         w, h = self.world
@@ -127,7 +139,7 @@ class BeliefModesBlock:
         return raw.reshape(len(raw), -1).astype(np.float32)
 
 
-class BeliefMapBlock:
+class BeliefMapBlock(ObsBlock):
     """The ``belief_map`` of the dict observation: ``(C, H, W)`` float32 (module doc).
 
     Args:
@@ -137,6 +149,7 @@ class BeliefMapBlock:
     """
 
     name = "belief_map"
+    entry = "belief_map"
 
     def __init__(self, cfg, grids: list) -> None:
         self.cells = _check_int("belief_map_cells", cfg.belief_map_cells, 2)
@@ -200,9 +213,14 @@ class BeliefMapBlock:
         mass /= max(mass.sum(), 1e-12)
         return mass[:, None, None] * pos[None]
 
-    def observe(self, beliefs: TeamBeliefs) -> np.ndarray:
-        """``(n, C, H, W)`` float32 maps of every robot."""
-        out = np.empty((self.n, self.channels, self.cells, self.cells), dtype=np.float32)
+    def observe(self, x: ObsInputs, out: np.ndarray) -> None:
+        """Fill ``out`` ``(n, C, H, W)`` with every robot's map."""
+        self.values(team_beliefs(x), out)
+
+    def values(self, beliefs: TeamBeliefs, out: np.ndarray | None = None) -> np.ndarray:
+        """``(n, C, H, W)`` float32 maps of every robot (into ``out`` if given)."""
+        if out is None:
+            out = np.empty((self.n, self.channels, self.cells, self.cells), dtype=np.float32)
         mass = self.belief_mass(beliefs)
         out[:, : self.headings] = mass
         out[:, self.headings] = self.occupancy
@@ -214,34 +232,14 @@ class BeliefMapBlock:
         return out
 
 
-class DictObservation:
-    """``obs_format="dict"``: the flat vector plus the modes block, and the belief map.
+def modes_block(setup: ObsSetup) -> BeliefModesBlock:
+    """The registered ``belief_modes`` block of ``setup``'s config."""
+    return BeliefModesBlock(setup.cfg)
 
-    Args:
-        cfg: the scenario.
-        vector_space: the flat observation's ``Box``; ``vector_names`` its entry names.
-        grids: each robot's known occupancy grid.
-    """
 
-    def __init__(self, cfg, vector_space: spaces.Box, vector_names: list[str], grids: list
-                 ) -> None:
-        self.modes = BeliefModesBlock(cfg)
-        self.map = BeliefMapBlock(cfg, grids)
-        self.flat_size = vector_space.shape[0]
-        self.names = list(vector_names) + self.modes.names
-        size = self.flat_size + self.modes.size
-        self.space = spaces.Dict({
-            "vector": spaces.Box(-10.0, 10.0, shape=(size,), dtype=np.float32),
-            "belief_map": self.map.space(),
-        })
-
-    def observe_all(self, beliefs: TeamBeliefs, flat: np.ndarray) -> list[dict[str, np.ndarray]]:
-        """One dict per robot from the flat observations ``(n, F)`` and the beliefs."""
-        vector = np.empty((len(flat), self.flat_size + self.modes.size), dtype=np.float32)
-        vector[:, : self.flat_size] = flat
-        vector[:, self.flat_size :] = self.modes.observe(beliefs)
-        maps = self.map.observe(beliefs)
-        return [{"vector": v, "belief_map": m} for v, m in zip(vector, maps, strict=True)]
+def map_block(setup: ObsSetup) -> BeliefMapBlock:
+    """The registered ``belief_map`` block: each robot's known map from ``setup.world``."""
+    return BeliefMapBlock(setup.cfg, robot_grids(setup.cfg, setup.world))
 
 
 def robot_grids(cfg, world) -> list:

@@ -20,9 +20,13 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from coop_loc_env.extras import validate_extras, validate_mcl_values
+from coop_loc_env.backends import BUILTIN_ESTIMATORS, check_estimator, validate_extras
+from coop_loc_env.obs_blocks import check_obs_blocks
+from coop_loc_env.rewards import check_reward_config
 
-ESTIMATORS = ("ekf", "mcl", "mle")
+#: The estimators shipped with the package; every name registered with
+#: :func:`coop_loc_env.backends.register_backend` is accepted.
+ESTIMATORS = BUILTIN_ESTIMATORS
 DETECTION_MODELS = ("fox", "howard", "laser", "camera", "scan_min")
 OBSTACLE_KINDS = ("tree", "rock", "wall", "ooi", "building")
 OBSTACLE_SHAPES = ("circle", "segment", "polygon")
@@ -122,9 +126,9 @@ class RobotSpec:
     max_turn_rate: float | None = None
 
     def validate(self) -> None:
-        """Raise ``ValueError`` on an unknown estimator or sensor type."""
-        if self.estimator is not None and self.estimator not in ESTIMATORS:
-            raise ValueError(f"estimator must be one of {ESTIMATORS}, got {self.estimator!r}")
+        """Raise ``ValueError`` on an unregistered estimator or an unknown sensor type."""
+        if self.estimator is not None:
+            check_estimator("estimator", self.estimator)
         if self.range_sensor not in RANGE_SENSOR_TYPES:
             raise ValueError(
                 f"range_sensor must be one of {RANGE_SENSOR_TYPES}, got {self.range_sensor!r}"
@@ -247,6 +251,8 @@ class ScenarioConfig:
     belief_map_cells: int = 32  # dict observation: belief-map cells a side
     belief_map_headings: int = 8  # dict observation: heading bins of the belief map
     belief_modes: int = 4  # dict observation: modes of the belief in the vector
+    # registered observation blocks (coop_loc_env.obs_blocks) appended to the vector
+    extra_obs_blocks: tuple[str, ...] = ()
     # --- team terrain map (coop_loc_env.mapping)
     map_resolution: float = _positive(0.5)
     map_footprint_radius: float = _non_negative(0.5)
@@ -260,13 +266,17 @@ class ScenarioConfig:
     reward_uncertainty_weight: float = _non_negative(0.0)
     collision_penalty: float = _non_negative(0.1)
     tip_over_penalty: float = _non_negative(10.0)
+    # registered reward terms (coop_loc_env.rewards) added after the built-in ones, each
+    # with its default weight unless reward_weights names it (which also adds it)
+    extra_reward_terms: tuple[str, ...] = ()
+    reward_weights: dict[str, float] = field(default_factory=dict)
     # --- infos: every value is a number or a fixed-shape array (TorchRL, BenchMARL stack them);
     # True adds the dict ``reward_terms`` beside the ``reward_<term>`` keys (always there)
     reward_terms_dict: bool = False
     # the info keys to keep (None: all); an unknown key raises ValueError at the first step
     info_keys: tuple[str, ...] | None = None
-    # --- estimator options read by one backend; every key is declared (and checked) in
-    # coop_loc_env.extras.EXTRAS_SCHEMA
+    # --- estimator options read by one backend; every key is declared (and checked) by
+    # the backend that reads it (coop_loc_env.backends, coop_loc_env.extras)
     extras: dict[str, Any] = field(default_factory=dict)
 
     # ------------------------------------------------------------------ helpers
@@ -298,7 +308,8 @@ class ScenarioConfig:
                     f"unknown config key {key!r} for scenario {self.name!r}; "
                     f"known keys: {', '.join(sorted(known))}"
                 )
-        for key in ("team", "obstacles", "world_size", "start_region", "start_poses", "info_keys"):
+        for key in ("team", "obstacles", "world_size", "start_region", "start_poses", "info_keys",
+                    "extra_obs_blocks", "extra_reward_terms"):
             if key in overrides and isinstance(overrides[key], list):
                 overrides[key] = tuple(overrides[key])
         if "team" in overrides:
@@ -316,109 +327,8 @@ class ScenarioConfig:
 
     def validate(self) -> None:
         """Check every field; raise ``ValueError`` naming the key and value."""
-        _int_at_least(self, "n_robots", 1)
-        _int_at_least(self, "max_cycles", 1)
-        _int_at_least(self, "laser_beams", 1)
-        _int_at_least(self, "sonar_beams", 1)
-        _int_at_least(self, "camera_width_px", 1)
-        _int_at_least(self, "laser_obs_bins", 1)
-        _int_at_least(self, "max_detections_obs", 0)
-        _int_at_least(self, "map_patch_obs", 0)
-        _int_at_least(self, "n_particles", 10)
-        if self.obs_format not in OBS_FORMATS:
-            raise ValueError(f"obs_format must be one of {OBS_FORMATS}, got {self.obs_format!r}")
-        _int_at_least(self, "belief_map_cells", 2)
-        _int_at_least(self, "belief_map_headings", 1)
-        _int_at_least(self, "belief_modes", 1)
-        if not isinstance(self.teammate_obs, bool):
-            raise ValueError(f"teammate_obs must be True or False, got {self.teammate_obs!r}")
-        if not isinstance(self.reward_terms_dict, bool):
-            raise ValueError(
-                f"reward_terms_dict must be True or False, got {self.reward_terms_dict!r}"
-            )
-        if self.info_keys is not None and (
-            not isinstance(self.info_keys, tuple)
-            or not all(isinstance(k, str) for k in self.info_keys)
-        ):
-            raise ValueError(
-                f"info_keys must be None or a list of key names, got {self.info_keys!r}"
-            )
-        if not isinstance(self.global_localization, bool):
-            raise ValueError(
-                f"global_localization must be True or False, got {self.global_localization!r}"
-            )
-        _int_at_least(self, "gps_reference_satellites", 1)
-        for key in ("n_random_trees", "n_random_rocks", "n_random_ooi", "terrain_hills"):
-            _int_at_least(self, key, 0)
-        _int_at_least(self, "steep_patches", 0)
-        _int_at_least(self, "cooperative_rounds_per_step", 1)
-        if self.map_fusion_weights not in ("paper", "kalman"):
-            raise ValueError(
-                f"map_fusion_weights must be 'paper' or 'kalman', got {self.map_fusion_weights!r}"
-            )
-        if self.cooperative_fusion not in ("ci", "naive"):
-            raise ValueError(
-                f"cooperative_fusion must be 'ci' or 'naive', got {self.cooperative_fusion!r}"
-            )
-        for f in dataclasses.fields(self):  # the bounds declared beside the fields
-            bound = f.metadata.get("bound")
-            if bound is not None:
-                _number(self, f.name, **_BOUNDS[bound])
-        _number(self, "gate_prob", lower=0.0, strict=True, upper=1.0)
-        if self.tip_over_slope_deg >= 90:
-            raise ValueError(f"tip_over_slope_deg must be < 90, got {self.tip_over_slope_deg!r}")
-        if self.estimator not in ESTIMATORS:
-            raise ValueError(f"estimator must be one of {ESTIMATORS}, got {self.estimator!r}")
-        if self.detection_model not in DETECTION_MODELS:
-            raise ValueError(
-                f"detection_model must be one of {DETECTION_MODELS}, got {self.detection_model!r}"
-            )
-        if not isinstance(self.detection_orientation, bool):
-            raise ValueError(f"detection_orientation must be True or False, got "
-                             f"{self.detection_orientation!r}")
-        if len(self.world_size) != 2 or not all(
-            isinstance(v, (int, float)) and math.isfinite(v) and v > 0 for v in self.world_size
-        ):
-            raise ValueError(f"world_size must be two positive numbers, got {self.world_size!r}")
-        if not self.team:
-            raise ValueError("team must hold at least one RobotSpec, got ()")
-        for spec in self.team:
-            if not isinstance(spec, RobotSpec):
-                raise ValueError(f"team entries must be RobotSpec or dict, got {spec!r}")
-            spec.validate()
-        for obstacle in self.obstacles:
-            if not isinstance(obstacle, Obstacle):
-                raise ValueError(f"obstacles entries must be Obstacle, got {obstacle!r}")
-            obstacle.validate()
-        for key in ("gps_open_sky_satellites", "gps_canopy_satellites"):
-            lo, hi = getattr(self, key)
-            if not (0 <= lo <= hi):
-                raise ValueError(f"{key} must be (low, high) with 0 <= low <= high, got {(lo, hi)}")
-        if self.start_region is not None:
-            x0, y0, x1, y1 = self.start_region
-            w, h = self.world_size
-            if not (0 <= x0 < x1 <= w and 0 <= y0 < y1 <= h):
-                raise ValueError(
-                    f"start_region must be (x0, y0, x1, y1) inside the world, "
-                    f"got {self.start_region!r}"
-                )
-        self._check_team_size()
-        validate_extras(self.extras)
-        validate_mcl_values(self.extras, self.n_particles)
-        if self.start_poses is not None:
-            if len(self.start_poses) < self.n_robots:
-                raise ValueError(
-                    f"start_poses lists {len(self.start_poses)} poses for n_robots="
-                    f"{self.n_robots}"
-                )
-            for pose in self.start_poses:
-                if len(pose) != 3 or not all(math.isfinite(v) for v in pose):
-                    raise ValueError(f"start_poses entries must be finite (x, y, heading): {pose}")
-        if not self.dt * self.odometry_rate >= 1 - 1e-9:
-            raise ValueError(
-                f"odometry_rate must be at least 1/dt = {1 / self.dt:g} Hz, "
-                f"got {self.odometry_rate!r}"
-            )
+        for check in _CHECKS:
+            check(self)
 
     def start_capacity(self) -> int:
         """An upper bound on how many robots random start placement can fit.
@@ -436,7 +346,7 @@ class ScenarioConfig:
         height = max(y1 - y0 - 2 * r, 0.0) + spacing
         return int(width * height / (math.pi * spacing**2 / 4))
 
-    def _check_team_size(self) -> None:
+    def check_team_size(self) -> None:
         """Refuse teams too large to simulate or to place (before anything is built)."""
         if self.n_robots > MAX_ROBOTS:
             raise ValueError(
@@ -457,6 +367,124 @@ class ScenarioConfig:
     def odometry_substeps(self) -> int:
         """Physics/odometry substeps per env step (computed once: the config is frozen)."""
         return max(1, int(round(self.dt * self.odometry_rate)))
+
+
+#: Integer fields and their least value, checked in this order.
+_COUNTS = (
+    ("n_robots", 1), ("max_cycles", 1), ("laser_beams", 1), ("sonar_beams", 1),
+    ("camera_width_px", 1), ("laser_obs_bins", 1), ("max_detections_obs", 0),
+    ("map_patch_obs", 0), ("n_particles", 10), ("belief_map_cells", 2),
+    ("belief_map_headings", 1), ("belief_modes", 1), ("gps_reference_satellites", 1),
+    ("n_random_trees", 0), ("n_random_rocks", 0), ("n_random_ooi", 0), ("terrain_hills", 0),
+    ("steep_patches", 0), ("cooperative_rounds_per_step", 1),
+)
+#: Fields that name one of a few choices: (field, choices, how the error words them).
+_CHOICES = (
+    ("obs_format", OBS_FORMATS, f"one of {OBS_FORMATS}"),
+    ("map_fusion_weights", ("paper", "kalman"), "'paper' or 'kalman'"),
+    ("cooperative_fusion", ("ci", "naive"), "'ci' or 'naive'"),
+    ("detection_model", DETECTION_MODELS, f"one of {DETECTION_MODELS}"),
+)
+_FLAGS = ("teammate_obs", "reward_terms_dict", "global_localization", "detection_orientation")
+
+
+def _check_counts(cfg: ScenarioConfig) -> None:
+    for key, low in _COUNTS:
+        _int_at_least(cfg, key, low)
+
+
+def _check_choices(cfg: ScenarioConfig) -> None:
+    for key, choices, wanted in _CHOICES:
+        value = getattr(cfg, key)
+        if value not in choices:
+            raise ValueError(f"{key} must be {wanted}, got {value!r}")
+
+
+def _check_flags(cfg: ScenarioConfig) -> None:
+    for key in _FLAGS:
+        value = getattr(cfg, key)
+        if not isinstance(value, bool):
+            raise ValueError(f"{key} must be True or False, got {value!r}")
+
+
+def _check_info_keys(cfg: ScenarioConfig) -> None:
+    keys = cfg.info_keys
+    if keys is not None and (not isinstance(keys, tuple)
+                             or not all(isinstance(k, str) for k in keys)):
+        raise ValueError(f"info_keys must be None or a list of key names, got {keys!r}")
+
+
+def _check_numbers(cfg: ScenarioConfig) -> None:
+    for f in dataclasses.fields(cfg):  # the bounds declared beside the fields
+        bound = f.metadata.get("bound")
+        if bound is not None:
+            _number(cfg, f.name, **_BOUNDS[bound])
+    _number(cfg, "gate_prob", lower=0.0, strict=True, upper=1.0)
+    if cfg.tip_over_slope_deg >= 90:
+        raise ValueError(f"tip_over_slope_deg must be < 90, got {cfg.tip_over_slope_deg!r}")
+    if not cfg.dt * cfg.odometry_rate >= 1 - 1e-9:
+        raise ValueError(
+            f"odometry_rate must be at least 1/dt = {1 / cfg.dt:g} Hz, "
+            f"got {cfg.odometry_rate!r}"
+        )
+
+
+def _check_team(cfg: ScenarioConfig) -> None:
+    check_estimator("estimator", cfg.estimator)
+    if not cfg.team:
+        raise ValueError("team must hold at least one RobotSpec, got ()")
+    for spec in cfg.team:
+        if not isinstance(spec, RobotSpec):
+            raise ValueError(f"team entries must be RobotSpec or dict, got {spec!r}")
+        spec.validate()
+
+
+def _check_world(cfg: ScenarioConfig) -> None:
+    if len(cfg.world_size) != 2 or not all(
+        isinstance(v, (int, float)) and math.isfinite(v) and v > 0 for v in cfg.world_size
+    ):
+        raise ValueError(f"world_size must be two positive numbers, got {cfg.world_size!r}")
+    for obstacle in cfg.obstacles:
+        if not isinstance(obstacle, Obstacle):
+            raise ValueError(f"obstacles entries must be Obstacle, got {obstacle!r}")
+        obstacle.validate()
+    for key in ("gps_open_sky_satellites", "gps_canopy_satellites"):
+        lo, hi = getattr(cfg, key)
+        if not (0 <= lo <= hi):
+            raise ValueError(f"{key} must be (low, high) with 0 <= low <= high, got {(lo, hi)}")
+
+
+def _check_start(cfg: ScenarioConfig) -> None:
+    if cfg.start_region is not None:
+        x0, y0, x1, y1 = cfg.start_region
+        w, h = cfg.world_size
+        if not (0 <= x0 < x1 <= w and 0 <= y0 < y1 <= h):
+            raise ValueError(
+                f"start_region must be (x0, y0, x1, y1) inside the world, "
+                f"got {cfg.start_region!r}"
+            )
+    cfg.check_team_size()
+    if cfg.start_poses is not None:
+        if len(cfg.start_poses) < cfg.n_robots:
+            raise ValueError(
+                f"start_poses lists {len(cfg.start_poses)} poses for n_robots={cfg.n_robots}"
+            )
+        for pose in cfg.start_poses:
+            if len(pose) != 3 or not all(math.isfinite(v) for v in pose):
+                raise ValueError(f"start_poses entries must be finite (x, y, heading): {pose}")
+
+
+def _check_extensions(cfg: ScenarioConfig) -> None:
+    """The registered parts a config names: ``extras`` keys, observation blocks, reward
+    terms."""
+    validate_extras(cfg)
+    check_obs_blocks(cfg.extra_obs_blocks)
+    check_reward_config(cfg.extra_reward_terms, cfg.reward_weights)
+
+
+#: What :meth:`ScenarioConfig.validate` runs, in order.
+_CHECKS = (_check_counts, _check_choices, _check_flags, _check_info_keys, _check_numbers,
+           _check_team, _check_world, _check_start, _check_extensions)
 
 
 def _int_at_least(cfg: ScenarioConfig, key: str, low: int) -> None:

@@ -16,8 +16,10 @@ from coop_loc_env.config import ScenarioConfig
 from coop_loc_env.depth_from_motion import CameraRecord, DepthFromMotion
 from coop_loc_env.estimation import GAUSSIAN_FEATURE_NAMES, make_backends
 from coop_loc_env.mapping import TeamMapper
-from coop_loc_env.observations import ObservationBuilder, teammate_features
-from coop_loc_env.scenarios import make_config
+from coop_loc_env.obs_blocks import ObsInputs
+from coop_loc_env.observations import ObservationBuilder
+from coop_loc_env.rewards import RewardInputs, RewardTerms, sum_terms
+from coop_loc_env.scenarios import make_config, scenario_hooks
 from coop_loc_env.sensors import Readings, SensorSuite
 from coop_loc_env.world import World
 from estimators.geometry import wrap_angle
@@ -89,6 +91,7 @@ class CoopLocParallelEnv(ParallelEnv):
         self.render_mode = render_mode
         self.scenario = scenario
         self.config: ScenarioConfig = make_config(scenario, **overrides)
+        self.scenario_hooks = scenario_hooks(scenario)
         cfg = self.config
         self.possible_agents = [f"robot_{i}" for i in range(cfg.n_robots)]
         self.agent_name_mapping = {a: i for i, a in enumerate(self.possible_agents)}
@@ -99,6 +102,7 @@ class CoopLocParallelEnv(ParallelEnv):
         self.sensors.defer_camera = True  # the camera pipeline runs when its records are read
         self.backends = make_backends(cfg, self.world)
         self.mapper = TeamMapper(cfg, self.world)
+        self.reward_terms = RewardTerms(cfg)
         self.depth = DepthFromMotion(cfg, len(self.world.layout.ooi_centers))
         self.camera = CameraPipeline(self.sensors, self.depth, self.world.layout.ooi_centers)
         belief_size = max(b.feature_size for b in self.backends)
@@ -106,18 +110,11 @@ class CoopLocParallelEnv(ParallelEnv):
         for b in self.backends:
             if b.feature_size == belief_size and b.feature_names:
                 belief_names = tuple(b.feature_names)
-        self.observations = ObservationBuilder(cfg, belief_size, belief_names)
+        self.observations = ObservationBuilder(cfg, belief_size, belief_names, self.world)
         self._one_backend = len(self.backends) == 1 and np.array_equal(
             self.backends[0].robots, np.arange(cfg.n_robots)
         )
         self._observation_space = self.observations.space
-        self._dict_obs = None  # obs_format="dict": the vector plus the belief's modes and map
-        if cfg.obs_format == "dict":
-            from coop_loc_env.belief_map import DictObservation, robot_grids
-
-            self._dict_obs = DictObservation(cfg, self.observations.space,
-                                             self.observations.names, robot_grids(cfg, self.world))
-            self._observation_space = self._dict_obs.space
         self._action_space = spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
         self._np_random: np.random.Generator | None = None
         self._np_random_seed: int | None = None
@@ -204,7 +201,6 @@ class CoopLocParallelEnv(ParallelEnv):
         self._camera_filled = False
         self._new_cells = np.zeros(n, dtype=np.int64)
         self._covered_cells = np.zeros(n, dtype=np.int64)
-        self._half_logdet = np.zeros(n)  # 0.5 log det of each position covariance
 
     def reset(
         self, seed: int | None = None, options: dict | None = None
@@ -215,12 +211,13 @@ class CoopLocParallelEnv(ParallelEnv):
         rng = self.np_random
         self._reset_state()
         self.world.reset(rng)
+        self.scenario_hooks.reset_world(self, rng)
         for backend in self.backends:
             backend.reset(self.world.poses, rng)
         self.camera.reset(self.world.poses, rng)
         self.observations.reset()
         self._gather_beliefs()
-        self._half_logdet = _half_logdet_xy(self._est_cov)
+        self.reward_terms.reset(RewardInputs.at_start(self._est_cov, self._active, self))
         self.mapper.reset(self.world.poses, self._est_mean, self._est_cov)
         self.agents = list(self.possible_agents)
         zeros = np.zeros(self.config.n_robots)
@@ -401,19 +398,9 @@ class CoopLocParallelEnv(ParallelEnv):
             for backend in self.backends:
                 feats = backend.features()
                 belief[backend.robots, : feats.shape[1]] = feats
-        patch = None
-        if self.config.map_patch_obs:
-            patch = self.mapper.patches(self._est_mean, self.config.map_patch_obs)
-        team = None
-        if self.config.teammate_obs:
-            team = teammate_features(self._est_mean, self._est_cov, self.sensors.has_gps,
-                                     self._active, self.config.detector_range)
-        obs = self.observations.build_all(belief, self._last_action, self.world.poses, patch,
-                                          team)
-        if self._dict_obs is not None:
-            from coop_loc_env.belief_map import TeamBeliefs
-
-            obs = self._dict_obs.observe_all(TeamBeliefs.from_env(self, self._active), obs)
+        obs = self.observations.observe_all(ObsInputs(
+            belief, self._last_action, self.world.poses, self._est_mean, self._est_cov,
+            self._active, self))
         if len(agents) == len(obs):  # every agent (a live list keeps their order): row views
             return dict(zip(agents, obs, strict=True))
         return {a: obs[self.agent_name_mapping[a]] for a in agents}
@@ -438,7 +425,7 @@ class CoopLocParallelEnv(ParallelEnv):
         coverage = self.mapper.coverage()
         map_rmse = self.mapper.map_rmse()
         terms = self._reward_terms(err_xy, err_th, in_contact, tipped, cov)
-        totals = _sum_terms(terms)
+        totals = sum_terms(terms)
         terms_dict = cfg.reward_terms_dict
         keep = cfg.info_keys
         n = cfg.n_robots
@@ -497,40 +484,18 @@ class CoopLocParallelEnv(ParallelEnv):
         tipped: np.ndarray,
         cov: np.ndarray,
     ) -> dict[str, list[float]]:
-        """Every robot's reward terms, each already weighted by the config's weight.
+        """Every robot's reward terms (:mod:`coop_loc_env.rewards`), each weighted.
 
         Returns ``{term name: one Python float per robot}``, in the order the
-        reward sums them (:func:`_sum_terms`); infos report them as
-        ``reward_<term>`` and ``reward_terms``. A new term is one more entry here
-        (with its weight in :class:`~coop_loc_env.config.ScenarioConfig`).
-        Advances the uncertainty shaping's reference (call once per step).
+        reward sums them; infos report them as ``reward_<term>`` and
+        ``reward_terms``. Runs the terms' compute phase, then their advance phase
+        (call once per step).
         """
-        cfg = self.config
-        n = cfg.n_robots
-        w_loc, w_head = cfg.reward_localization_weight, cfg.reward_heading_weight
-        w_cov = cfg.reward_coverage_weight
-        # Shaping on belief uncertainty: minus the change of 0.5 log det P_xy since last step.
-        # (Terms whose weight is 0 are 0.0 without computing them: the reward is the same.)
-        if cfg.reward_uncertainty_weight:
-            half_logdet = _half_logdet_xy(cov)
-            shaping = (-cfg.reward_uncertainty_weight * (half_logdet - self._half_logdet)).tolist()
-            self._half_logdet = half_logdet
-        else:
-            shaping = [0.0] * n
-        team_term = -cfg.reward_team_weight * float(err_xy[self._active].mean()) if (
-            cfg.reward_team_weight and self._active.any()) else 0.0
-        pen_hit, pen_tip = -cfg.collision_penalty, -cfg.tip_over_penalty
-        touching = [False] * n if in_contact is None else in_contact.tolist()
-        # Python floats (the same IEEE arithmetic as numpy, per robot).
-        return {
-            "localization": [-w_loc * exy - w_head * eth
-                             for exy, eth in zip(err_xy.tolist(), err_th.tolist(), strict=True)],
-            "coverage": [w_cov * float(c) for c in self._covered_cells.tolist()],
-            "collision": [pen_hit * float(t) for t in touching],
-            "tip_over": [pen_tip * t for t in tipped.tolist()],
-            "team_localization": [team_term] * n,
-            "uncertainty": shaping,
-        }
+        x = RewardInputs(err_xy, err_th, in_contact, tipped, cov, self._covered_cells,
+                         self._active, self)
+        terms = self.reward_terms.compute(x)
+        self.reward_terms.advance(x)
+        return terms
 
     def _extra_infos(self) -> dict[int, dict]:
         """The estimators' extra info entries per robot, every robot with the same keys.
@@ -592,15 +557,6 @@ class CoopLocParallelEnv(ParallelEnv):
         return state
 
 
-def _sum_terms(terms: dict[str, list[float]]) -> list[float]:
-    """Each robot's reward: its terms added left to right from 0.0 (not ``sum()``, whose
-    compensated float summation could differ in the last bit)."""
-    totals = [0.0] * len(next(iter(terms.values())))
-    for values in terms.values():
-        totals = [total + v for total, v in zip(totals, values, strict=True)]
-    return totals
-
-
 def _keep_keys(info: dict[str, Any], keep: tuple[str, ...]) -> dict[str, Any]:
     """The entries of ``info`` named in ``keep`` (the config's ``info_keys``), in that order."""
     try:
@@ -617,8 +573,3 @@ def _flat_reward_key(name: str) -> str:
     """The info key of a reward term in the flat form (``reward_<term>``)."""
     return f"reward_{name}"
 
-
-def _half_logdet_xy(cov: np.ndarray) -> np.ndarray:
-    """``0.5 log det`` of each ``(3, 3)`` covariance's position block, ``(n,)``."""
-    det = cov[:, 0, 0] * cov[:, 1, 1] - cov[:, 0, 1] * cov[:, 1, 0]
-    return 0.5 * np.log(np.maximum(det, 1e-300))

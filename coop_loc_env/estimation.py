@@ -11,12 +11,15 @@ the initial belief is drawn around them (``init_pos_std``,
 from __future__ import annotations
 
 import functools
-import importlib
-from typing import Any
 
 import numpy as np
 
 from coop_loc_env._step_kernels import gaussian_rows, odometry_variance_into
+from coop_loc_env.backends import (  # the registry, re-exported where backends are built
+    BACKENDS,  # noqa: F401
+    backend_class,
+    register_backend,  # noqa: F401
+)
 from coop_loc_env.config import ScenarioConfig
 from coop_loc_env.sensors import Readings
 from coop_loc_env.world import World
@@ -31,7 +34,8 @@ class EstimatorBackend:
     :meth:`mean`, :meth:`cov` and :meth:`features` and set :attr:`feature_size`;
     :attr:`feature_names` and :meth:`extra_info` have no-op defaults. Make one
     available as ``ScenarioConfig.estimator`` / ``RobotSpec.estimator`` with
-    :func:`register_backend`.
+    :func:`~coop_loc_env.backends.register_backend`; the ``extras`` keys it reads
+    are its class attribute ``options`` (:class:`~coop_loc_env.extras.BackendOptions`).
     """
 
     robots: np.ndarray  # global indices of the robots this backend estimates
@@ -323,43 +327,6 @@ class EKFBackend(EstimatorBackend):
         return gaussian_features(self.ekf.mean, self.ekf.cov, self.cfg.world_size)
 
 
-#: Estimator name -> backend class, or ``"module:Class"`` imported on first use (the
-#: built-in MCL and pose-graph MLE backends import this module, so they are listed by
-#: path; a backend defined elsewhere registers its class with :func:`register_backend`).
-BACKENDS: dict[str, type | str] = {}
-
-
-def register_backend(name: str, cls: type | str | None = None) -> Any:
-    """Make a backend class available as estimator ``name``.
-
-    ``cls`` is an :class:`EstimatorBackend` subclass or a ``"module:Class"`` path
-    imported when a team first uses ``name``. Without ``cls``, a class decorator::
-
-        @register_backend("ukf")
-        class UKFBackend(EstimatorBackend): ...
-    """
-    if cls is None:
-        def decorator(klass: type) -> type:
-            BACKENDS[name] = klass
-            return klass
-        return decorator
-    BACKENDS[name] = cls
-    return cls
-
-
-def backend_class(name: str) -> type:
-    """The backend class registered as ``name`` (``ValueError`` if there is none)."""
-    if name not in BACKENDS:
-        raise ValueError(
-            f"estimator {name!r} is not available; available: {', '.join(sorted(BACKENDS))}"
-        )
-    cls = BACKENDS[name]
-    if isinstance(cls, str):
-        module, _, attr = cls.partition(":")
-        cls = BACKENDS[name] = getattr(importlib.import_module(module), attr)
-    return cls
-
-
 def make_backends(cfg: ScenarioConfig, world: World) -> list[EstimatorBackend]:
     """One backend per estimator type used by the team.
 
@@ -372,7 +339,3 @@ def make_backends(cfg: ScenarioConfig, world: World) -> list[EstimatorBackend]:
     return [backend_class(name)(cfg, np.array(robots), world)
             for name, robots in by_type.items()]
 
-
-register_backend("ekf", EKFBackend)
-register_backend("mcl", "coop_loc_env.mcl_backend:MCLBackend")
-register_backend("mle", "coop_loc_env.mle_backend:MLEBackend")

@@ -75,7 +75,7 @@ import numpy as np
 
 from coop_loc_env.config import ScenarioConfig
 from coop_loc_env.estimation import EstimatorBackend, noisy_start
-from coop_loc_env.extras import check_extra
+from coop_loc_env.mcl_options import check_extra
 from coop_loc_env.sensors import Readings, beam_angles
 from coop_loc_env.world import World
 from estimators.beam_table import BeamLUT, RangeTable

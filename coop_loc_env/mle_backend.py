@@ -60,7 +60,7 @@ from coop_loc_env.estimation import (
     noisy_start,
     team_odometry,
 )
-from coop_loc_env.extras import check_extra
+from coop_loc_env.mle_options import check_extra
 from coop_loc_env.sensors import Readings
 from coop_loc_env.world import World
 from estimators.mle_online import UNKNOWN_POSE_STD, TeamMLE

@@ -1,8 +1,10 @@
 """Named scenarios: registry, lookup and keyword overrides.
 
 A scenario is a function returning a :class:`~coop_loc_env.config.ScenarioConfig`
-from a dict of overrides. :func:`make_config` looks one up by name and applies
-the overrides (unknown keys and invalid values raise ``ValueError``).
+from a dict of overrides, or a :class:`Scenario` that carries behaviour beside its
+config (the observation blocks and reward terms it adds, a hook run at every
+reset). :func:`make_config` looks one up by name and applies the overrides
+(unknown keys and invalid values raise ``ValueError``).
 
 Adding a scenario: every scenario registers through :func:`register_scenario`
 (``scenario_from_base(base)`` turns a function returning a base config into a
@@ -12,13 +14,27 @@ defined; code outside the package calls ``register_scenario`` itself, after
 ``import coop_loc_env``::
 
     register_scenario("my_field", scenario_from_base(my_field_config))
+
+A scenario with hooks::
+
+    class Beacons(Scenario):  # its docstring's first line describes it
+        obs_blocks = ("beacon_ranges",)  # registered with register_obs_block
+        def base_config(self):
+            return ScenarioConfig(name="beacons", n_robots=4)
+        def reset_world(self, env, rng):
+            env.mark_object("robot_0", 10.0, 10.0)
+
+    register_scenario("beacons", Beacons())
 """
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 from collections.abc import Callable
 from typing import Any
+
+import numpy as np
 
 from coop_loc_env.config import ScenarioConfig
 
@@ -27,11 +43,71 @@ _REGISTRY: dict[str, ScenarioFactory] = {}
 _TRAINING_DEFAULTS: dict[str, dict[str, Any]] = {}
 
 
-def register_scenario(name: str, factory: ScenarioFactory) -> None:
-    """Register ``factory`` under ``name``; it receives the user's overrides."""
+class Scenario:
+    """A scenario with hooks (VMAS-style); every hook but :meth:`base_config` is optional.
+
+    An instance is a scenario factory (called with the overrides), so
+    :func:`register_scenario` takes it like a function; its docstring's first line
+    describes it (:func:`describe_scenario`).
+    """
+
+    #: Registered observation blocks / reward terms this scenario adds to its config
+    #: (``extra_obs_blocks`` / ``extra_reward_terms``, before those of the overrides).
+    obs_blocks: tuple[str, ...] = ()
+    reward_terms: tuple[str, ...] = ()
+
+    def base_config(self) -> ScenarioConfig:
+        """The scenario's config before the overrides."""
+        raise NotImplementedError
+
+    def make_config(self, overrides: dict[str, Any]) -> ScenarioConfig:
+        """:meth:`base_config` with the scenario's blocks and terms, then ``overrides``."""
+        base = self.base_config()
+        base = dataclasses.replace(
+            base,
+            extra_obs_blocks=(*self.obs_blocks, *base.extra_obs_blocks),
+            extra_reward_terms=(*self.reward_terms, *base.extra_reward_terms),
+        )
+        return base.replace(**overrides)
+
+    def __call__(self, overrides: dict[str, Any]) -> ScenarioConfig:
+        return self.make_config(overrides)
+
+    def reset_world(self, env: Any, rng: np.random.Generator) -> None:
+        """Run by ``env.reset`` once the world is placed, before the estimators start."""
+
+
+#: The hooks of a scenario registered as a plain function: none.
+NO_HOOKS = Scenario()
+
+
+def register_scenario(name: str, factory: ScenarioFactory | Scenario | type[Scenario]) -> None:
+    """Register ``factory`` under ``name``; it receives the user's overrides.
+
+    ``factory`` is a function, a :class:`Scenario` or a :class:`Scenario` subclass
+    (instantiated here).
+    """
     if name in _REGISTRY:
         raise ValueError(f"scenario {name!r} is already registered")
+    if isinstance(factory, type) and issubclass(factory, Scenario):
+        factory = factory()
+    if not callable(factory):
+        raise ValueError(f"scenario {name!r} must be a function or a Scenario, got {factory!r}")
     _REGISTRY[name] = factory
+
+
+def unregister_scenario(name: str) -> None:
+    """Remove the scenario registered as ``name`` (``ValueError`` if there is none)."""
+    if name not in _REGISTRY:
+        raise ValueError(f"unknown scenario {name!r}; known scenarios: {list_scenarios()}")
+    del _REGISTRY[name]
+    _TRAINING_DEFAULTS.pop(name, None)
+
+
+def scenario_hooks(scenario: str) -> Scenario:
+    """The :class:`Scenario` registered as ``scenario`` (:data:`NO_HOOKS` for a function)."""
+    factory = _REGISTRY.get(scenario)
+    return factory if isinstance(factory, Scenario) else NO_HOOKS
 
 
 def scenario_from_base(base: Callable[[], ScenarioConfig]) -> ScenarioFactory:

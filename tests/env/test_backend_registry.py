@@ -29,14 +29,15 @@ def test_base_class_defaults_are_no_ops():
 
 
 def test_a_registered_backend_is_built_and_its_extra_info_reaches_the_infos(monkeypatch):
-    monkeypatch.setitem(estimation.BACKENDS, "ekf", estimation.BACKENDS["ekf"])
+    # A new name (removed again afterwards): the config accepts every registered estimator.
+    monkeypatch.setitem(estimation.BACKENDS, "tagged_ekf", EKFBackend)
 
-    @register_backend("ekf")
+    @register_backend("tagged_ekf")
     class TaggedEKF(EKFBackend):
         def extra_info(self, true_poses):
             return {0: {"tag": 1.0}}
 
-    env = coop_loc_env.parallel_env(max_cycles=2)
+    env = coop_loc_env.parallel_env(max_cycles=2, estimator="tagged_ekf")
     _, infos = env.reset(seed=0)
     assert isinstance(env.backends[0], TaggedEKF)
     assert infos["robot_0"]["tag"] == 1.0

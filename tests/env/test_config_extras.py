@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 
 import coop_loc_env
+from coop_loc_env.backends import extras_schema
 from coop_loc_env.config import ScenarioConfig
-from coop_loc_env.extras import EXTRAS_SCHEMA
 from coop_loc_env.profiles import PAPER_OVERRIDES, with_profile
 
 
@@ -36,6 +36,7 @@ def test_out_of_range_extras_value_is_rejected_by_name(extras, match):
 
 
 def test_every_shipped_scenario_and_profile_uses_declared_extras_only():
+    EXTRAS_SCHEMA = extras_schema()  # every registered backend's declared keys
     for name in coop_loc_env.list_scenarios():
         cfg = coop_loc_env.make_config(name)
         assert set(cfg.extras) <= set(EXTRAS_SCHEMA)
