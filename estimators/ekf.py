@@ -200,11 +200,15 @@ class PoseEKF:
         """
         v = np.asarray(v, dtype=float)
         w = np.asarray(w, dtype=float)
-        self._predict_sequence(v, w, dt, _variances(var_v, var_w, v.shape))
+        self.predict_sequence_stacked(v, w, dt, _variances(var_v, var_w, v.shape))
 
-    def _predict_sequence(self, v: np.ndarray, w: np.ndarray, dt: float, q: np.ndarray) -> None:
-        """:meth:`predict_sequence` (its one implementation) of float ``v``, ``w`` ``(T, n)``
-        with the variances stacked in ``q`` ``(2, T, n)``: ``var_v`` then ``var_w``."""
+    def predict_sequence_stacked(
+        self, v: np.ndarray, w: np.ndarray, dt: float, q: np.ndarray
+    ) -> None:
+        """:meth:`predict_sequence` (its one implementation) for callers that hold the
+        variances stacked: float ``v``, ``w`` ``(T, n)`` and ``q`` ``(2, T, n)``, ``var_v``
+        then ``var_w`` (read only). Equals ``T`` sequential :meth:`predict` calls of all
+        robots up to rounding; the env's odometry step calls it once per step."""
         self._ticks += 1
         _propagate(self.mean, self.cov, v, w, dt, q)
 

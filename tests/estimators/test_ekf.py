@@ -165,6 +165,28 @@ def test_predict_sequence_equals_sequential_predictions():
     np.testing.assert_allclose(one.cov, many.cov, atol=1e-12)
 
 
+def test_predict_sequence_stacked_equals_sequential_predictions():
+    """The env's entry point (variances stacked in one (2, T, n) array) is the public
+    predict_sequence, and both equal T single predict() steps."""
+    rng = np.random.default_rng(6)
+    a = rng.normal(size=(4, 3, 3))
+    cov = a @ np.swapaxes(a, 1, 2) + np.eye(3)
+    mean = rng.normal(size=(4, 3))
+    one, seq, stacked = PoseEKF(mean, cov), PoseEKF(mean, cov), PoseEKF(mean, cov)
+    v, w = rng.normal(size=(6, 4)), rng.normal(size=(6, 4))
+    q = rng.random((2, 6, 4))
+    q_before = q.copy()
+    for k in range(6):
+        one.predict(v[k], w[k], 0.04, q[0, k], q[1, k])
+    seq.predict_sequence(v, w, 0.04, q[0], q[1])
+    stacked.predict_sequence_stacked(v, w, 0.04, q)
+    assert np.array_equal(q, q_before)  # read only
+    np.testing.assert_array_equal(stacked.mean, seq.mean)
+    np.testing.assert_array_equal(stacked.cov, seq.cov)
+    np.testing.assert_allclose(one.mean, stacked.mean, atol=1e-12)
+    np.testing.assert_allclose(one.cov, stacked.cov, atol=1e-12)
+
+
 def test_bad_inputs_raise():
     with pytest.raises(ValueError, match="NaN"):
         PoseEKF(np.array([[0.0, np.nan, 0.0]]), np.eye(3))
