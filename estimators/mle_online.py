@@ -51,14 +51,26 @@ from estimators.pose_graph import (
     DEFAULT_MIN_RANGE,
     PoseGraph,
     SolveResult,
+    TeamStream,
     check_observation,
     compose,
     marginal_covariances,
     marginalize,
     optimize,
+    simulate_team_stream,
     sqrt_information,
 )
 from estimators.relative_metrics import relative_pose_matrix
+
+__all__ = [
+    "UNKNOWN_POSE_STD",
+    "OdometryIntegrator",
+    "TeamMLE",
+    "TeamStream",
+    "feed_stream",
+    "integrate_odometry",
+    "simulate_team_stream",
+]
 
 UNKNOWN_POSE_STD = (1e3, 1e3, np.pi)
 """Default prior std (m, m, rad) on the first pose of robots other than the anchor."""
@@ -592,77 +604,6 @@ class TeamMLE:
     def n_active_nodes(self) -> int:
         """Nodes currently in the optimization window."""
         return int(np.count_nonzero(self.graph.active))
-
-
-@dataclass
-class TeamStream:
-    """Synthetic sensor stream of a team (see :func:`simulate_team_stream`)."""
-
-    dt: float
-    truth: np.ndarray
-    """True poses ``(n_steps + 1, N, 3)``; ``truth[k]`` is after ``k`` steps."""
-    odometry: np.ndarray
-    """Noisy ``(v, w)`` readings ``(n_steps, N, 2)``; reading ``k`` moves ``truth[k] -> [k+1]``."""
-    observations: list[list[tuple[int, int, np.ndarray, np.ndarray]]]
-    """Per step ``k`` (taken at ``truth[k + 1]``): ``(observer, target, (r, b, o), std)``."""
-
-
-def simulate_team_stream(
-    n_robots: int,
-    n_steps: int,
-    rng: np.random.Generator,
-    *,
-    dt: float = 0.1,
-    room: float = 4.0,
-    speed: float = 0.5,
-    sensor_range: float = 6.0,
-    p_observe: float = 0.05,
-    odometry_std: tuple[float, float] = (0.05, 0.05),
-    range_frac: float = 0.05,
-    range_floor: float = 0.02,
-    angle_std: float = 0.03,
-) -> TeamStream:
-    """Robots start in a ``room`` and disperse; noisy odometry and robot observations.
-
-    Speeds are uniform in ``[0, speed]`` (some robots nearly still), turn rates a
-    random walk biased away from the room centre. Each step, every ordered pair
-    within ``sensor_range`` is observed with probability ``p_observe``; range noise
-    is ``max(range_frac * r, range_floor)``, bearing and orientation noise
-    ``angle_std`` (Howard et al.'s model).
-    """
-    if n_robots < 1 or n_steps < 1 or not dt > 0:
-        raise ValueError(f"need n_robots, n_steps >= 1 and dt > 0, got {n_robots, n_steps, dt}")
-    n = n_robots
-    side = int(np.ceil(np.sqrt(n)))
-    grid = np.stack(np.meshgrid(np.arange(side), np.arange(side)), -1).reshape(-1, 2)[:n]
-    truth = np.zeros((n_steps + 1, n, 3))
-    truth[0, :, :2] = (grid + 0.5) * room / side + rng.uniform(-0.1, 0.1, (n, 2)) * room / side
-    truth[0, :, 2] = rng.uniform(-np.pi, np.pi, n)
-    v = rng.uniform(0.0, speed, n)
-    v[rng.random(n) < 0.15] = 0.0
-    centre = np.full(2, room / 2.0)
-    odometry = np.zeros((n_steps, n, 2))
-    observations = []
-    sv, sw = odometry_std
-    for k in range(n_steps):
-        x = truth[k]
-        outward = np.arctan2(x[:, 1] - centre[1], x[:, 0] - centre[0])
-        w = 0.3 * np.sin(outward - x[:, 2]) + rng.normal(0.0, 0.3, n)
-        w[v == 0] = 0.0
-        c, s = np.cos(x[:, 2]), np.sin(x[:, 2])
-        truth[k + 1] = x + dt * np.stack([v * c, v * s, w], -1)
-        odometry[k] = np.stack([v + rng.normal(0, sv, n), w + rng.normal(0, sw, n)], -1)
-        rel = relative_pose_matrix(truth[k + 1])
-        seen = []
-        for a, b in zip(*np.nonzero(rel[..., 0] <= sensor_range), strict=True):
-            if a == b or rng.random() >= p_observe:
-                continue
-            std = np.array([max(range_frac * rel[a, b, 0], range_floor), angle_std, angle_std])
-            meas = rel[a, b] + rng.normal(0.0, std)
-            meas[0] = abs(meas[0])
-            seen.append((int(a), int(b), meas, std))
-        observations.append(seen)
-    return TeamStream(dt, truth, odometry, observations)
 
 
 def feed_stream(
