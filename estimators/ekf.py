@@ -1,5 +1,7 @@
 """Extended Kalman filter over the planar poses of a team of robots (Madhavan et al.).
 
+One file: prediction, gated updates and their lock-out recovery share PoseEKF's arrays.
+
 :class:`PoseEKF` keeps one independent ``(x, y, heading)`` state and 3x3
 covariance per robot and works on all robots at once with numpy batch
 operations, so a team of 50 robots costs about as much Python as a team of 1.
