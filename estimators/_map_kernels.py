@@ -1,7 +1,7 @@
 """Compiled loops (numba, cached on disk) of the terrain map's per-step update.
 
-Each replaces a chain of small numpy operations by one pass with the same IEEE
-operations in the same order (no fast-math, no fused multiply-adds), so the
+Each does in one pass what a chain of small numpy operations would, with the same
+IEEE operations in the same order (no fast-math, no fused multiply-adds), so the
 result is bit-identical to the numpy code of
 :meth:`estimators.terrain_map.TerrainMap.update_prepared` it serves; the trigonometry
 stays in numpy.

@@ -631,8 +631,8 @@ def _propagate(
     ``l0 = (c, s, 0)``, ``l1 = (a', b', 1)`` of the ``L_t``: one contraction over
     the ``2 T`` columns. After the headings (numpy's cumulative sum, cosine and
     sine), one compiled pass per robot does the rest
-    (:func:`estimators._ekf_kernels.propagate_rest`, bit-identical to the numpy
-    contraction it replaced).
+    (:func:`estimators._ekf_kernels.propagate_rest`, bit-identical to that numpy
+    contraction).
     """
     n_sub, k = v.shape
     # phi[t]: heading before substep t (t < T); phi[T]: heading after the last one.
