@@ -46,7 +46,7 @@ import numpy as np
 from estimators._ekf_kernels import propagate_rest
 from estimators.gating import GateMonitor, chi2_threshold, observed_inflation
 from estimators.geometry import wrap_angle, wrap_angle_in_place
-from estimators.relative_model import _best_ci_weight, _relative_measurement, _rounds
+from estimators.relative_model import best_ci_weight, disjoint_rounds, stacked_relative_measurement
 from estimators.relative_model import relative_measurement as relative_measurement
 
 __all__ = ["Belief", "GateMonitor", "PoseEKF", "chi2_threshold", "relative_measurement"]
@@ -415,7 +415,7 @@ class PoseEKF:
         self._relative_calls += 1
         priority = np.argsort(-self.cov[idx_b].trace(axis1=1, axis2=2), kind="stable")
         limit = max_rounds if max_rounds is None or max_rounds >= 0 else None
-        for rows in _rounds(idx_a[priority], idx_b[priority], self.n, limit)[:max_rounds]:
+        for rows in disjoint_rounds(idx_a[priority], idx_b[priority], self.n, limit)[:max_rounds]:
             rows = priority[rows]
             accepted[rows] = self._joint_update(
                 idx_a[rows], idx_b[rows], z[rows], r[rows], model, dims, gate_prob, fusion
@@ -430,7 +430,7 @@ class PoseEKF:
         iab = np.concatenate((ia, ib))
         xa, xb = self.mean[iab].reshape(2, k, 3)
         z_full, r_full = z, r
-        h, jac = _relative_measurement(xa, xb, model)  # jac (k, 3, 6): [H_a, H_b]
+        h, jac = stacked_relative_measurement(xa, xb, model)  # jac (k, 3, 6): [H_a, H_b]
         first_angle = 2 if model == "cartesian" else 1
         if tuple(dims) == (0, 1, 2):
             angles: list[int] | slice = slice(first_angle, None)
@@ -452,7 +452,7 @@ class PoseEKF:
         d2 = np.einsum("ki,kij,kj->k", nu, np.linalg.inv(s0), nu)
         ok = self._gate(d2, nu.shape[1], gate_prob)
         if fusion == "ci":
-            w = _best_ci_weight(pab, jac, r)[:, None, None]
+            w = best_ci_weight(pab, jac, r)[:, None, None]
             pa_w, pb_w = pa / w, pb / (1 - w)
         else:
             pa_w, pb_w = pa, pb

@@ -52,8 +52,13 @@ Use, once per mapping step, for all robots at once::
 
 :meth:`TerrainMap.update` costs a few tens of numpy operations whatever the
 number of robots (about 70 us for 5 robots on a slow 2-core box);
-:meth:`TerrainMap.filled` runs a triangulation and is meant for evaluation
-and rendering, not for every step.
+:meth:`TerrainMap.update_prepared` is the same update for a caller that prepares
+its arrays itself (the env, every step). :meth:`TerrainMap.filled` runs a
+triangulation and is meant for evaluation and rendering, not for every step.
+
+The grid geometry, the stored layers and every view of them (masks, metrics,
+patches) come from the base class :class:`~estimators.terrain_grid.TerrainGrid`;
+this module holds what writes the layers.
 """
 
 from __future__ import annotations

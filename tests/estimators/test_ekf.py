@@ -303,16 +303,16 @@ def _reference_ci_weight(pa, pb, jac, r):
 @pytest.mark.parametrize("dims", [(0, 1, 2), (0, 1)])
 @pytest.mark.parametrize("k", [2, 40])  # LAPACK inverses, cofactors (from 4 pairs on)
 def test_ci_weight_matches_the_direct_grid_search(model, dims, k):
-    from estimators.relative_model import _best_ci_weight, _relative_measurement
+    from estimators.relative_model import best_ci_weight, stacked_relative_measurement
 
     rng = np.random.default_rng(11)
     a = rng.standard_normal((2, k, 3, 3)) * rng.uniform(0.05, 3.0, (2, k, 1, 1))
     pab = a @ a.transpose(0, 1, 3, 2) + 1e-3 * np.eye(3)
     xa, xb = rng.standard_normal((2, k, 3)) * [4.0, 4.0, 3.0]
-    _, jac = _relative_measurement(xa, xb, model)
+    _, jac = stacked_relative_measurement(xa, xb, model)
     r = np.repeat(np.diag([0.05, 0.01, 0.02])[None], k, axis=0)
     jac, r = jac[:, list(dims)], r[:, list(dims)][:, :, list(dims)]
-    got = _best_ci_weight(pab, jac, r)
+    got = best_ci_weight(pab, jac, r)
     np.testing.assert_array_equal(got, _reference_ci_weight(pab[0], pab[1], jac, r))
 
 
@@ -349,18 +349,18 @@ def test_relative_measurement_matches_its_formulas():
 
 
 def test_rounds_limit_keeps_the_first_rounds():
-    from estimators.relative_model import _rounds
+    from estimators.relative_model import disjoint_rounds
 
     rng = np.random.default_rng(2)
     a = rng.integers(0, 12, 80)
     b = (a + rng.integers(1, 12, 80)) % 12
-    every = _rounds(a, b, 12)
+    every = disjoint_rounds(a, b, 12)
     assert sum(len(x) for x in every) == 80
     for rows in every:
         robots = np.concatenate([a[rows], b[rows]])
         assert len(np.unique(robots)) == len(robots)
     for limit in (0, 1, 3):
-        got = _rounds(a, b, 12, limit)
+        got = disjoint_rounds(a, b, 12, limit)
         assert len(got) == min(limit, len(every))
         for x, y in zip(got, every, strict=False):
             np.testing.assert_array_equal(x, y)
