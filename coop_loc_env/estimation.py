@@ -264,7 +264,7 @@ class EKFBackend(EstimatorBackend):
         # Encoder noise plus the wheel slip the robot's maker specifies, inflated by
         # ``ekf_process_noise_scale`` to cover what the model leaves out; (V, w) together.
         var = _odometry_variance(odo, cfg.slip_std, self._encoder_var, cfg.ekf_process_noise_scale)
-        ekf._predict_sequence(odo[..., 0], odo[..., 1], dt_sub, var)
+        ekf.predict_sequence_stacked(odo[..., 0], odo[..., 1], dt_sub, var)
         if hit is not None:
             q = np.zeros((len(hit), 3, 3))
             q[:, 0, 0] = q[:, 1, 1] = contact_variance(distance, self._contact_steps[hit])

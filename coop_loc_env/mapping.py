@@ -94,7 +94,7 @@ class TeamMapper:
         self._gps_offset = self.map.datum - float(cfg.gps_base_altitude)
         self.last_new_cells = np.zeros(n, dtype=np.int64)
         self._truly_covered = np.zeros(self._drivable_flat.size, dtype=bool)
-        self._footprint_cells = np.rint(self.map._footprint / cfg.map_resolution).astype(np.intp)
+        self._footprint_cells = np.rint(self.map.footprint / cfg.map_resolution).astype(np.intp)
         self.last_covered_cells = np.zeros(n, dtype=np.int64)
 
     @property
@@ -187,7 +187,7 @@ class TeamMapper:
             est_mean, pos_var = est_mean[ids], pos_var[ids]
         distance *= self._dt_sub
         # The env built these arrays itself (float, right shapes): skip update's checks.
-        cells = self.map._update(ids, est_mean, pos_var, pitch, alt, nos, distance)
+        cells = self.map.update_prepared(ids, est_mean, pos_var, pitch, alt, nos, distance)
         if whole:
             new = cells
         else:

@@ -1,6 +1,6 @@
 """Compiled loop (numba, cached on disk) of the EKF's multi-step prediction.
 
-It replaces a chain of small numpy operations by one pass with the same IEEE
+One pass does what a chain of small numpy operations would, with the same IEEE
 operations in the same order (no fast-math, no fused multiply-adds), so the
 result is bit-identical to the numpy formulation of :func:`estimators.ekf._propagate`
 that it serves; the trigonometry stays in numpy.

@@ -1,9 +1,9 @@
 """Compiled loops (numba, cached on disk) of the terrain map's per-step update.
 
-Each replaces a chain of small numpy operations by one pass with the same IEEE
-operations in the same order (no fast-math, no fused multiply-adds), so the
+Each does in one pass what a chain of small numpy operations would, with the same
+IEEE operations in the same order (no fast-math, no fused multiply-adds), so the
 result is bit-identical to the numpy code of
-:meth:`estimators.terrain_map.TerrainMap._update` it serves; the trigonometry
+:meth:`estimators.terrain_map.TerrainMap.update_prepared` it serves; the trigonometry
 stays in numpy.
 """
 
@@ -78,8 +78,8 @@ def fuse_without_fix(
     min_var: float, poses: np.ndarray, elev: np.ndarray, var: np.ndarray, var_s: np.ndarray,
 ) -> bool:  # pragma: no cover (compiled)
     """The inclinometer-only elevation fusion and the sample variances, when no robot has
-    a fix (as :func:`estimators.terrain_fusion._fuse_elevation` and
-    :meth:`estimators.terrain_map.TerrainMap._update` compute them).
+    a fix (as :func:`estimators.terrain_fusion.fuse_elevation_tangents` and
+    :meth:`estimators.terrain_map.TerrainMap.update_prepared` compute them).
 
     Writes ``elev``, ``var`` (the fused elevation and its variance) and ``var_s`` (the
     sample variance, floored at ``min_var``); returns whether every value and pose is

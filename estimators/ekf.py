@@ -1,5 +1,7 @@
 """Extended Kalman filter over the planar poses of a team of robots (Madhavan et al.).
 
+One file: prediction, gated updates and their lock-out recovery share PoseEKF's arrays.
+
 :class:`PoseEKF` keeps one independent ``(x, y, heading)`` state and 3x3
 covariance per robot and works on all robots at once with numpy batch
 operations, so a team of 50 robots costs about as much Python as a team of 1.
@@ -44,7 +46,7 @@ import numpy as np
 from estimators._ekf_kernels import propagate_rest
 from estimators.gating import GateMonitor, chi2_threshold, observed_inflation
 from estimators.geometry import wrap_angle, wrap_angle_in_place
-from estimators.relative_model import _best_ci_weight, _relative_measurement, _rounds
+from estimators.relative_model import best_ci_weight, disjoint_rounds, stacked_relative_measurement
 from estimators.relative_model import relative_measurement as relative_measurement
 
 __all__ = ["Belief", "GateMonitor", "PoseEKF", "chi2_threshold", "relative_measurement"]
@@ -200,11 +202,15 @@ class PoseEKF:
         """
         v = np.asarray(v, dtype=float)
         w = np.asarray(w, dtype=float)
-        self._predict_sequence(v, w, dt, _variances(var_v, var_w, v.shape))
+        self.predict_sequence_stacked(v, w, dt, _variances(var_v, var_w, v.shape))
 
-    def _predict_sequence(self, v: np.ndarray, w: np.ndarray, dt: float, q: np.ndarray) -> None:
-        """:meth:`predict_sequence` (its one implementation) of float ``v``, ``w`` ``(T, n)``
-        with the variances stacked in ``q`` ``(2, T, n)``: ``var_v`` then ``var_w``."""
+    def predict_sequence_stacked(
+        self, v: np.ndarray, w: np.ndarray, dt: float, q: np.ndarray
+    ) -> None:
+        """:meth:`predict_sequence` (its one implementation) for callers that hold the
+        variances stacked: float ``v``, ``w`` ``(T, n)`` and ``q`` ``(2, T, n)``, ``var_v``
+        then ``var_w`` (read only). Equals ``T`` sequential :meth:`predict` calls of all
+        robots up to rounding; the env's odometry step calls it once per step."""
         self._ticks += 1
         _propagate(self.mean, self.cov, v, w, dt, q)
 
@@ -409,7 +415,7 @@ class PoseEKF:
         self._relative_calls += 1
         priority = np.argsort(-self.cov[idx_b].trace(axis1=1, axis2=2), kind="stable")
         limit = max_rounds if max_rounds is None or max_rounds >= 0 else None
-        for rows in _rounds(idx_a[priority], idx_b[priority], self.n, limit)[:max_rounds]:
+        for rows in disjoint_rounds(idx_a[priority], idx_b[priority], self.n, limit)[:max_rounds]:
             rows = priority[rows]
             accepted[rows] = self._joint_update(
                 idx_a[rows], idx_b[rows], z[rows], r[rows], model, dims, gate_prob, fusion
@@ -424,7 +430,7 @@ class PoseEKF:
         iab = np.concatenate((ia, ib))
         xa, xb = self.mean[iab].reshape(2, k, 3)
         z_full, r_full = z, r
-        h, jac = _relative_measurement(xa, xb, model)  # jac (k, 3, 6): [H_a, H_b]
+        h, jac = stacked_relative_measurement(xa, xb, model)  # jac (k, 3, 6): [H_a, H_b]
         first_angle = 2 if model == "cartesian" else 1
         if tuple(dims) == (0, 1, 2):
             angles: list[int] | slice = slice(first_angle, None)
@@ -446,7 +452,7 @@ class PoseEKF:
         d2 = np.einsum("ki,kij,kj->k", nu, np.linalg.inv(s0), nu)
         ok = self._gate(d2, nu.shape[1], gate_prob)
         if fusion == "ci":
-            w = _best_ci_weight(pab, jac, r)[:, None, None]
+            w = best_ci_weight(pab, jac, r)[:, None, None]
             pa_w, pb_w = pa / w, pb / (1 - w)
         else:
             pa_w, pb_w = pa, pb
@@ -625,8 +631,8 @@ def _propagate(
     ``l0 = (c, s, 0)``, ``l1 = (a', b', 1)`` of the ``L_t``: one contraction over
     the ``2 T`` columns. After the headings (numpy's cumulative sum, cosine and
     sine), one compiled pass per robot does the rest
-    (:func:`estimators._ekf_kernels.propagate_rest`, bit-identical to the numpy
-    contraction it replaced).
+    (:func:`estimators._ekf_kernels.propagate_rest`, bit-identical to that numpy
+    contraction).
     """
     n_sub, k = v.shape
     # phi[t]: heading before substep t (t < T); phi[T]: heading after the last one.

@@ -1,5 +1,7 @@
 """Online maximum-likelihood team localization over a sliding-window pose graph.
 
+One file: keyframing, gating, solving and marginalizing all work on TeamMLE's per-robot state.
+
 :class:`TeamMLE` turns a stream of per-robot odometry ``(v, w, dt)`` and robot
 observations (range, bearing, orientation of one robot seen by another, any
 subset of the three) into the pose graph of :mod:`estimators.pose_graph`:
@@ -40,79 +42,44 @@ what the data determine.
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass
 
 import numpy as np
 from scipy.stats import chi2
 
 from estimators.geometry import relative_pose, wrap_angle
+from estimators.odometry_integration import (
+    OdometryIntegrator,
+    integrate_odometry,
+    pose_jacobians,
+)
 from estimators.pose_graph import (
     COMPONENTS,
     DEFAULT_MIN_RANGE,
     PoseGraph,
     SolveResult,
+    TeamStream,
     check_observation,
     compose,
     marginal_covariances,
     marginalize,
     optimize,
+    simulate_team_stream,
     sqrt_information,
 )
 from estimators.relative_metrics import relative_pose_matrix
 
+__all__ = [
+    "UNKNOWN_POSE_STD",
+    "OdometryIntegrator",
+    "TeamMLE",
+    "TeamStream",
+    "feed_stream",
+    "integrate_odometry",
+    "simulate_team_stream",
+]
+
 UNKNOWN_POSE_STD = (1e3, 1e3, np.pi)
 """Default prior std (m, m, rad) on the first pose of robots other than the anchor."""
-
-
-def _pose_jacobians(pose: np.ndarray, delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Jacobians of ``compose(pose, delta)`` w.r.t. ``pose`` and ``delta`` (3x3 each)."""
-    c, s = np.cos(pose[2]), np.sin(pose[2])
-    j_pose = np.eye(3)
-    j_pose[0, 2] = -s * delta[0] - c * delta[1]
-    j_pose[1, 2] = c * delta[0] - s * delta[1]
-    j_delta = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    return j_pose, j_delta
-
-
-@dataclass
-class OdometryIntegrator:
-    """Relative motion since a reference pose, integrated from ``(v, w, dt)`` with covariance.
-
-    ``delta`` is the pose relative to the start (in the start's frame) and ``cov``
-    its covariance, propagated with ``P <- F P F^T + G Q G^T`` (Q = diag of the
-    speed and turn-rate variances), as in an EKF prediction.
-    """
-
-    delta: np.ndarray
-    cov: np.ndarray
-    duration: float = 0.0
-
-    @classmethod
-    def zero(cls) -> OdometryIntegrator:
-        """An integrator at the start (no motion, zero covariance)."""
-        return cls(np.zeros(3), np.zeros((3, 3)), 0.0)
-
-    def add(self, v: float, w: float, dt: float, std_v: float, std_w: float) -> None:
-        """Integrate one odometry reading (forward speed ``v``, turn rate ``w``) over ``dt``."""
-        th = self.delta[2]
-        c, s = np.cos(th), np.sin(th)
-        f = np.array([[1.0, 0.0, -dt * v * s], [0.0, 1.0, dt * v * c], [0.0, 0.0, 1.0]])
-        g = dt * np.array([[c, 0.0], [s, 0.0], [0.0, 1.0]])
-        q = np.diag([std_v**2, std_w**2])
-        self.cov = f @ self.cov @ f.T + g @ q @ g.T
-        self.delta = self.delta + dt * np.array([v * c, v * s, w])
-        self.duration += dt
-
-
-def integrate_odometry(
-    v: np.ndarray, w: np.ndarray, dt: np.ndarray, std_v: float, std_w: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Integrate a sequence of odometry readings; returns ``(delta (3,), cov (3, 3))``."""
-    v, w, dt = np.broadcast_arrays(*(np.asarray(a, dtype=float).ravel() for a in (v, w, dt)))
-    acc = OdometryIntegrator.zero()
-    for vi, wi, di in zip(v, w, dt, strict=True):
-        acc.add(vi, wi, di, std_v, std_w)
-    return acc.delta.copy(), acc.cov.copy()
 
 
 class TeamMLE:
@@ -193,31 +160,12 @@ class TeamMLE:
         inflate_offsets: bool = True,
         gate_prob: float | None = None,
     ) -> None:
-        if int(n_robots) < 1:
-            raise ValueError(f"n_robots must be >= 1, got {n_robots!r}")
+        _check_options(n_robots, anchor, motion_window, window, max_iterations,
+                       observation_interval, min_range, keyframe_interval, tolerance,
+                       solve_interval, gate_prob)
         self.n_robots = n = int(n_robots)
-        if anchor is not None and not 0 <= int(anchor) < n:
-            raise ValueError(f"anchor must be a robot index in [0, {n}), got {anchor!r}")
-        if not motion_window > 0:
-            raise ValueError(f"motion_window must be > 0, got {motion_window!r}")
-        if window is not None and int(window) < 1:
-            raise ValueError(f"window must be >= 1 or None, got {window!r}")
-        if int(max_iterations) < 1:
-            raise ValueError(f"max_iterations must be >= 1, got {max_iterations!r}")
-        if not observation_interval >= 0:
-            raise ValueError(f"observation_interval must be >= 0, got {observation_interval!r}")
-        if not min_range >= 0:
-            raise ValueError(f"min_range must be >= 0, got {min_range!r}")
-        if keyframe_interval is not None and not keyframe_interval >= 0:
-            raise ValueError(f"keyframe_interval must be >= 0 or None, got {keyframe_interval!r}")
-        if not tolerance > 0:
-            raise ValueError(f"tolerance must be > 0, got {tolerance!r}")
-        if not solve_interval >= 0:
-            raise ValueError(f"solve_interval must be >= 0, got {solve_interval!r}")
         self.solve_interval = float(solve_interval)
         self.keyframe_interval = None if keyframe_interval is None else float(keyframe_interval)
-        if gate_prob is not None and not 0.0 < gate_prob < 1.0:
-            raise ValueError(f"gate_prob must be in (0, 1) or None, got {gate_prob!r}")
         self.gate_prob = None if gate_prob is None else float(gate_prob)
         self._gate_threshold = (
             {} if gate_prob is None else {k: float(chi2.ppf(gate_prob, k)) for k in (1, 2, 3)}
@@ -235,16 +183,21 @@ class TeamMLE:
         self.observation_interval = float(observation_interval)
         self.min_range = float(min_range)
         self.inflate_offsets = bool(inflate_offsets)
+        poses, std = _initial_belief(n, initial_poses, initial_std)
+        self._start_graphs(poses, std, anchor, keep_history)
+        self._dirty = True
+        self._new_keyframe = True
+        self._solved_at = -np.inf
+        self._node_cov: np.ndarray | None = None
+        self.last_result: SolveResult | None = None
 
-        poses = np.zeros((n, 3)) if initial_poses is None else np.asarray(initial_poses, float)
-        if poses.shape != (n, 3) or not np.all(np.isfinite(poses)):
-            raise ValueError(f"initial_poses must be finite with shape ({n}, 3), got {poses!r}")
-        std = np.asarray(UNKNOWN_POSE_STD if initial_std is None else initial_std, dtype=float)
-        std = np.broadcast_to(std, (n, 3)) if std.shape in ((3,), (n, 3)) else None
-        if std is None or not np.all(np.isfinite(std)) or np.any(std < 0):
-            raise ValueError(f"initial_std must be (3,) or ({n}, 3) of std devs >= 0, got "
-                             f"{initial_std!r}")
-
+    def _start_graphs(
+        self, poses: np.ndarray, std: np.ndarray, anchor: int | None, keep_history: bool
+    ) -> None:
+        """The window graph (and the history graph) with every robot's first node: the
+        anchor's (and those of robots with all-zero ``std``) fixed, the others under a
+        Gaussian prior of std ``std[r]`` at ``poses[r]``; the per-robot bookkeeping."""
+        n = self.n_robots
         # Observation derivatives floor the estimated range at min_range too: two
         # estimates micrometres apart would otherwise give a bearing information of
         # ~1e14 and an information matrix too ill-conditioned for its marginals.
@@ -264,11 +217,6 @@ class TeamMLE:
             if not fixed:
                 for g in self._graphs():
                     g.add_pose_prior(node, poses[r], std[r])
-        self._dirty = True
-        self._new_keyframe = True
-        self._solved_at = -np.inf
-        self._node_cov: np.ndarray | None = None
-        self.last_result: SolveResult | None = None
 
     # ------------------------------------------------------------- helpers
     @staticmethod
@@ -480,11 +428,7 @@ class TeamMLE:
         for i, ch in enumerate(components):
             if ch != "r":
                 nu[i] = wrap_angle(nu[i])
-        dx, dy = xb[0] - xa[0], xb[1] - xa[1]
-        r = max(float(np.hypot(dx, dy)), self.min_range, 1e-9)
-        g_b = np.array([[dx / r, dy / r, 0.0], [-dy / r**2, dx / r**2, 0.0], [0.0, 0.0, 1.0]])
-        g_a = -g_b
-        g_a[1, 2] = -1.0
+        g_a, g_b = _observation_jacobians(xa, xb, self.min_range)
         s = g_a @ covs[a] @ g_a.T + g_b @ covs[b] @ g_b.T
         s = s[np.ix_(idx, idx)] + r_meas
         d2 = float(nu @ np.linalg.solve(s, nu))
@@ -494,14 +438,10 @@ class TeamMLE:
         """Covariance the odometry since the two keyframes adds to a measurement (first order)."""
         oa, ob = self._odom[a], self._odom[b]
         ka, kb = self.graph.poses[self._last[a]], self.graph.poses[self._last[b]]
-        xa, xb = compose(ka, oa.delta), compose(kb, ob.delta)
-        dx, dy = xb[0] - xa[0], xb[1] - xa[1]
-        r = max(float(np.hypot(dx, dy)), self.min_range, 1e-9)
-        g_b = np.array([[dx / r, dy / r, 0.0], [-dy / r**2, dx / r**2, 0.0], [0.0, 0.0, 1.0]])
-        g_a = -g_b
-        g_a[1, 2] = -1.0
-        ja = g_a @ _pose_jacobians(ka, oa.delta)[1]
-        jb = g_b @ _pose_jacobians(kb, ob.delta)[1]
+        g_a, g_b = _observation_jacobians(compose(ka, oa.delta), compose(kb, ob.delta),
+                                          self.min_range)
+        ja = g_a @ pose_jacobians(ka, oa.delta)[1]
+        jb = g_b @ pose_jacobians(kb, ob.delta)[1]
         full = ja @ oa.cov @ ja.T + jb @ ob.cov @ jb.T
         idx = [COMPONENTS.index(ch) for ch in components]
         return full[np.ix_(idx, idx)]
@@ -572,7 +512,7 @@ class TeamMLE:
         out = np.empty((self.n_robots, 3, 3))
         for r in range(self.n_robots):
             acc = self._odom[r]
-            jx, ju = _pose_jacobians(self.graph.poses[self._last[r]], acc.delta)
+            jx, ju = pose_jacobians(self.graph.poses[self._last[r]], acc.delta)
             out[r] = jx @ self._node_cov[r] @ jx.T + ju @ acc.cov @ ju.T
         return 0.5 * (out + out.transpose(0, 2, 1))
 
@@ -594,77 +534,6 @@ class TeamMLE:
         return int(np.count_nonzero(self.graph.active))
 
 
-@dataclass
-class TeamStream:
-    """Synthetic sensor stream of a team (see :func:`simulate_team_stream`)."""
-
-    dt: float
-    truth: np.ndarray
-    """True poses ``(n_steps + 1, N, 3)``; ``truth[k]`` is after ``k`` steps."""
-    odometry: np.ndarray
-    """Noisy ``(v, w)`` readings ``(n_steps, N, 2)``; reading ``k`` moves ``truth[k] -> [k+1]``."""
-    observations: list[list[tuple[int, int, np.ndarray, np.ndarray]]]
-    """Per step ``k`` (taken at ``truth[k + 1]``): ``(observer, target, (r, b, o), std)``."""
-
-
-def simulate_team_stream(
-    n_robots: int,
-    n_steps: int,
-    rng: np.random.Generator,
-    *,
-    dt: float = 0.1,
-    room: float = 4.0,
-    speed: float = 0.5,
-    sensor_range: float = 6.0,
-    p_observe: float = 0.05,
-    odometry_std: tuple[float, float] = (0.05, 0.05),
-    range_frac: float = 0.05,
-    range_floor: float = 0.02,
-    angle_std: float = 0.03,
-) -> TeamStream:
-    """Robots start in a ``room`` and disperse; noisy odometry and robot observations.
-
-    Speeds are uniform in ``[0, speed]`` (some robots nearly still), turn rates a
-    random walk biased away from the room centre. Each step, every ordered pair
-    within ``sensor_range`` is observed with probability ``p_observe``; range noise
-    is ``max(range_frac * r, range_floor)``, bearing and orientation noise
-    ``angle_std`` (Howard et al.'s model).
-    """
-    if n_robots < 1 or n_steps < 1 or not dt > 0:
-        raise ValueError(f"need n_robots, n_steps >= 1 and dt > 0, got {n_robots, n_steps, dt}")
-    n = n_robots
-    side = int(np.ceil(np.sqrt(n)))
-    grid = np.stack(np.meshgrid(np.arange(side), np.arange(side)), -1).reshape(-1, 2)[:n]
-    truth = np.zeros((n_steps + 1, n, 3))
-    truth[0, :, :2] = (grid + 0.5) * room / side + rng.uniform(-0.1, 0.1, (n, 2)) * room / side
-    truth[0, :, 2] = rng.uniform(-np.pi, np.pi, n)
-    v = rng.uniform(0.0, speed, n)
-    v[rng.random(n) < 0.15] = 0.0
-    centre = np.full(2, room / 2.0)
-    odometry = np.zeros((n_steps, n, 2))
-    observations = []
-    sv, sw = odometry_std
-    for k in range(n_steps):
-        x = truth[k]
-        outward = np.arctan2(x[:, 1] - centre[1], x[:, 0] - centre[0])
-        w = 0.3 * np.sin(outward - x[:, 2]) + rng.normal(0.0, 0.3, n)
-        w[v == 0] = 0.0
-        c, s = np.cos(x[:, 2]), np.sin(x[:, 2])
-        truth[k + 1] = x + dt * np.stack([v * c, v * s, w], -1)
-        odometry[k] = np.stack([v + rng.normal(0, sv, n), w + rng.normal(0, sw, n)], -1)
-        rel = relative_pose_matrix(truth[k + 1])
-        seen = []
-        for a, b in zip(*np.nonzero(rel[..., 0] <= sensor_range), strict=True):
-            if a == b or rng.random() >= p_observe:
-                continue
-            std = np.array([max(range_frac * rel[a, b, 0], range_floor), angle_std, angle_std])
-            meas = rel[a, b] + rng.normal(0.0, std)
-            meas[0] = abs(meas[0])
-            seen.append((int(a), int(b), meas, std))
-        observations.append(seen)
-    return TeamStream(dt, truth, odometry, observations)
-
-
 def feed_stream(
     estimator: TeamMLE, stream: TeamStream, steps: range | None = None, components: str = "rbo"
 ):
@@ -682,3 +551,64 @@ def feed_stream(
             estimator.add_observation(a, b, meas[idx], std[idx], components)
         estimator.step()
         yield k
+
+
+def _check_options(
+    n_robots: int, anchor: int | None, motion_window: float, window: int | None,
+    max_iterations: int, observation_interval: float, min_range: float,
+    keyframe_interval: float | None, tolerance: float, solve_interval: float,
+    gate_prob: float | None,
+) -> None:
+    """ValueError naming the first of :class:`TeamMLE`'s scalar options out of range."""
+    if int(n_robots) < 1:
+        raise ValueError(f"n_robots must be >= 1, got {n_robots!r}")
+    n = int(n_robots)
+    if anchor is not None and not 0 <= int(anchor) < n:
+        raise ValueError(f"anchor must be a robot index in [0, {n}), got {anchor!r}")
+    if not motion_window > 0:
+        raise ValueError(f"motion_window must be > 0, got {motion_window!r}")
+    if window is not None and int(window) < 1:
+        raise ValueError(f"window must be >= 1 or None, got {window!r}")
+    if int(max_iterations) < 1:
+        raise ValueError(f"max_iterations must be >= 1, got {max_iterations!r}")
+    if not observation_interval >= 0:
+        raise ValueError(f"observation_interval must be >= 0, got {observation_interval!r}")
+    if not min_range >= 0:
+        raise ValueError(f"min_range must be >= 0, got {min_range!r}")
+    if keyframe_interval is not None and not keyframe_interval >= 0:
+        raise ValueError(f"keyframe_interval must be >= 0 or None, got {keyframe_interval!r}")
+    if not tolerance > 0:
+        raise ValueError(f"tolerance must be > 0, got {tolerance!r}")
+    if not solve_interval >= 0:
+        raise ValueError(f"solve_interval must be >= 0, got {solve_interval!r}")
+    if gate_prob is not None and not 0.0 < gate_prob < 1.0:
+        raise ValueError(f"gate_prob must be in (0, 1) or None, got {gate_prob!r}")
+
+
+def _initial_belief(
+    n: int, initial_poses: np.ndarray | None, initial_std: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """:class:`TeamMLE`'s first-pose guesses ``(n, 3)`` (default the origin) and prior std
+    devs ``(n, 3)`` (default :data:`UNKNOWN_POSE_STD`), checked."""
+    poses = np.zeros((n, 3)) if initial_poses is None else np.asarray(initial_poses, float)
+    if poses.shape != (n, 3) or not np.all(np.isfinite(poses)):
+        raise ValueError(f"initial_poses must be finite with shape ({n}, 3), got {poses!r}")
+    std = np.asarray(UNKNOWN_POSE_STD if initial_std is None else initial_std, dtype=float)
+    std = np.broadcast_to(std, (n, 3)) if std.shape in ((3,), (n, 3)) else None
+    if std is None or not np.all(np.isfinite(std)) or np.any(std < 0):
+        raise ValueError(f"initial_std must be (3,) or ({n}, 3) of std devs >= 0, got "
+                         f"{initial_std!r}")
+    return poses, std
+
+
+def _observation_jacobians(
+    xa: np.ndarray, xb: np.ndarray, min_range: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Jacobians (3x3 each) of the range, bearing and orientation of pose ``xb`` seen from
+    ``xa`` w.r.t. ``xa`` and ``xb``, the range floored at ``min_range``."""
+    dx, dy = xb[0] - xa[0], xb[1] - xa[1]
+    r = max(float(np.hypot(dx, dy)), min_range, 1e-9)
+    g_b = np.array([[dx / r, dy / r, 0.0], [-dy / r**2, dx / r**2, 0.0], [0.0, 0.0, 1.0]])
+    g_a = -g_b
+    g_a[1, 2] = -1.0
+    return g_a, g_b

@@ -23,7 +23,7 @@ def relative_measurement(
     xb = np.asarray(xb, dtype=float).reshape(-1, 3)
     if xa.shape != xb.shape:
         raise ValueError(f"xa and xb must have the same shape, got {xa.shape} and {xb.shape}")
-    h, jac = _relative_measurement(xa, xb, model)
+    h, jac = stacked_relative_measurement(xa, xb, model)
     return h, jac[:, :, :3].copy(), jac[:, :, 3:].copy()
 
 
@@ -37,7 +37,7 @@ for _jac in _JAC_CONST.values():
 _FLIP = np.array([1.0, -1.0])
 
 
-def _relative_measurement(
+def stacked_relative_measurement(
     xa: np.ndarray, xb: np.ndarray, model: str
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`relative_measurement` of ``(k, 3)`` float poses with the Jacobians side by
@@ -76,7 +76,7 @@ _CI_SCALES = np.stack([_CI_WEIGHTS, 1 - _CI_WEIGHTS])[:, :, None, None, None]
 _CI_SCALES.flags.writeable = False
 
 
-def _best_ci_weight(pab: np.ndarray, jac: np.ndarray, r: np.ndarray) -> np.ndarray:
+def best_ci_weight(pab: np.ndarray, jac: np.ndarray, r: np.ndarray) -> np.ndarray:
     """Covariance-intersection weight per pair (grid search over ``_CI_WEIGHTS``).
 
     ``pab (2, k, 3, 3)``: the priors ``P_a``, ``P_b``; ``jac (k, m, 6)``: ``[H_a, H_b]``;
@@ -112,7 +112,7 @@ def _best_ci_weight(pab: np.ndarray, jac: np.ndarray, r: np.ndarray) -> np.ndarr
     return _CI_WEIGHTS[np.argmin(post[0] + post[1], axis=0)]
 
 
-# From this many pairs on, _best_ci_weight's 10 k 3x3 systems go through cofactors
+# From this many pairs on, best_ci_weight's 10 k 3x3 systems go through cofactors
 # (cheaper than np.linalg.inv from about 40 matrices on).
 _COFACTOR_MIN_PAIRS = 4
 _NEXT = np.array([1, 2, 0])
@@ -132,7 +132,7 @@ def _cofactors3(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return cof, det
 
 
-def _rounds(
+def disjoint_rounds(
     idx_a: np.ndarray, idx_b: np.ndarray, n: int, max_rounds: int | None = None
 ) -> list[np.ndarray]:
     """Split pairs into rounds in which every robot index appears at most once (greedy, in

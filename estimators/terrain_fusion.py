@@ -134,7 +134,7 @@ def fuse_elevation(
         raise ValueError(f"weights must be 'paper' or 'kalman', got {weights!r}")
     nos = np.asarray(nos, dtype=float)
     tan_p = np.tan(pitch)
-    return _fuse_elevation(
+    return fuse_elevation_tangents(
         prev_elev,
         prev_var,
         distance,
@@ -148,7 +148,7 @@ def fuse_elevation(
     )
 
 
-def _fuse_elevation(
+def fuse_elevation_tangents(
     prev_elev: np.ndarray,
     prev_var: np.ndarray,
     distance: np.ndarray,

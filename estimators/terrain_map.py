@@ -52,8 +52,13 @@ Use, once per mapping step, for all robots at once::
 
 :meth:`TerrainMap.update` costs a few tens of numpy operations whatever the
 number of robots (about 70 us for 5 robots on a slow 2-core box);
-:meth:`TerrainMap.filled` runs a triangulation and is meant for evaluation
-and rendering, not for every step.
+:meth:`TerrainMap.update_prepared` is the same update for a caller that prepares
+its arrays itself (the env, every step). :meth:`TerrainMap.filled` runs a
+triangulation and is meant for evaluation and rendering, not for every step.
+
+The grid geometry, the stored layers and every view of them (masks, metrics,
+patches) come from the base class :class:`~estimators.terrain_grid.TerrainGrid`;
+this module holds what writes the layers.
 """
 
 from __future__ import annotations
@@ -62,11 +67,10 @@ import math
 from collections.abc import Callable
 
 import numpy as np
-from scipy.interpolate import griddata
-from scipy.spatial import QhullError
 
 from estimators._map_kernels import footprint_samples, fuse_without_fix
-from estimators.terrain_fusion import _fuse_elevation
+from estimators.terrain_fusion import fuse_elevation_tangents
+from estimators.terrain_grid import TerrainGrid, float_vector, keep_best
 
 # What a merge that writes nothing hands the listener: no cells, before/after values
 # or was-mapped flags (shared, so read-only).
@@ -75,17 +79,7 @@ for _arr in _NO_CELLS:
     _arr.flags.writeable = False
 
 
-def _vector(name: str, value: np.ndarray | float, n: int) -> np.ndarray:
-    """``value`` as a float vector of length ``n`` (scalars broadcast)."""
-    arr = np.asarray(value, dtype=float)
-    if arr.ndim == 0:
-        return np.full(n, float(arr))
-    if arr.shape != (n,):
-        raise ValueError(f"{name} must have shape ({n},), got {arr.shape}")
-    return arr
-
-
-class TerrainMap:
+class TerrainMap(TerrainGrid):
     """Team elevation map with per-robot elevation filters, local maps and confidence merging.
 
     Args:
@@ -131,11 +125,7 @@ class TerrainMap:
         if int(n_robots) != n_robots or n_robots < 1:
             raise ValueError(f"n_robots must be a positive integer, got {n_robots!r}")
         self.merge_listener: Callable[..., None] | None = None
-        if not np.isfinite(resolution) or resolution <= 0:
-            raise ValueError(f"resolution must be > 0, got {resolution!r}")
-        width, height = (float(s) for s in size)
-        if not (width > 0 and height > 0):
-            raise ValueError(f"size must be positive, got {size!r}")
+        super().__init__(size, resolution, origin)
         for name, val in (
             ("pitch_std", pitch_std),
             ("gps_alt_std", gps_alt_std),
@@ -150,23 +140,12 @@ class TerrainMap:
             raise ValueError(f"weights must be 'paper' or 'kalman', got {weights!r}")
         self.weights = weights
         self.n_robots = int(n_robots)
-        self.resolution = float(resolution)
-        self.origin = (float(origin[0]), float(origin[1]))
-        nx = int(np.ceil(width / resolution - 1e-9))
-        ny = int(np.ceil(height / resolution - 1e-9))
-        self.shape = (nx, ny)
-        # The same as arrays, made once for the per-step cell lookups (None: origin at 0).
-        self._shape_xy = np.array(self.shape, dtype=float)
-        self._min_dim = float(min(self.shape))
-        self._origin_xy = None if self.origin == (0.0, 0.0) else np.array(self.origin)
-        self._origin_flat = np.zeros(0) if self._origin_xy is None else self._origin_xy.copy()
         self.datum = float(datum)
         self.pitch_std = float(pitch_std)
         self.gps_alt_std = float(gps_alt_std)
         self.slope_floor = float(slope_floor)
         self.merge_every_step = bool(merge_every_step)
         self.min_var = float(min_var)
-        self._n_cells = self.shape[0] * self.shape[1]
         self._footprint = self._make_footprint(float(footprint_radius))
         # Extra variance of footprint cells: unknown cross-slope over their offset.
         self._footprint_var = (self._footprint**2).sum(axis=1) * self.slope_floor**2
@@ -201,17 +180,14 @@ class TerrainMap:
         robots start at the base station's altitude, ``Zg = Zg0``).
         """
         elev0 = self.datum if initial_elevation is None else initial_elevation
-        self._robot_elev = _vector("initial_elevation", elev0, self.n_robots).copy()
-        self._robot_var = _vector("initial_var", initial_var, self.n_robots).copy()
+        self._robot_elev = float_vector("initial_elevation", elev0, self.n_robots).copy()
+        self._robot_var = float_vector("initial_var", initial_var, self.n_robots).copy()
         if np.any(self._robot_var < 0):
             raise ValueError(f"initial_var must be >= 0, got {initial_var!r}")
-        self._elev = np.zeros(self._n_cells)
-        self._conf = np.zeros(self._n_cells)  # 0 = unmapped
+        self.clear_layers()
         local_cells = 0 if self.merge_every_step else self._n_cells
         self._local_elev = np.zeros((self.n_robots, local_cells))
         self._local_conf = np.zeros((self.n_robots, local_cells))
-        self._objects = np.zeros(self._n_cells, dtype=bool)
-        self.objects: list[tuple[float, float, float]] = []
         self.n_mapped = 0
         self.newly_mapped_cells = 0
 
@@ -223,33 +199,18 @@ class TerrainMap:
     ) -> None:
         """Overwrite the elevation estimate of some robots (e.g. a known start height)."""
         ids = self._ids(robot_ids)
-        self._robot_elev[ids] = _vector("elevation", elevation, ids.size)
-        v = _vector("var", var, ids.size)
+        self._robot_elev[ids] = float_vector("elevation", elevation, ids.size)
+        v = float_vector("var", var, ids.size)
         if np.any(v < 0):
             raise ValueError(f"var must be >= 0, got {var!r}")
         self._robot_var[ids] = v
 
     # ------------------------------------------------------------- properties
     @property
-    def elevation(self) -> np.ndarray:
-        """Mapped elevations, shape :attr:`shape`; NaN where unmapped (a copy)."""
-        out = np.where(self._conf > 0, self._elev, np.nan)
-        return out.reshape(self.shape)
-
-    @property
-    def confidence(self) -> np.ndarray:
-        """Confidence (inverse variance) of each cell's value; 0 where unmapped (a copy)."""
-        return self._conf.reshape(self.shape).copy()
-
-    @property
-    def mapped(self) -> np.ndarray:
-        """Boolean grid of cells holding a measured elevation."""
-        return (self._conf > 0).reshape(self.shape)
-
-    @property
-    def object_mask(self) -> np.ndarray:
-        """Boolean grid of cells marked as objects of interest."""
-        return self._objects.reshape(self.shape).copy()
+    def footprint(self) -> np.ndarray:
+        """Offsets ``(K, 2)`` in metres from a robot's position of the cells one sample
+        writes, centre first (``K = 1`` without a ``footprint_radius``; a copy)."""
+        return self._footprint.copy()
 
     def robot_elevation(
         self, robot_ids: np.ndarray | int | None = None
@@ -257,26 +218,6 @@ class TerrainMap:
         """Current elevation estimates and variances of ``robot_ids`` (all by default)."""
         ids = np.arange(self.n_robots) if robot_ids is None else self._ids(robot_ids)
         return self._robot_elev[ids].copy(), self._robot_var[ids].copy()
-
-    def cell_centers(self) -> tuple[np.ndarray, np.ndarray]:
-        """World ``(X, Y)`` of every cell centre, each of shape :attr:`shape` (``indexing='ij'``).
-
-        Evaluate the true height field there to get the grid :meth:`rmse` expects.
-        """
-        xs = self.origin[0] + (np.arange(self.shape[0]) + 0.5) * self.resolution
-        ys = self.origin[1] + (np.arange(self.shape[1]) + 0.5) * self.resolution
-        return np.meshgrid(xs, ys, indexing="ij")
-
-    def world_to_cell(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Cell indices ``(i, j)`` of world points ``(..., 2)`` and a mask of those inside."""
-        xy = np.asarray(xy, dtype=float)
-        i = np.floor((xy[..., 0] - self.origin[0]) / self.resolution)
-        j = np.floor((xy[..., 1] - self.origin[1]) / self.resolution)
-        inside = (i >= 0) & (i < self.shape[0]) & (j >= 0) & (j < self.shape[1])
-        inside &= np.isfinite(i) & np.isfinite(j)
-        i = np.where(inside, i, 0).astype(np.intp)
-        j = np.where(inside, j, 0).astype(np.intp)
-        return i, j, inside
 
     # ---------------------------------------------------------------- update
     def _ids(self, robot_ids: np.ndarray | int) -> np.ndarray:
@@ -298,34 +239,6 @@ class TerrainMap:
             self._owner = np.repeat(ids, self._footprint.shape[0])
             self._valid_whole = lst == list(range(self.n_robots))
         return ids
-
-    def _flat_index(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`_flat_index_xy` of world coordinates ``x``, ``y`` of any (equal) shape."""
-        flat, inside = self._flat_index_xy(np.stack([np.ravel(x), np.ravel(y)], 1))
-        return flat.reshape(np.shape(x)), inside.reshape(np.shape(x))
-
-    def _flat_index_xy(
-        self, xy: np.ndarray, all_inside: bool = False
-    ) -> tuple[np.ndarray, np.ndarray | None]:
-        """Flat cell indices of finite world points ``(k, 2)`` and the mask of those inside.
-
-        With ``all_inside=True`` the mask is None when every point is inside (two
-        reductions instead of the elementwise mask).
-        """
-        f = (xy - self._origin_xy if self._origin_xy is not None else xy) * (1.0 / self.resolution)
-        cell = f.astype(np.intp)
-        flat = cell[:, 0] * self.shape[1]
-        flat += cell[:, 1]
-        if (
-            all_inside
-            and np.minimum.reduce(f, None) >= 0.0
-            and np.maximum.reduce(f, None) < self._min_dim
-        ):
-            return flat, None
-        # Negative values truncate towards 0, so test the floats.
-        ok = f >= 0
-        ok &= f < self._shape_xy
-        return flat, ok[:, 0] & ok[:, 1]
 
     def update(
         self,
@@ -367,19 +280,19 @@ class TerrainMap:
             raise ValueError(
                 f"pose_covs must have shape ({n}, 3, 3) or ({n}, 2, 2), got {covs.shape}"
             )
-        pitch = _vector("pitch", pitch, n)
-        gps_alt = _vector("gps_alt", gps_alt, n)
-        nos = _vector("nos", nos, n)
-        distance = _vector("distance", distance, n)
+        pitch = float_vector("pitch", pitch, n)
+        gps_alt = float_vector("gps_alt", gps_alt, n)
+        nos = float_vector("nos", nos, n)
+        distance = float_vector("distance", distance, n)
         pos_var = covs[:, 0, 0] + covs[:, 1, 1]
         for name, value in (("est_poses", poses), ("pose_covs", pos_var), ("pitch", pitch),
                             ("distance", distance)):
             if not np.isfinite(value).all():  # named here, before any arithmetic warns
                 raise ValueError(f"{name} must be finite, got {value!r}")
         gps_elev = (self.datum - float(base_alt)) + gps_alt
-        return self._update(ids, poses, pos_var, pitch, gps_elev, nos, distance)
+        return self.update_prepared(ids, poses, pos_var, pitch, gps_elev, nos, distance)
 
-    def _update(
+    def update_prepared(
         self,
         ids: np.ndarray,
         poses: np.ndarray,
@@ -389,23 +302,27 @@ class TerrainMap:
         nos: np.ndarray,
         distance: np.ndarray,
     ) -> np.ndarray:
-        """:meth:`update` on checked inputs (its one implementation).
+        """:meth:`update` (its one implementation) on arrays the caller has prepared.
 
         For callers that built the arrays themselves (the env's
-        :class:`~coop_loc_env.mapping.TeamMapper`): ``ids`` distinct valid robot
-        ids, ``poses`` ``(N, 3)`` floats, ``pos_var`` the position variance
-        ``P_xx + P_yy``, ``gps_elev`` the DGPS elevation in the map frame
-        (``datum + Zg - Zg0``, NaN = no fix) and the other arguments ``(N,)``
-        arrays as in :meth:`update`. Non-finite poses, variances, pitch or
-        distance are still rejected before anything is written.
+        :class:`~coop_loc_env.mapping.TeamMapper`, every step): ``ids`` distinct valid
+        robot ids (an int array; the map remembers the last one it checked, so passing
+        the same read-only array skips the check), ``poses`` ``(N, 3)`` floats,
+        ``pos_var`` the position variance ``P_xx + P_yy`` (what :meth:`update` takes from
+        ``pose_covs``), ``gps_elev`` the DGPS elevation in the map frame (``datum + Zg -
+        Zg0``, what :meth:`update` makes of ``gps_alt`` and ``base_alt``; NaN = no fix)
+        and the other arguments ``(N,)`` float arrays as in :meth:`update`. Returns what
+        :meth:`update` returns. Non-finite poses, variances, pitch or distance are still
+        rejected before anything is written.
         """
         n = ids.size
         # Every robot in id order: its rows as views, its counts as the merge returns them.
         whole = ids is self._valid_ids and self._valid_whole
         rows = slice(None) if whole else ids
         tan_p, tan2, slope2 = self._pitch_terms(pitch)
-        if (self.merge_every_step and self._footprint.shape[0] > 1
-                and not np.count_nonzero(nos)):  # the usual step: one compiled pass
+        several = self._footprint.shape[0] > 1
+        if self.merge_every_step and several and not np.count_nonzero(nos):
+            # The usual step: one compiled pass (None: the numpy path below decides).
             elev, var, var_s = np.empty(n), np.empty(n), np.empty(n)
             if fuse_without_fix(self._robot_elev[rows], self._robot_var[rows], distance, tan_p,
                                 tan2, slope2, pos_var, self.pitch_std, self.min_var, poses,
@@ -413,7 +330,20 @@ class TerrainMap:
                 self._robot_elev[rows] = elev
                 self._robot_var[rows] = var
                 return self._sample_and_merge(ids, poses, elev, var_s, tan_p, whole)
-        elev, var = _fuse_elevation(
+        elev, var_s = self._fuse(rows, poses, pos_var, pitch, gps_elev, nos, distance,
+                                 tan_p, tan2, slope2)
+        if several and self.merge_every_step:
+            return self._sample_and_merge(ids, poses, elev, var_s, tan_p, whole)
+        return self._register(ids, poses, elev, var_s, tan_p, whole)
+
+    def _fuse(
+        self, rows: np.ndarray | slice, poses: np.ndarray, pos_var: np.ndarray,
+        pitch: np.ndarray, gps_elev: np.ndarray, nos: np.ndarray, distance: np.ndarray,
+        tan_p: np.ndarray, tan2: np.ndarray, slope2: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The elevation filters' step of robots ``rows`` (stored) and the samples'
+        variances, after checking that every input was finite; returns ``(elev, var_s)``."""
+        elev, var = fuse_elevation_tangents(
             self._robot_elev[rows],
             self._robot_var[rows],
             distance,
@@ -438,10 +368,16 @@ class TerrainMap:
             )
         self._robot_elev[rows] = elev
         self._robot_var[rows] = var
+        return elev, var_s
 
+    def _register(
+        self, ids: np.ndarray, poses: np.ndarray, elev: np.ndarray, var_s: np.ndarray,
+        tan_p: np.ndarray, whole: bool,
+    ) -> np.ndarray:
+        """The end of :meth:`update_prepared` for a one-cell footprint, or for local maps
+        merged at :meth:`end_segment`: the samples and their cells in numpy, then the
+        merge (or the local maps' keep-best write)."""
         fp = self._footprint
-        if fp.shape[0] > 1 and self.merge_every_step:
-            return self._sample_and_merge(ids, poses, elev, var_s, tan_p, whole)
         if fp.shape[0] == 1:
             xy = poses[:, :2]
             vals, conf, owner = elev, var_s, ids
@@ -457,7 +393,7 @@ class TerrainMap:
             conf = (var_s[:, None] + self._footprint_var).reshape(-1)
             owner = self._owner if ids is self._valid_ids else np.repeat(ids, fp.shape[0])
         np.divide(1.0, conf, out=conf)  # a fresh array: confidence = 1 / variance
-        flat, inside = self._flat_index_xy(xy, all_inside=True)
+        flat, inside = self.flat_index_xy(xy, all_inside=True)
         if inside is not None and np.count_nonzero(inside) < inside.size:
             flat, vals, conf, owner = flat[inside], vals[inside], conf[inside], owner[inside]
 
@@ -465,7 +401,7 @@ class TerrainMap:
             new = self._merge(flat, vals, conf, owner)
             return new if whole else new[ids]
         # Register into the local (segment) maps, keeping the best sample per cell.
-        self._keep_best(
+        keep_best(
             self._local_elev.reshape(-1),
             self._local_conf.reshape(-1),
             owner * self._n_cells + flat,
@@ -473,13 +409,13 @@ class TerrainMap:
             conf,
         )
         self.newly_mapped_cells = 0
-        return np.zeros(n, dtype=np.int64)
+        return np.zeros(ids.size, dtype=np.int64)
 
     def _sample_and_merge(
         self, ids: np.ndarray, poses: np.ndarray, elev: np.ndarray, var_s: np.ndarray,
         tan_p: np.ndarray, whole: bool,
     ) -> np.ndarray:
-        """The end of :meth:`_update` for a footprint of several cells merged every step:
+        """The end of :meth:`update_prepared` for a footprint of several cells merged every step:
         the samples and their cells in one compiled pass
         (:func:`estimators._map_kernels.footprint_samples`), then :meth:`_merge` unless
         no sample beats its cell's stored confidence."""
@@ -518,59 +454,12 @@ class TerrainMap:
             self._pitch_key, self._pitch_cache = key, terms
         return self._pitch_cache
 
-    @staticmethod
-    def _best_per_cell(flat: np.ndarray, conf: np.ndarray) -> np.ndarray | None:
-        """Indices of the highest-confidence sample of each distinct cell in ``flat``.
-
-        None when no cell is sampled twice (every sample is its cell's best).
-        """
-        lst = flat.tolist()
-        if len(set(lst)) == len(lst):
-            return None
-        order = np.lexsort((conf, flat))
-        f = flat[order]
-        last = np.empty(f.size, dtype=bool)
-        last[:-1] = f[1:] != f[:-1]
-        last[-1] = True
-        return order[last]
-
-    def _keep_best(
-        self,
-        elev: np.ndarray,
-        confs: np.ndarray,
-        flat: np.ndarray,
-        vals: np.ndarray,
-        conf: np.ndarray,
-        stored: np.ndarray | None = None,
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
-        """Write samples where they beat the stored confidence.
-
-        ``stored`` is ``confs[flat]`` when the caller has looked it up already.
-        Returns the winners' indices into the samples, their cells, the values
-        written there and the values they replaced; None when no sample wins
-        (nothing is written).
-        """
-        if stored is None:
-            stored = confs[flat]
-        win = conf > stored
-        if not np.count_nonzero(win):  # the usual case on ground mapped before
-            return None
-        best = self._best_per_cell(flat, conf)
-        # Every sample is its cell's best, or only each cell's best may win.
-        idx = win.nonzero()[0] if best is None else best[win[best]]
-        fw = flat[idx]
-        won = vals[idx]
-        replaced = elev[fw]
-        elev[fw] = won
-        confs[fw] = conf[idx]
-        return idx, fw, won, replaced
-
     def _merge(
         self, flat: np.ndarray, vals: np.ndarray, conf: np.ndarray, owner: np.ndarray
     ) -> np.ndarray:
         """Merge samples into the team map; return newly mapped cells per robot id."""
         stored = self._conf[flat]
-        kept = self._keep_best(self._elev, self._conf, flat, vals, conf, stored)
+        kept = keep_best(self._elev, self._conf, flat, vals, conf, stored)
         if kept is None:
             self.newly_mapped_cells = 0
             if self.merge_listener is not None:
@@ -612,127 +501,3 @@ class TerrainMap:
             return np.full(self.shape, np.nan)
         m = np.where(self._local_conf[rid] > 0, self._local_elev[rid], np.nan)
         return m.reshape(self.shape)
-
-    # ---------------------------------------------------------------- objects
-    def mark_object(self, x: float, y: float, radius: float = 0.0) -> int:
-        """Mark an object of interest at world ``(x, y)`` (its estimated position).
-
-        Every cell whose centre lies within ``radius`` of the point is marked,
-        and always the cell containing the point. Returns the number of cells
-        newly marked (0 if the point lies outside the grid and no cell is hit).
-        """
-        if not (np.isfinite(x) and np.isfinite(y)):
-            raise ValueError(f"object position must be finite, got ({x!r}, {y!r})")
-        if not np.isfinite(radius) or radius < 0:
-            raise ValueError(f"radius must be finite and >= 0, got {radius!r}")
-        xc, yc = self.cell_centers()
-        hit = ((xc - x) ** 2 + (yc - y) ** 2 <= radius * radius).ravel()
-        i, j, inside = self.world_to_cell(np.array([x, y]))
-        if inside:
-            hit[int(i) * self.shape[1] + int(j)] = True
-        new = int(np.count_nonzero(hit & ~self._objects))
-        self._objects |= hit
-        self.objects.append((float(x), float(y), float(radius)))
-        return new
-
-    # ---------------------------------------------------------------- metrics
-    def coverage(self, drivable_mask: np.ndarray | None = None) -> float:
-        """Fraction of drivable cells mapped (all cells when no mask is given)."""
-        mapped = self._conf > 0
-        if drivable_mask is None:
-            return float(np.count_nonzero(mapped)) / self._n_cells
-        mask = np.asarray(drivable_mask, dtype=bool)
-        if mask.shape != self.shape:
-            raise ValueError(f"drivable_mask must have shape {self.shape}, got {mask.shape}")
-        total = np.count_nonzero(mask)
-        if total == 0:
-            raise ValueError("drivable_mask has no drivable cell")
-        return float(np.count_nonzero(mapped & mask.ravel())) / total
-
-    def rmse(self, true_height: np.ndarray, use_filled: bool = False) -> float:
-        """RMSE of mapped elevation vs the true height grid over mapped cells.
-
-        ``true_height`` is the true height field at :meth:`cell_centers`, in the
-        map frame (``datum`` = its value at the base station). With
-        ``use_filled`` the cubic gap-filled map is scored over every cell it
-        defines. NaN when no cell is mapped.
-        """
-        truth = np.asarray(true_height, dtype=float)
-        if truth.shape != self.shape:
-            raise ValueError(f"true_height must have shape {self.shape}, got {truth.shape}")
-        est = self.filled() if use_filled else self.elevation
-        ok = np.isfinite(est)
-        if not ok.any():
-            return float("nan")
-        err = est[ok] - truth[ok]
-        return float(np.sqrt(np.mean(err * err)))
-
-    # ------------------------------------------------------------------ views
-    def filled(self, method: str = "cubic") -> np.ndarray:
-        """The map with gaps filled by interpolation (``scipy.interpolate.griddata``).
-
-        Measured cells keep their values; unmapped cells inside the convex hull
-        of the measured ones are interpolated (``method`` = ``'cubic'``,
-        ``'linear'`` or ``'nearest'``); others stay NaN. When the measured cells
-        are too few or collinear for a triangulation, gaps stay NaN.
-        """
-        if method not in ("cubic", "linear", "nearest"):
-            raise ValueError(f"method must be 'cubic', 'linear' or 'nearest', got {method!r}")
-        out = self.elevation
-        known = np.isfinite(out)
-        if known.all() or np.count_nonzero(known) < 3:
-            return out
-        xc, yc = self.cell_centers()
-        pts = np.stack([xc[known], yc[known]], axis=1)
-        try:
-            out[~known] = griddata(pts, out[known], (xc[~known], yc[~known]), method=method)
-        except (QhullError, ValueError):
-            pass
-        return out
-
-    def terrain_matrix(self, object_value: float = 1e3) -> np.ndarray:
-        """The paper's Eq. 5: elevation where explored, 0 where not, ``object_value`` at objects."""
-        t = np.where(self._conf > 0, self._elev, 0.0)
-        t[self._objects] = object_value
-        return t.reshape(self.shape)
-
-    def local_patch(
-        self, pose: np.ndarray, size_cells: int, reference: np.ndarray | float | None = None
-    ) -> np.ndarray:
-        """Egocentric map patch(es) around ``pose`` for observations.
-
-        Args:
-            pose: ``(3,)`` or ``(N, 3)`` estimated poses.
-            size_cells: patch edge in cells (odd keeps the robot on the centre cell).
-            reference: elevation(s) subtracted from mapped values, e.g. the
-                robot's own estimate from :meth:`robot_elevation`.
-
-        Returns:
-            ``(3, S, S)`` (or ``(N, 3, S, S)``) float32 channels: elevation
-            (minus ``reference``; 0 where unmapped), mapped mask, object mask.
-            Axis 1 runs along the robot's forward axis, axis 2 along its left
-            axis, both ascending, sampled every ``resolution`` metres; cells
-            outside the grid read as unmapped.
-        """
-        if int(size_cells) != size_cells or size_cells < 1:
-            raise ValueError(f"size_cells must be a positive integer, got {size_cells!r}")
-        poses = np.asarray(pose, dtype=float)
-        single = poses.ndim == 1
-        poses = np.atleast_2d(poses)
-        if poses.ndim != 2 or poses.shape[1] != 3 or not np.all(np.isfinite(poses)):
-            raise ValueError(f"pose must be finite with shape (3,) or (N, 3), got {pose!r}")
-        n, size = poses.shape[0], int(size_cells)
-        k = (np.arange(size) - (size - 1) / 2.0) * self.resolution
-        u, v = np.meshgrid(k, k, indexing="ij")
-        c, s = np.cos(poses[:, 2])[:, None, None], np.sin(poses[:, 2])[:, None, None]
-        wx = poses[:, 0, None, None] + c * u - s * v
-        wy = poses[:, 1, None, None] + s * u + c * v
-        flat, inside = self._flat_index(wx, wy)
-        flat[~inside] = 0
-        known = inside & (self._conf[flat] > 0)
-        ref = 0.0 if reference is None else _vector("reference", reference, n)[:, None, None]
-        out = np.empty((n, 3, size, size), dtype=np.float32)
-        out[:, 0] = np.where(known, self._elev[flat] - ref, 0.0)
-        out[:, 1] = known
-        out[:, 2] = inside & self._objects[flat]
-        return out[0] if single else out

@@ -45,8 +45,8 @@ Modules: :mod:`~estimators.pose_graph.se2` (SE(2) helpers, factor residuals and
 their Jacobians), :mod:`~estimators.pose_graph.graph` (:class:`PoseGraph`),
 :mod:`~estimators.pose_graph.solver` (:func:`optimize`, :func:`marginal_covariances`,
 :func:`marginalize`) and :mod:`~estimators.pose_graph.synthetic` (random team graphs
-with ground truth, for tests and benchmarks). Every public name is importable from
-this package.
+and sensor streams with ground truth, for tests and benchmarks). Every public name is
+importable from this package.
 """
 
 from estimators.pose_graph.graph import (
@@ -74,7 +74,14 @@ from estimators.pose_graph.solver import (
     marginalize,
     optimize,
 )
-from estimators.pose_graph.synthetic import SyntheticTeam, random_team_graph
+from estimators.pose_graph.synthetic import (
+    PairSensing,
+    SyntheticTeam,
+    TeamStream,
+    observe_pairs,
+    random_team_graph,
+    simulate_team_stream,
+)
 
 __all__ = [
     "COMPONENTS",
@@ -83,9 +90,11 @@ __all__ = [
     "DENSE_MAX_VARIABLES",
     "FactorSelection",
     "LinearPrior",
+    "PairSensing",
     "PoseGraph",
     "SolveResult",
     "SyntheticTeam",
+    "TeamStream",
     "between",
     "between_residual",
     "check_observation",
@@ -93,9 +102,11 @@ __all__ = [
     "marginal_covariances",
     "marginalize",
     "observation_residual",
+    "observe_pairs",
     "optimize",
     "random_team_graph",
     "se2_exp",
     "se2_log_coefficients",
+    "simulate_team_stream",
     "sqrt_information",
 ]

@@ -38,7 +38,7 @@ import numpy as np
 
 from estimators.gtsam_bridge import dead_reckoning
 from estimators.mle_online import TeamMLE, simulate_team_stream
-from estimators.pose_graph import PoseGraph, optimize, random_team_graph
+from estimators.pose_graph import PairSensing, PoseGraph, optimize, random_team_graph
 from estimators.relative_metrics import relative_errors
 
 
@@ -188,8 +188,8 @@ def bench_howard_circuit(repeats: int = 3) -> dict[str, float]:
 def bench_online(n_robots: int = 20, n_steps: int = 1500, seed: int = 0) -> dict:
     """Per-step cost of :class:`TeamMLE` on a simulated dispersal stream (10 Hz)."""
     stream = simulate_team_stream(
-        n_robots, n_steps, np.random.default_rng(seed), room=8.0, sensor_range=6.0,
-        p_observe=0.2,
+        n_robots, n_steps, np.random.default_rng(seed), room=8.0,
+        sensing=PairSensing(sensor_range=6.0, p_observe=0.2),
     )
     est = TeamMLE(n_robots, initial_poses=stream.truth[0], initial_std=[0.5, 0.5, 0.2],
                   motion_window=10.0, window=10)

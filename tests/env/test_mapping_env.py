@@ -187,7 +187,7 @@ def test_env_map_equals_the_public_update_fed_the_same_samples():
     env.reset(seed=5)
     mapper = env.unwrapped.mapper
     calls = []
-    core = mapper.map._update
+    core = mapper.map.update_prepared
 
     def spy(ids, poses, pos_var, pitch, gps_elev, nos, distance):
         calls.append([np.array(a, copy=True) for a in (ids, poses, pos_var, pitch, gps_elev, nos,
@@ -196,7 +196,7 @@ def test_env_map_equals_the_public_update_fed_the_same_samples():
 
     start = mapper.map._elev.copy(), mapper.map._conf.copy()
     start_robot = mapper.map.robot_elevation()
-    mapper.map._update = spy
+    mapper.map.update_prepared = spy
     rng = np.random.default_rng(0)
     for _ in range(40):
         env.step({a: rng.uniform(-1, 1, 2) for a in env.agents})

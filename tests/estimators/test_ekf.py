@@ -165,6 +165,28 @@ def test_predict_sequence_equals_sequential_predictions():
     np.testing.assert_allclose(one.cov, many.cov, atol=1e-12)
 
 
+def test_predict_sequence_stacked_equals_sequential_predictions():
+    """The env's entry point (variances stacked in one (2, T, n) array) is the public
+    predict_sequence, and both equal T single predict() steps."""
+    rng = np.random.default_rng(6)
+    a = rng.normal(size=(4, 3, 3))
+    cov = a @ np.swapaxes(a, 1, 2) + np.eye(3)
+    mean = rng.normal(size=(4, 3))
+    one, seq, stacked = PoseEKF(mean, cov), PoseEKF(mean, cov), PoseEKF(mean, cov)
+    v, w = rng.normal(size=(6, 4)), rng.normal(size=(6, 4))
+    q = rng.random((2, 6, 4))
+    q_before = q.copy()
+    for k in range(6):
+        one.predict(v[k], w[k], 0.04, q[0, k], q[1, k])
+    seq.predict_sequence(v, w, 0.04, q[0], q[1])
+    stacked.predict_sequence_stacked(v, w, 0.04, q)
+    assert np.array_equal(q, q_before)  # read only
+    np.testing.assert_array_equal(stacked.mean, seq.mean)
+    np.testing.assert_array_equal(stacked.cov, seq.cov)
+    np.testing.assert_allclose(one.mean, stacked.mean, atol=1e-12)
+    np.testing.assert_allclose(one.cov, stacked.cov, atol=1e-12)
+
+
 def test_bad_inputs_raise():
     with pytest.raises(ValueError, match="NaN"):
         PoseEKF(np.array([[0.0, np.nan, 0.0]]), np.eye(3))
@@ -281,16 +303,16 @@ def _reference_ci_weight(pa, pb, jac, r):
 @pytest.mark.parametrize("dims", [(0, 1, 2), (0, 1)])
 @pytest.mark.parametrize("k", [2, 40])  # LAPACK inverses, cofactors (from 4 pairs on)
 def test_ci_weight_matches_the_direct_grid_search(model, dims, k):
-    from estimators.relative_model import _best_ci_weight, _relative_measurement
+    from estimators.relative_model import best_ci_weight, stacked_relative_measurement
 
     rng = np.random.default_rng(11)
     a = rng.standard_normal((2, k, 3, 3)) * rng.uniform(0.05, 3.0, (2, k, 1, 1))
     pab = a @ a.transpose(0, 1, 3, 2) + 1e-3 * np.eye(3)
     xa, xb = rng.standard_normal((2, k, 3)) * [4.0, 4.0, 3.0]
-    _, jac = _relative_measurement(xa, xb, model)
+    _, jac = stacked_relative_measurement(xa, xb, model)
     r = np.repeat(np.diag([0.05, 0.01, 0.02])[None], k, axis=0)
     jac, r = jac[:, list(dims)], r[:, list(dims)][:, :, list(dims)]
-    got = _best_ci_weight(pab, jac, r)
+    got = best_ci_weight(pab, jac, r)
     np.testing.assert_array_equal(got, _reference_ci_weight(pab[0], pab[1], jac, r))
 
 
@@ -327,18 +349,18 @@ def test_relative_measurement_matches_its_formulas():
 
 
 def test_rounds_limit_keeps_the_first_rounds():
-    from estimators.relative_model import _rounds
+    from estimators.relative_model import disjoint_rounds
 
     rng = np.random.default_rng(2)
     a = rng.integers(0, 12, 80)
     b = (a + rng.integers(1, 12, 80)) % 12
-    every = _rounds(a, b, 12)
+    every = disjoint_rounds(a, b, 12)
     assert sum(len(x) for x in every) == 80
     for rows in every:
         robots = np.concatenate([a[rows], b[rows]])
         assert len(np.unique(robots)) == len(robots)
     for limit in (0, 1, 3):
-        got = _rounds(a, b, 12, limit)
+        got = disjoint_rounds(a, b, 12, limit)
         assert len(got) == min(limit, len(every))
         for x, y in zip(got, every, strict=False):
             np.testing.assert_array_equal(x, y)

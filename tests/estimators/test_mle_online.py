@@ -12,13 +12,18 @@ from estimators.mle_online import (
     integrate_odometry,
     simulate_team_stream,
 )
-from estimators.pose_graph import compose
+from estimators.pose_graph import PairSensing, compose
 from estimators.relative_metrics import relative_errors
+
+
+def _pairs(p_observe: float) -> PairSensing:
+    """Pairs within 6 m observed with probability ``p_observe`` per step."""
+    return PairSensing(sensor_range=6.0, p_observe=p_observe)
 
 
 @pytest.fixture(scope="module")
 def stream() -> TeamStream:
-    return simulate_team_stream(6, 600, np.random.default_rng(0), p_observe=0.05)
+    return simulate_team_stream(6, 600, np.random.default_rng(0), sensing=_pairs(0.05))
 
 
 def _run(stream: TeamStream, components: str = "rbo", drop_obs: bool = False, **kwargs) -> TeamMLE:
@@ -66,7 +71,7 @@ def test_sliding_window_stays_close_to_full_batch(stream):
 
 
 def test_window_bounds_graph_size_on_long_runs():
-    stream = simulate_team_stream(4, 900, np.random.default_rng(1), p_observe=0.1)
+    stream = simulate_team_stream(4, 900, np.random.default_rng(1), sensing=_pairs(0.1))
     est = TeamMLE(4, initial_poses=stream.truth[0], motion_window=2.0, window=3)
     sizes = []
     for k in feed_stream(est, stream):
@@ -103,7 +108,7 @@ def test_covariance_is_consistent_with_errors():
     """Average NEES of the latest poses over seeds stays near its expected value 3."""
     nees = []
     for seed in range(4):
-        stream = simulate_team_stream(5, 300, np.random.default_rng(seed), p_observe=0.1)
+        stream = simulate_team_stream(5, 300, np.random.default_rng(seed), sensing=_pairs(0.1))
         est = _run(stream, window=5)
         err = est.poses() - stream.truth[-1]
         err[:, 2] = wrap_angle(err[:, 2])
@@ -263,7 +268,7 @@ def test_offset_covariance_matches_numeric_propagation():
 
 
 def test_gate_rejects_false_detections():
-    stream = simulate_team_stream(5, 300, np.random.default_rng(4), p_observe=0.1)
+    stream = simulate_team_stream(5, 300, np.random.default_rng(4), sensing=_pairs(0.1))
     rng = np.random.default_rng(5)
     fakes = {}
     for k in range(10, 300, 10):  # a random sighting of a random teammate every second

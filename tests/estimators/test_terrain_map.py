@@ -448,7 +448,7 @@ def test_merge_listener_sees_exactly_the_cells_and_values_written():
     )
     rng = np.random.default_rng(4)
     for step in range(30):
-        prev = m._elev.copy(), m._conf.copy()
+        prev = m.terrain_matrix().ravel(), m.confidence.ravel()
         # Robots 0 and 1 share a spot on some steps (same-step collisions).
         xy = rng.uniform(0.2, 9.8, (3, 2))
         if step % 3 == 0:
@@ -457,10 +457,10 @@ def test_merge_listener_sees_exactly_the_cells_and_values_written():
         covs = np.tile(EYE, (3, 1, 1)) * rng.uniform(1, 100, (3, 1, 1))
         new = m.update(np.arange(3), poses, covs, rng.normal(0, 0.1, 3), np.nan, 0, 0.1, 0.0)
         cells, before, after, was_mapped = seen[-1]
-        changed = np.flatnonzero(m._conf != prev[1])
+        changed = np.flatnonzero(m.confidence.ravel() != prev[1])
         assert np.array_equal(np.sort(cells), changed)
         assert np.array_equal(before, prev[0][cells])
-        assert np.array_equal(after, m._elev[cells])
+        assert np.array_equal(after, m.terrain_matrix().ravel()[cells])
         assert np.array_equal(was_mapped, prev[1][cells] > 0)
         assert new.sum() == np.count_nonzero(~was_mapped)
 
@@ -471,8 +471,8 @@ def test_flat_index_all_inside_shortcut_agrees_with_the_mask():
     rng = np.random.default_rng(9)
     for lo, hi in (((-1.0, 2.0), (5.0, 5.5)), ((-1.3, 1.8), (5.2, 5.7)), ((2.0, 2.0), (4.9, 5.49))):
         xy = rng.uniform(lo, hi, (40, 2))
-        flat, inside = m._flat_index_xy(xy)
-        flat2, inside2 = m._flat_index_xy(xy, all_inside=True)
+        flat, inside = m.flat_index_xy(xy)
+        flat2, inside2 = m.flat_index_xy(xy, all_inside=True)
         assert np.array_equal(flat, flat2)
         if inside2 is None:
             assert inside.all()
@@ -490,13 +490,14 @@ def test_merges_that_write_nothing_leave_the_map_and_counts_alone():
     poses = np.array([[2.2, 2.2, 0.3], [5.1, 5.1, -1.0], [8.0, 3.0, 2.0]])
     first = m.update(np.arange(3), poses, np.tile(EYE, (3, 1, 1)), 0.0, np.nan, 0, 0.0, 0.0)
     assert first.tolist() == [5, 5, 5] and m.n_mapped == 15
-    state = m._elev.copy(), m._conf.copy()
+    state = m.terrain_matrix(), m.confidence
     for ids in (np.arange(3), np.array([2, 0])):  # whole team, then a subset out of order
         # Less sure of where they are: every sample loses to what the map holds.
         new = m.update(ids, poses[ids], np.tile(EYE * 100, (ids.size, 1, 1)), 0.0, np.nan, 0,
                        0.0, 0.0)
         assert new.tolist() == [0] * ids.size and m.newly_mapped_cells == 0
-        assert np.array_equal(m._elev, state[0]) and np.array_equal(m._conf, state[1])
+        assert np.array_equal(m.terrain_matrix(), state[0])
+        assert np.array_equal(m.confidence, state[1])
     assert seen == [15, 0, 0] and m.n_mapped == 15
     # A subset out of order gets its own counts back (robot 2's cell at x = 10 is off the grid).
     new = m.update(np.array([2, 0]), poses[[2, 0]] + [1.5, 1.5, 0.0], np.tile(EYE, (2, 1, 1)),
@@ -544,3 +545,53 @@ def test_pitch_changed_in_place_is_seen():
         expected = expected + 0.4 * np.tan(pitch)
     np.testing.assert_array_equal(a.elevation, b.elevation)
     np.testing.assert_array_equal(a.robot_elevation()[0], expected)
+
+
+@pytest.mark.parametrize("radius, every_step", [(0.0, True), (0.6, True), (0.6, False)])
+def test_update_prepared_equals_update_for_the_team_and_for_subsets(radius, every_step):
+    """The env's entry point (position variance and map-frame DGPS elevation prepared by the
+    caller, one read-only id array) writes what update() writes from covariances."""
+    kw = dict(size=(12.0, 12.0), resolution=0.5, datum=3.0, footprint_radius=radius,
+              merge_every_step=every_step)
+    public, prepared = TerrainMap(4, **kw), TerrainMap(4, **kw)
+    team = np.arange(4)
+    team.flags.writeable = False
+    rng = np.random.default_rng(11)
+    base = 2.0
+    for step in range(25):
+        ids = team if step % 3 else np.array([3, 1])
+        n = ids.size
+        poses = np.c_[rng.uniform(0.5, 11.5, (n, 2)), rng.uniform(-3, 3, n)]
+        covs = np.tile(EYE, (n, 1, 1)) * rng.uniform(1, 50, (n, 1, 1))
+        pitch, distance = rng.normal(0, 0.1, n), rng.uniform(-0.2, 0.5, n)
+        fix = rng.random(n) < 0.5
+        gps_alt = np.where(fix, rng.normal(1.0, 0.3, n), np.nan)
+        nos = np.where(fix, rng.integers(4, 12, n), 0)
+        want = public.update(ids, poses, covs, pitch, gps_alt, nos, distance, base)
+        got = prepared.update_prepared(ids, poses, covs[:, 0, 0] + covs[:, 1, 1], pitch,
+                                       (prepared.datum - base) + gps_alt, nos.astype(float),
+                                       distance)
+        assert np.array_equal(got, want)
+        assert public.newly_mapped_cells == prepared.newly_mapped_cells
+    if not every_step:
+        assert np.array_equal(public.end_segment(), prepared.end_segment())
+    np.testing.assert_array_equal(prepared.elevation, public.elevation)
+    np.testing.assert_array_equal(prepared.confidence, public.confidence)
+    for a, b in zip(prepared.robot_elevation(), public.robot_elevation(), strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert public.mapped.any()
+
+
+def test_footprint_lists_the_cells_one_sample_writes():
+    m = TerrainMap(1, (10.0, 10.0), resolution=1.0, footprint_radius=1.0)
+    fp = m.footprint
+    assert fp.shape == (5, 2) and fp[0].tolist() == [0.0, 0.0]
+    assert sorted(map(tuple, fp[1:].tolist())) == [(-1.0, 0.0), (0.0, -1.0), (0.0, 1.0),
+                                                  (1.0, 0.0)]
+    new = m.update([0], [[5.5, 5.5, 0.0]], [EYE], 0.0, np.nan, 0, 0.0, 0.0)
+    assert new.tolist() == [5] and m.mapped.sum() == 5
+    i, j, inside = m.world_to_cell(np.array([5.5, 5.5]) + fp)
+    assert inside.all() and m.mapped[i, j].all()
+    fp[:] = 0.0  # a copy: the map keeps its own
+    assert m.footprint.shape == (5, 2) and np.abs(m.footprint).sum() == 4.0
+    assert TerrainMap(1, (10.0, 10.0), resolution=1.0).footprint.tolist() == [[0.0, 0.0]]
