@@ -14,7 +14,7 @@ import math
 from collections.abc import Callable, Mapping
 from typing import Any
 
-from estimators.particle_filter import MCLConfig
+from estimators.mcl.filter import MCLConfig
 
 #: MCLConfig fields a scenario may set through ``extras["mcl"]`` / ``["mcl_laser"]`` /
 #: ``["mcl_sonar"]`` (the particle counts come from the config key ``n_particles``).

@@ -16,8 +16,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from estimators.occupancy import OccupancyGrid
-from estimators.particle_filter import MCLConfig, ParticleFilter
+from estimators.mcl.filter import MCLConfig, ParticleFilter
+from estimators.mcl.occupancy import OccupancyGrid
 
 __all__ = ["bench_mcl", "bench_map"]
 

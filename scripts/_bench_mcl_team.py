@@ -208,10 +208,10 @@ def table_memory_mb() -> dict[str, float]:
 
 def table_accuracy(n: int = 20000) -> dict[str, float]:
     """Percentiles (m) of the range-table error against exact ray casts
-    (:func:`estimators.beam_table.table_error`, ``n`` random free poses) for the beam-model
+    (:func:`estimators.mcl.beam_table.table_error`, ``n`` random free poses) for the beam-model
     maps of the shipped MCL scenarios."""
     from coop_loc_env.mcl_backend import MCLBackend
-    from estimators.beam_table import table_error
+    from estimators.mcl.beam_table import table_error
 
     out: dict[str, float] = {}
     for name in ("symmetric_hallway", "hexagon"):

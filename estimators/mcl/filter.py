@@ -15,7 +15,7 @@ weighted particle set and offers
   KLD-sampling of the particle count (:meth:`ParticleFilter.resample`);
 * uniform initialization over free space for global localization;
 * :meth:`ParticleFilter.apply_weight_factors` for external evidence such as
-  the detection transfer of :mod:`estimators.detection_transfer`;
+  the detection transfer of :mod:`estimators.mcl.detection_transfer`;
 * a fixed-size belief embedding for learning
   (:meth:`ParticleFilter.belief_features`, layout in
   :func:`belief_feature_names`).
@@ -25,14 +25,14 @@ One class in one file on purpose (about 750 lines): every method of
 relative to the centre of map cell (0, 0), lazily wrapped headings, a state
 that may be a view of a team array), which splitting the class would expose.
 What does not touch that state lives beside it: parameters in
-:mod:`estimators.particle_config`, the likelihood-field table in
-:mod:`estimators.likelihood_field`, resampling and motion-noise draws in
-:mod:`estimators.particle_sampling`, the compiled weighting in
-:mod:`estimators.particle_weighting`, the belief embedding in
-:mod:`estimators.particle_features` (their public names are importable from here
-too), per-map beam tables in :mod:`estimators.beam_table`, team-level batching in
-:mod:`estimators.mcl_batch`, compiled loops in :mod:`estimators._kernels` and
-:mod:`estimators._team_kernels` (one filter is a team of one).
+:mod:`estimators.mcl.config`, the likelihood-field table in
+:mod:`estimators.mcl.likelihood_field`, resampling and motion-noise draws in
+:mod:`estimators.mcl.sampling`, the compiled weighting in
+:mod:`estimators.mcl.weighting`, the belief embedding in
+:mod:`estimators.mcl.features` (their public names are importable from here
+too), per-map beam tables in :mod:`estimators.mcl.beam_table`, team-level batching in
+:mod:`estimators.mcl.batch`, compiled loops in :mod:`estimators.mcl._kernels` and
+:mod:`estimators.mcl._team_kernels` (one filter is a team of one).
 
 Numerics use numpy/scipy, plus the numba loops there. All randomness comes from the
 ``numpy.random.Generator`` given to the constructor, so two filters built with
@@ -45,8 +45,9 @@ import math
 
 import numpy as np
 
-from estimators._team_kernels import FIX_COLUMNS, predict_blocks
-from estimators.beam_table import (
+from estimators.geometry import PI_BELOW, wrap_angle, wrap_angle_in_place
+from estimators.mcl._team_kernels import FIX_COLUMNS, predict_blocks
+from estimators.mcl.beam_table import (
     BeamLUT,
     RangeTable,
     beam_lut,
@@ -54,18 +55,17 @@ from estimators.beam_table import (
     range_table,
     scan_loglik,
 )
-from estimators.geometry import PI_BELOW, wrap_angle, wrap_angle_in_place
-from estimators.likelihood_field import LF_POWER, LFField, build_lf_field, lf_endpoints
-from estimators.occupancy import OccupancyGrid
-from estimators.particle_config import MCLConfig, ParticleBelief, ParticleMotionNoise
-from estimators.particle_features import belief_feature_names, belief_features, check_feature_args
-from estimators.particle_sampling import (
+from estimators.mcl.config import MCLConfig, ParticleBelief, ParticleMotionNoise
+from estimators.mcl.features import belief_feature_names, belief_features, check_feature_args
+from estimators.mcl.likelihood_field import LF_POWER, LFField, build_lf_field, lf_endpoints
+from estimators.mcl.occupancy import OccupancyGrid
+from estimators.mcl.sampling import (
     kld_sample_bound,
     low_variance_indices,
     resample_filters,
     standard_normals,
 )
-from estimators.particle_weighting import NO_FIELD, weigh_filters
+from estimators.mcl.weighting import NO_FIELD, weigh_filters
 
 __all__ = [
     "MCLConfig",
@@ -158,7 +158,7 @@ class ParticleFilter:
         self._state = np.zeros((3, 0), dtype=np.float32)
         self._weights = np.zeros(0)
         # where the state / weights start in a team array they are views of
-        # (estimators.mcl_batch.team_state / weigh_batch)
+        # (estimators.mcl.batch.team_state / weigh_batch)
         self._block_start = self._wblock_start = -1
         self._ess: tuple[np.ndarray, float] = (self._weights, 0.0)  # weights and their ESS
         self.init_uniform()
@@ -444,7 +444,7 @@ class ParticleFilter:
         skipped. Beam endpoints are precomputed in the robot frame (in cell
         units); one compiled pass moves them to every particle, reads the field
         there and the position penalty at the particle's own cell, and weights
-        (:func:`estimators.particle_weighting.weigh_filters`). Returns
+        (:func:`estimators.mcl.weighting.weigh_filters`). Returns
         ``log sum_i w_i p(z | x_i)`` with the tempered likelihood and the
         position penalty included.
         """
@@ -461,7 +461,7 @@ class ParticleFilter:
     def _weigh_self(self, fix: np.ndarray, nb: int, loglik: np.ndarray | None,
                     offset: float = 0.0, n_beams: int = 0, lf_args: tuple = NO_FIELD,
                     ux: np.ndarray | None = None, uy: np.ndarray | None = None) -> float:
-        """:func:`estimators.particle_weighting.weigh_filters` of this filter alone: a scan
+        """:func:`estimators.mcl.weighting.weigh_filters` of this filter alone: a scan
         of ``nb`` beams (-1: none) scored before (``loglik``) or by the likelihood field,
         and the fixes ``fix``. Returns the scan's log evidence."""
         n = self._weights.size
@@ -500,7 +500,7 @@ class ParticleFilter:
                     ) -> tuple[RangeTable, BeamLUT]:
         """The shared range table and beam-likelihood table of this map and model.
 
-        Built on first use and cached per map (see :mod:`estimators.beam_table`).
+        Built on first use and cached per map (see :mod:`estimators.mcl.beam_table`).
         """
         key = (float(max_range), float(cone_half_width))
         tables = self._beam_tabs.get(key)
@@ -650,7 +650,7 @@ class ParticleFilter:
         (binomial); fixed size:
         the injected count, the offset; then the injected positions
         (:meth:`OccupancyGrid.sample_free`) and headings.
-        (:func:`estimators.particle_sampling.resample_filters` does it for a team.)
+        (:func:`estimators.mcl.sampling.resample_filters` does it for a team.)
         """
         resample_filters([self], self._flat_state(), np.array([self._weights.size]),
                          self._weights, [True])
@@ -728,7 +728,7 @@ class ParticleFilter:
         The egocentric histogram is a ``hist_cells x hist_cells`` grid of
         ``cell_size`` m cells centred on the mean pose and aligned with the mean
         heading. The length does not depend on the particle count
-        (:func:`estimators.particle_features.belief_features`).
+        (:func:`estimators.mcl.features.belief_features`).
         """
         check_feature_args(hist_cells, cell_size, heading_bins)
         st = self._world()

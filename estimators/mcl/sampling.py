@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.special import ndtri
 
-from estimators._team_kernels import (
+from estimators.mcl._team_kernels import (
     build_blocks,
     normals_from_bits,
     select_blocks,
@@ -20,7 +20,7 @@ from estimators._team_kernels import (
 )
 
 if TYPE_CHECKING:
-    from estimators.particle_filter import ParticleFilter
+    from estimators.mcl.filter import ParticleFilter
 
 __all__ = [
     "kld_need", "kld_sample_bound", "low_variance_from_cumulative", "low_variance_indices",

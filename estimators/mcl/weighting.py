@@ -3,9 +3,9 @@
 :func:`weigh_filters` multiplies each filter's weights by its scan likelihood
 (a likelihood-field laser scan scored in the pass, or scan log-likelihoods
 scored before, e.g. by the beam model's tables) and its DGPS / compass fixes
-(:func:`estimators._team_kernels.weigh_blocks`), normalizes them, and updates
-the filters' augmented-MCL averages. :class:`~estimators.particle_filter.ParticleFilter`
-uses it for one filter, :mod:`estimators.mcl_batch` for a team.
+(:func:`estimators.mcl._team_kernels.weigh_blocks`), normalizes them, and updates
+the filters' augmented-MCL averages. :class:`~estimators.mcl.filter.ParticleFilter`
+uses it for one filter, :mod:`estimators.mcl.batch` for a team.
 """
 
 from __future__ import annotations
@@ -16,11 +16,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from estimators._team_kernels import weigh_blocks
 from estimators.geometry import wrap_angle
+from estimators.mcl._team_kernels import weigh_blocks
 
 if TYPE_CHECKING:
-    from estimators.particle_filter import ParticleFilter
+    from estimators.mcl.filter import ParticleFilter
 
 __all__ = ["NO_FIELD", "weigh_filters"]
 

@@ -1,6 +1,6 @@
 """Several robots' particle filters updated together in flat arrays.
 
-A team of :class:`~estimators.particle_filter.ParticleFilter` objects can be
+A team of :class:`~estimators.mcl.filter.ParticleFilter` objects can be
 stepped with one compiled call per operation instead of one per robot:
 
 * :func:`team_state` gathers the filters' states into one flat array (each
@@ -11,8 +11,8 @@ stepped with one compiled call per operation instead of one per robot:
   noise from its own generator; the result equals
   :meth:`ParticleFilter.predict_delta` robot by robot, bit for bit);
 * :func:`update_beam_batch` weights all robots' particles by their scans with
-  one lookup in the shared :class:`~estimators.beam_table.RangeTable` and
-  :class:`~estimators.beam_table.BeamLUT` (the result equals calling
+  one lookup in the shared :class:`~estimators.mcl.beam_table.RangeTable` and
+  :class:`~estimators.mcl.beam_table.BeamLUT` (the result equals calling
   :meth:`ParticleFilter.update_beam` robot by robot, bit for bit);
 * :func:`weigh_batch` weights all robots' particles by their likelihood-field
   laser scans and their DGPS / compass fixes in one pass;
@@ -30,13 +30,13 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from estimators._kernels import summary_features, weighted_distances
-from estimators._team_kernels import FIX_COLUMNS, compose_rows, lf_scan_rows, predict_blocks
-from estimators.beam_table import scan_loglik
-from estimators.likelihood_field import LF_POWER, beam_units
-from estimators.particle_filter import ParticleFilter
-from estimators.particle_sampling import standard_normals
-from estimators.particle_weighting import weigh_filters
+from estimators.mcl._kernels import summary_features, weighted_distances
+from estimators.mcl._team_kernels import FIX_COLUMNS, compose_rows, lf_scan_rows, predict_blocks
+from estimators.mcl.beam_table import scan_loglik
+from estimators.mcl.filter import ParticleFilter
+from estimators.mcl.likelihood_field import LF_POWER, beam_units
+from estimators.mcl.sampling import standard_normals
+from estimators.mcl.weighting import weigh_filters
 
 __all__ = [
     "belief_summaries", "compose_odometry_batch", "particle_spreads", "predict_batch",
@@ -49,7 +49,7 @@ _ENDS: dict[tuple[int, ...], np.ndarray] = {}  # segment ends by particle counts
 
 def team_state(filters: Sequence[ParticleFilter]) -> tuple[np.ndarray, np.ndarray]:
     """The filters' states in one flat float32 array (block layout, see
-    :mod:`estimators._team_kernels`) and the particle segments' ends ``(R,)``.
+    :mod:`estimators.mcl._team_kernels`) and the particle segments' ends ``(R,)``.
 
     Each filter's state is made a view of the array, so a later call finds it
     in place (no copy) unless a filter replaced its state meanwhile.
@@ -181,7 +181,7 @@ def weigh_batch(
 def compose_odometry_batch(v: np.ndarray, w: np.ndarray, dt: float) -> np.ndarray:
     """Relative motions ``(R, 3)`` of ``R`` robots' odometry sub-steps ``v, w`` ``(R, K)``.
 
-    Row ``r`` equals :func:`~estimators.particle_filter.compose_odometry` of ``v[r], w[r]``.
+    Row ``r`` equals :func:`~estimators.mcl.filter.compose_odometry` of ``v[r], w[r]``.
     """
     v = np.asarray(v, dtype=float)
     w = np.asarray(w, dtype=float)

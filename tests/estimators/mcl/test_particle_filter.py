@@ -7,8 +7,7 @@ import pytest
 from scipy.stats import chi2
 
 from estimators.geometry import wrap_angle
-from estimators.occupancy import OccupancyGrid
-from estimators.particle_filter import (
+from estimators.mcl.filter import (
     MCLConfig,
     ParticleFilter,
     ParticleMotionNoise,
@@ -17,6 +16,7 @@ from estimators.particle_filter import (
     kld_sample_bound,
     low_variance_indices,
 )
+from estimators.mcl.occupancy import OccupancyGrid
 
 RES = 0.1
 MAX_RANGE = 8.0

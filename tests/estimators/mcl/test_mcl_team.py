@@ -9,14 +9,14 @@ import math
 import numpy as np
 import pytest
 
-from estimators._team_kernels import lf_scan_rows
 from estimators.geometry import wrap_angle
-from estimators.likelihood_field import LF_POWER, beam_units, lf_endpoints, lf_loglik
-from estimators.mcl_batch import predict_batch, team_state, team_weights, weigh_batch
-from estimators.occupancy import OccupancyGrid
-from estimators.particle_filter import MCLConfig, ParticleFilter
-from estimators.particle_sampling import kld_need, low_variance_from_cumulative, resample_filters
-from estimators.particle_weighting import weigh_filters
+from estimators.mcl._team_kernels import lf_scan_rows
+from estimators.mcl.batch import predict_batch, team_state, team_weights, weigh_batch
+from estimators.mcl.filter import MCLConfig, ParticleFilter
+from estimators.mcl.likelihood_field import LF_POWER, beam_units, lf_endpoints, lf_loglik
+from estimators.mcl.occupancy import OccupancyGrid
+from estimators.mcl.sampling import kld_need, low_variance_from_cumulative, resample_filters
+from estimators.mcl.weighting import weigh_filters
 
 BEAMS = np.linspace(-np.pi, np.pi, 20, endpoint=False)
 
@@ -192,7 +192,7 @@ def test_resampling_repeats_the_numpy_algorithm():
 def test_ziggurat_normals_are_standard_normal():
     from scipy import stats
 
-    from estimators.particle_sampling import standard_normals
+    from estimators.mcl.sampling import standard_normals
 
     rng = np.random.default_rng(0)
     z = np.concatenate([standard_normals(rng, np.empty(n, dtype=np.float32))
