@@ -83,8 +83,6 @@ from estimators.mcl.batch import (
     compose_odometry_batch,
     particle_spreads,
     predict_batch,
-    team_state,
-    team_weights,
     update_beam_batch,
     weigh_batch,
 )
@@ -115,7 +113,8 @@ from estimators.mcl.filter import (
     low_variance_indices,
 )
 from estimators.mcl.occupancy import OccupancyGrid
-from estimators.mcl.sampling import resample_filters
+from estimators.mcl.sampling import resample_team
+from estimators.mcl.team import ParticleTeam
 
 __all__ = ["MCLBackend", "beam_angles", "known_map", "map_resolution"]
 
@@ -400,8 +399,8 @@ class MCLBackend(EstimatorBackend):
         which = [self.resample_every_step
                  or pf.ess < pf.config.resample_ess_fraction * pf.n_particles for pf in team]
         if any(which):
-            flat, ends = team_state(team)
-            resample_filters(team, flat, ends, team_weights(team), which)
+            joined = ParticleTeam.gather(team)
+            resample_team(joined, joined.weights(), which)
         if live:
             odo = readings.odometry[:, self.robots[live]]  # (substeps, robots, 2)
             deltas = compose_odometry_batch(odo[..., 0].T, odo[..., 1].T, dt_sub)

@@ -1,13 +1,12 @@
 """Resampling helpers of the particle filter: low-variance (systematic) resampling,
 the KLD-sampling bound (Fox 2003) on the number of particles, and the compiled
-resampling of one or several filters at once (:func:`resample_filters`)."""
+resampling of a :class:`~estimators.mcl.team.ParticleTeam` at once (:func:`resample_team`)."""
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
 from functools import lru_cache
-from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.special import ndtri
@@ -18,13 +17,11 @@ from estimators.mcl._team_kernels import (
     select_blocks,
     ziggurat_tables,
 )
-
-if TYPE_CHECKING:
-    from estimators.mcl.filter import ParticleFilter
+from estimators.mcl.team import ParticleTeam
 
 __all__ = [
     "kld_need", "kld_sample_bound", "low_variance_from_cumulative", "low_variance_indices",
-    "resample_filters", "standard_normals",
+    "resample_team", "standard_normals",
 ]
 
 _ZIGGURAT = ziggurat_tables()
@@ -107,17 +104,17 @@ def kld_need(epsilon: float, delta: float, n_min: int, n_max: int) -> np.ndarray
     return need
 
 
-def resample_filters(filters: Sequence[ParticleFilter], flat: np.ndarray, ends: np.ndarray,
-                     w: np.ndarray, which: Sequence[bool]) -> np.ndarray:
-    """:meth:`ParticleFilter.resample` of ``filters[r]`` where ``which[r]``, all in two
-    compiled passes over the team's arrays; returns the team's new state (block layout),
-    which every filter's state is then a view of (resampled filters get uniform weights).
+def resample_team(team: ParticleTeam, w: np.ndarray, which: Sequence[bool]) -> np.ndarray:
+    """:meth:`~estimators.mcl.filter.ParticleFilter.resample` of robot ``r`` where
+    ``which[r]``, all in two compiled passes over the team's arrays; returns the team's
+    new state (block layout), which every set's state is then a view of (resampled sets
+    get uniform weights).
 
-    ``flat``, ``ends``, ``w``: the filters' states (block layout, each filter's state a
-    view of ``flat``), segment ends and weights. Each filter draws from its own
-    generator in the order :meth:`ParticleFilter.resample` documents, so resampling a
-    team equals resampling its filters one by one.
+    ``w``: the team's weights (:meth:`ParticleTeam.weights`). Each robot draws from its
+    own generator in the order :meth:`~estimators.mcl.filter.ParticleFilter.resample`
+    documents, so resampling a team equals resampling its filters one by one.
     """
+    filters, flat, ends = team.members, team.state, team.ends
     nr = len(filters)
     # per robot: mode (0 keep, 1 fixed count, 2 KLD), indices to draw, injected count
     ints = [(0, 0, 0)] * nr
@@ -139,13 +136,14 @@ def resample_filters(filters: Sequence[ParticleFilter], flat: np.ndarray, ends: 
             u[r] = rng.random()
             words.append((r, rng.bit_generator.random_raw(cfg.n_max)))  # the shuffle
             ints[r] = (2, cfg.n_max, 0)
-            if pf._unwrapped_steps:
-                pf._wrap_headings()
+            ps = pf.particle_set
+            if ps.unwrapped_steps:
+                ps.wrap_headings()
             bx, by, bt = cfg.kld_bin
             need = kld_need(cfg.kld_epsilon, cfg.kld_delta, cfg.n_min, cfg.n_max)
             if kld is None:
                 kld = np.zeros((nr, 8))
-            kld[r] = (pf._org[0, 0], pf._org[1, 0], 1.0 / bx, 1.0 / by, 1.0 / bt,
+            kld[r] = (ps.origin_xy[0], ps.origin_xy[1], 1.0 / bx, 1.0 / by, 1.0 / bt,
                       math.ceil(2.0 * math.pi / bt), need_off, cfg.n_min)
             needs.append(need)
             need_off += need.size
@@ -179,7 +177,7 @@ def resample_filters(filters: Sequence[ParticleFilter], flat: np.ndarray, ends: 
         if k:  # uniform over free space (OccupancyGrid.sample_free's draws), any heading
             inj_xy.append(pf.grid.sample_free(k, pf.rng))
             inj_h.append(pf.rng.uniform(-np.pi, np.pi, size=k))
-    org = np.array([pf._org_xy for pf in filters]).reshape(-1, 2)
+    org = team.origins
     if len(inj_xy) > 1:
         xy_all, h_all = np.concatenate(inj_xy), np.concatenate(inj_h)
     else:
@@ -187,10 +185,12 @@ def resample_filters(filters: Sequence[ParticleFilter], flat: np.ndarray, ends: 
     new, new_ends = build_blocks(flat, ends, mode_a, idx, m_a, keep, xy_all, h_all, n_inj_a,
                                  org)
     start = 0
-    for pf, end, (mode, _, _) in zip(filters, new_ends.tolist(), ints, strict=True):
-        pf._state = new[3 * start:3 * end].reshape(3, end - start)
-        pf._block_start = start
+    for pf, ps, end, (mode, _, _) in zip(filters, team.sets, new_ends.tolist(), ints,
+                                         strict=True):
+        ps.state = new[3 * start:3 * end].reshape(3, end - start)
+        ps.state_start = start
         if mode:
-            pf._weights = pf._uniform_weights(end - start)
+            ps.weights = pf.uniform_weights(end - start)
         start = end
+    team.state, team.ends = new, new_ends
     return new
