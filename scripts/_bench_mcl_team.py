@@ -194,10 +194,11 @@ def table_memory_mb() -> dict[str, float]:
             if not isinstance(backend, MCLBackend):
                 continue
             for pf in backend.filters:
-                for table, lut in pf._beam_tabs.values():
+                beam, fields = pf.cached_tables()
+                for table, lut in beam:
                     for arr in (table.rows, table.free_cells, lut.table):
                         arrays[id(arr)] = arr.nbytes
-                for lf in pf._lf_cache.values():
+                for lf in fields:
                     arrays[id(lf.table)] = lf.table.nbytes
         label = name if mcl else f"{name} (estimator=mcl)"
         out[f"tables_mb_{label}"] = sum(arrays.values()) / 2**20
@@ -222,7 +223,7 @@ def table_accuracy(n: int = 20000) -> dict[str, float]:
                 continue
             done = set()
             for pf in backend.filters:
-                for table, _ in pf._beam_tabs.values():
+                for table, _ in pf.cached_tables()[0]:
                     sensor = "sonar" if table.rays_per_cone > 1 else "laser"
                     if sensor in done:
                         continue

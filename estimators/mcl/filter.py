@@ -20,19 +20,16 @@ weighted particle set and offers
   (:meth:`ParticleFilter.belief_features`, layout in
   :func:`belief_feature_names`).
 
-One class in one file on purpose (about 750 lines): every method of
-:class:`ParticleFilter` works on the same private state layout (float32 poses
-relative to the centre of map cell (0, 0), lazily wrapped headings, a state
-that may be a view of a team array), which splitting the class would expose.
-What does not touch that state lives beside it: parameters in
-:mod:`estimators.mcl.config`, the likelihood-field table in
-:mod:`estimators.mcl.likelihood_field`, resampling and motion-noise draws in
-:mod:`estimators.mcl.sampling`, the compiled weighting in
-:mod:`estimators.mcl.weighting`, the belief embedding in
-:mod:`estimators.mcl.features` (their public names are importable from here
-too), per-map beam tables in :mod:`estimators.mcl.beam_table`, team-level batching in
-:mod:`estimators.mcl.batch`, compiled loops in :mod:`estimators.mcl._kernels` and
-:mod:`estimators.mcl._team_kernels` (one filter is a team of one).
+One class in one file on purpose (about 630 lines): its methods are the one-robot
+API over a :class:`~estimators.mcl.team.ParticleSet` (float32 poses from the centre of
+map cell (0, 0), lazily wrapped headings, arrays that may be views of a team's); the
+parts that do not need a filter live beside it in :mod:`estimators.mcl`: parameters
+(:mod:`~estimators.mcl.config`), motion arithmetic (:mod:`~estimators.mcl.motion`),
+sensor tables (:mod:`~estimators.mcl.likelihood_field`,
+:mod:`~estimators.mcl.beam_table`), the sampling and weighting passes
+(:mod:`~estimators.mcl.sampling`, :mod:`~estimators.mcl.weighting`, a filter alone is
+a team of one), the belief embedding (:mod:`~estimators.mcl.features`) and team
+batching (:mod:`~estimators.mcl.batch`).
 
 Numerics use numpy/scipy, plus the numba loops there. All randomness comes from the
 ``numpy.random.Generator`` given to the constructor, so two filters built with
@@ -45,7 +42,7 @@ import math
 
 import numpy as np
 
-from estimators.geometry import PI_BELOW, wrap_angle
+from estimators.geometry import wrap_angle
 from estimators.mcl._team_kernels import FIX_COLUMNS, predict_blocks
 from estimators.mcl.beam_table import (
     BeamLUT,
@@ -58,6 +55,7 @@ from estimators.mcl.beam_table import (
 from estimators.mcl.config import MCLConfig, ParticleBelief, ParticleMotionNoise
 from estimators.mcl.features import belief_feature_names, belief_features, check_feature_args
 from estimators.mcl.likelihood_field import LF_POWER, LFField, build_lf_field, lf_endpoints
+from estimators.mcl.motion import compose_odometry, motion_parameters
 from estimators.mcl.occupancy import OccupancyGrid
 from estimators.mcl.sampling import (
     kld_sample_bound,
@@ -65,8 +63,9 @@ from estimators.mcl.sampling import (
     resample_team,
     standard_normals,
 )
+from estimators.mcl.scans import check_scan
 from estimators.mcl.team import ParticleSet, ParticleTeam
-from estimators.mcl.weighting import NO_FIELD, weigh_team
+from estimators.mcl.weighting import NO_FIELD, fix_parameters, weigh_team
 
 __all__ = [
     "MCLConfig",
@@ -78,30 +77,6 @@ __all__ = [
     "kld_sample_bound",
     "low_variance_indices",
 ]
-
-
-def compose_odometry(v: np.ndarray, w: np.ndarray, dt: float) -> np.ndarray:
-    """Relative motion ``(dx, dy, dheading)`` of a sequence of unicycle odometry readings.
-
-    ``v``, ``w`` ``(K,)`` are speeds and turn rates held for ``dt`` each; the
-    result is expressed in the robot frame at the start (exact arcs), ready for
-    :meth:`ParticleFilter.predict_delta`. One prediction per env step instead
-    of one per odometry sub-step keeps the sampling cost down.
-    """
-    v = np.atleast_1d(np.asarray(v, dtype=float))
-    w = np.atleast_1d(np.asarray(w, dtype=float))
-    if v.shape != w.shape or v.ndim != 1:
-        raise ValueError(f"v and w must be 1D of equal length, got {v.shape} and {w.shape}")
-    if not (np.all(np.isfinite(v)) and np.all(np.isfinite(w)) and math.isfinite(dt)) or dt < 0:
-        raise ValueError(f"odometry must be finite with dt >= 0, got v={v}, w={w}, dt={dt}")
-    dth = w * dt
-    start = np.concatenate([[0.0], np.cumsum(dth)[:-1]])
-    turning = np.abs(dth) > 1e-9
-    safe_w = np.where(turning, w, 1.0)
-    lx = np.where(turning, v / safe_w * np.sin(dth), v * dt)
-    ly = np.where(turning, v / safe_w * (1.0 - np.cos(dth)), 0.0)
-    c, s = np.cos(start), np.sin(start)
-    return np.array([np.sum(c * lx - s * ly), np.sum(s * lx + c * ly), float(np.sum(dth))])
 
 
 class ParticleFilter:
@@ -331,59 +306,11 @@ class ParticleFilter:
         (:class:`ParticleMotionNoise`), the parameters of one motion update (its noise:
         ``3 N`` standard normals drawn next from this filter's generator); adds the
         translation to :attr:`odometer`."""
-        trans = math.hypot(dx, dy)
-        if trans < 1e-9:
-            rot1 = 0.0
-        elif dx >= 0:
-            rot1 = math.atan2(dy, dx)
-        else:  # reversing: negative translation, not a half-turn
-            rot1 = math.atan2(-dy, -dx)
-            trans = -trans
-        rot2 = min((dth - rot1 + math.pi) % (2.0 * math.pi) - math.pi, PI_BELOW)
-        at = abs(trans)
-        self.odometer += at
-        mn = self.config.motion
-        sd_r1 = mn.rot_rot * abs(rot1) + mn.rot_trans * at + mn.min_heading
-        sd_t = mn.trans_trans * at + mn.trans_rot * (abs(rot1) + abs(rot2)) + mn.min_xy
-        sd_r2 = mn.rot_rot * abs(rot2) + mn.rot_trans * at + mn.min_heading
-        return rot1, trans, rot2, sd_r1, sd_t, sd_r2
+        params = motion_parameters(dx, dy, dth, self.config.motion)
+        self.odometer += abs(params[1])
+        return params
 
     # ---------------------------------------------------------- perception
-    def _scan_input(
-        self, ranges: np.ndarray, angles: np.ndarray, max_range: float
-    ) -> tuple[np.ndarray, np.ndarray, float, float]:
-        """Validated 1D ``ranges`` and ``angles`` (ranges may exceed ``max_range``).
-
-        Also returns the largest range (``-inf`` for an empty scan).
-        """
-        ranges = np.asarray(ranges, dtype=float)
-        angles = np.asarray(angles, dtype=float)
-        if ranges.ndim != 1:
-            ranges = ranges.ravel()
-            angles = angles.ravel()
-        if ranges.shape != angles.shape:
-            raise ValueError(f"ranges {ranges.shape} and angles {angles.shape} must match")
-        max_range = float(max_range)
-        if not (math.isfinite(max_range) and max_range > 0):
-            raise ValueError(f"max_range must be a positive finite number, got {max_range}")
-        hi = -math.inf
-        if ranges.size:
-            if ranges.size <= 64:  # small scans: cheaper in Python than three reductions
-                rl = ranges.tolist()
-                total = sum(rl)  # NaN when any range is
-                lo, hi = min(rl), max(rl)
-            else:
-                total = lo = float(ranges.min())
-                hi = float(ranges.max())
-            if not (lo >= 0 and total == total):
-                raise ValueError(f"ranges must be >= 0 and not NaN, got {ranges}")
-            key = angles.tobytes()  # scanners repeat their angles: check them once
-            if key != self._angles_ok:
-                if not math.isfinite(angles.sum()):
-                    raise ValueError(f"beam angles must be finite, got {angles}")
-                self._angles_ok = key
-        return ranges, angles, max_range, hi
-
     def lf_field(self, max_range: float) -> LFField:
         """The likelihood-field tables for ``max_range`` (:func:`build_lf_field`; cached here
         and shared through the grid by every filter with the same map and model)."""
@@ -419,7 +346,8 @@ class ParticleFilter:
         ``log sum_i w_i p(z | x_i)`` with the tempered likelihood and the
         position penalty included.
         """
-        ranges, angles, max_range, hi = self._scan_input(ranges, angles, max_range)
+        ranges, angles, max_range, hi, self._angles_ok = check_scan(ranges, angles, max_range,
+                                                                    self._angles_ok)
         lf = self.lf_field(max_range)
         if hi >= max_range:
             keep = ranges < max_range
@@ -486,6 +414,11 @@ class ParticleFilter:
             tables = self._beam_tabs[key] = (table, lut)
         return tables
 
+    def cached_tables(self) -> tuple[list[tuple[RangeTable, BeamLUT]], list[LFField]]:
+        """The beam-model tables and likelihood fields this filter has built or looked up
+        so far (shared per map; for memory accounting)."""
+        return list(self._beam_tabs.values()), list(self._lf_cache.values())
+
     def update_beam(
         self,
         ranges: np.ndarray,
@@ -500,7 +433,8 @@ class ParticleFilter:
         Max-range readings are scored by the ``beam_z_max`` term. Returns the
         scan's log evidence like :meth:`update_likelihood_field`.
         """
-        ranges, angles, max_range, _ = self._scan_input(ranges, angles, max_range)
+        ranges, angles, max_range, _, self._angles_ok = check_scan(ranges, angles, max_range,
+                                                                   self._angles_ok)
         cfg = self.config
         if ranges.size == 0:
             return self._weigh_self(np.zeros(FIX_COLUMNS), 0, self._position_penalty())
@@ -579,26 +513,12 @@ class ParticleFilter:
         """The checked parameters of :meth:`update_fix` as the compiled update reads them:
         ``[gps?, x, y, -0.5 / xy_var, compass?, heading, -0.5 / heading_std**2]``
         (positions in state coordinates)."""
-        fix = np.zeros(FIX_COLUMNS)
-        if xy is not None:
-            t = np.asarray(xy, dtype=float)
-            if t.shape != (2,) or not np.all(np.isfinite(t)):
-                raise ValueError(f"xy must be 2 finite numbers, got {xy}")
-            if not (math.isfinite(xy_var) and xy_var > 0):
-                raise ValueError(f"xy_var must be finite and > 0, got {xy_var}")
-            org = self.particle_set.origin
-            fix[:4] = (1.0, t[0] - org[0, 0], t[1] - org[1, 0], -0.5 / xy_var)
-        if heading is not None:
-            if not math.isfinite(heading):
-                raise ValueError(f"heading must be finite, got {heading}")
-            if not (math.isfinite(heading_std) and heading_std > 0):
-                raise ValueError(f"heading_std must be finite and > 0, got {heading_std}")
-            fix[4:] = (1.0, heading, -0.5 / heading_std**2)
-        return fix
+        return fix_parameters(self.particle_set.origin, xy, xy_var, heading, heading_std)
 
     def lf_kernel_args(self, max_range: float | None) -> tuple:
-        """The likelihood field's arguments of the compiled weighting (:meth:`_weigh`);
-        placeholders for ``max_range=None`` (no scan)."""
+        """The likelihood field's arguments of the compiled weighting
+        (:func:`~estimators.mcl.weighting.weigh_team`); placeholders for ``max_range=None``
+        (no scan)."""
         if max_range is None:
             return NO_FIELD
         lf = self.lf_field(max_range)

@@ -17,7 +17,7 @@ from estimators.mcl._team_kernels import (
     select_blocks,
     ziggurat_tables,
 )
-from estimators.mcl.team import ParticleTeam
+from estimators.mcl.team import ParticleTeam, TeamMember
 
 __all__ = [
     "kld_need", "kld_sample_bound", "low_variance_from_cumulative", "low_variance_indices",
@@ -115,42 +115,8 @@ def resample_team(team: ParticleTeam, w: np.ndarray, which: Sequence[bool]) -> n
     documents, so resampling a team equals resampling its filters one by one.
     """
     filters, flat, ends = team.members, team.state, team.ends
+    ints, u, p_inj, kld, words, needs = _first_draws(team, which)
     nr = len(filters)
-    # per robot: mode (0 keep, 1 fixed count, 2 KLD), indices to draw, injected count
-    ints = [(0, 0, 0)] * nr
-    u = [0.0] * nr
-    p_inj = [0.0] * nr
-    kld: np.ndarray | None = None
-    words: list[tuple[int, np.ndarray]] = []
-    needs: list[np.ndarray] = []
-    need_off = 0
-    start = 0
-    for r, (pf, end) in enumerate(zip(filters, ends.tolist(), strict=True)):
-        n, start = end - start, end
-        if not which[r]:
-            continue
-        cfg = pf.config
-        rng = pf.rng
-        p = p_inj[r] = pf.inject_probability
-        if cfg.adaptive:
-            u[r] = rng.random()
-            words.append((r, rng.bit_generator.random_raw(cfg.n_max)))  # the shuffle
-            ints[r] = (2, cfg.n_max, 0)
-            ps = pf.particle_set
-            if ps.unwrapped_steps:
-                ps.wrap_headings()
-            bx, by, bt = cfg.kld_bin
-            need = kld_need(cfg.kld_epsilon, cfg.kld_delta, cfg.n_min, cfg.n_max)
-            if kld is None:
-                kld = np.zeros((nr, 8))
-            kld[r] = (ps.origin_xy[0], ps.origin_xy[1], 1.0 / bx, 1.0 / by, 1.0 / bt,
-                      math.ceil(2.0 * math.pi / bt), need_off, cfg.n_min)
-            needs.append(need)
-            need_off += need.size
-        else:
-            k = int(rng.binomial(n, p)) if p > 0 else 0
-            u[r] = rng.random()
-            ints[r] = (1, n - k, k)
     mode_a, m_a, n_inj_a = np.array(ints, dtype=np.intp).reshape(nr, 3).T.copy()
     if words:  # KLD robots' shuffle words at their offsets
         offsets = np.cumsum(m_a) - m_a
@@ -166,24 +132,9 @@ def resample_team(team: ParticleTeam, w: np.ndarray, which: Sequence[bool]) -> n
     idx, counts = select_blocks(flat, w, ends, mode_a, np.array(u), m_a, bits,
                                 _NO_KLD if kld is None else kld, need_all)
     keep = counts if words else m_a
-    inj_xy: list[np.ndarray] = []
-    inj_h: list[np.ndarray] = []
-    for r, pf in enumerate(filters):
-        mode, _, k = ints[r]
-        if mode == 2 and p_inj[r] > 0:
-            n = int(counts[r])
-            k = n_inj_a[r] = int(pf.rng.binomial(n, p_inj[r]))
-            keep[r] = n - k
-        if k:  # uniform over free space (OccupancyGrid.sample_free's draws), any heading
-            inj_xy.append(pf.grid.sample_free(k, pf.rng))
-            inj_h.append(pf.rng.uniform(-np.pi, np.pi, size=k))
-    org = team.origins
-    if len(inj_xy) > 1:
-        xy_all, h_all = np.concatenate(inj_xy), np.concatenate(inj_h)
-    else:
-        xy_all, h_all = (inj_xy[0], inj_h[0]) if inj_xy else (_NO_XY, _NO_H)
+    xy_all, h_all = _injections(filters, ints, p_inj, counts, keep, n_inj_a)
     new, new_ends = build_blocks(flat, ends, mode_a, idx, m_a, keep, xy_all, h_all, n_inj_a,
-                                 org)
+                                 team.origins)
     start = 0
     for pf, ps, end, (mode, _, _) in zip(filters, team.sets, new_ends.tolist(), ints,
                                          strict=True):
@@ -194,3 +145,69 @@ def resample_team(team: ParticleTeam, w: np.ndarray, which: Sequence[bool]) -> n
         start = end
     team.state, team.ends = new, new_ends
     return new
+
+
+def _first_draws(team: ParticleTeam, which: Sequence[bool]) -> tuple:
+    """The draws of :func:`resample_team` before its selection pass, robot by robot: per
+    robot ``(mode, indices to draw, injected count)`` (mode 0 keep, 1 fixed count,
+    2 KLD), the resampling offsets, injection probabilities, the KLD rows of
+    ``select_blocks`` (None: no KLD robot), the KLD robots' shuffle words and the KLD
+    bounds."""
+    nr = len(team.members)
+    ints = [(0, 0, 0)] * nr
+    u = [0.0] * nr
+    p_inj = [0.0] * nr
+    kld: np.ndarray | None = None
+    words: list[tuple[int, np.ndarray]] = []
+    needs: list[np.ndarray] = []
+    need_off = 0
+    start = 0
+    for r, (pf, ps, end) in enumerate(zip(team.members, team.sets, team.ends.tolist(),
+                                          strict=True)):
+        n, start = end - start, end
+        if not which[r]:
+            continue
+        cfg = pf.config
+        rng = pf.rng
+        p = p_inj[r] = pf.inject_probability
+        if cfg.adaptive:
+            u[r] = rng.random()
+            words.append((r, rng.bit_generator.random_raw(cfg.n_max)))  # the shuffle
+            ints[r] = (2, cfg.n_max, 0)
+            if ps.unwrapped_steps:
+                ps.wrap_headings()
+            bx, by, bt = cfg.kld_bin
+            need = kld_need(cfg.kld_epsilon, cfg.kld_delta, cfg.n_min, cfg.n_max)
+            if kld is None:
+                kld = np.zeros((nr, 8))
+            kld[r] = (ps.origin_xy[0], ps.origin_xy[1], 1.0 / bx, 1.0 / by, 1.0 / bt,
+                      math.ceil(2.0 * math.pi / bt), need_off, cfg.n_min)
+            needs.append(need)
+            need_off += need.size
+        else:
+            k = int(rng.binomial(n, p)) if p > 0 else 0
+            u[r] = rng.random()
+            ints[r] = (1, n - k, k)
+    return ints, u, p_inj, kld, words, needs
+
+
+def _injections(filters: Sequence[TeamMember], ints: list[tuple[int, int, int]],
+                p_inj: list[float], counts: np.ndarray, keep: np.ndarray,
+                n_inj: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The injected particles' positions ``(K, 2)`` and headings ``(K,)`` of every robot in
+    turn; a KLD robot's injected count is drawn here from its selected count (``keep`` and
+    ``n_inj`` are updated in place)."""
+    inj_xy: list[np.ndarray] = []
+    inj_h: list[np.ndarray] = []
+    for r, pf in enumerate(filters):
+        mode, _, k = ints[r]
+        if mode == 2 and p_inj[r] > 0:
+            n = int(counts[r])
+            k = n_inj[r] = int(pf.rng.binomial(n, p_inj[r]))
+            keep[r] = n - k
+        if k:  # uniform over free space (OccupancyGrid.sample_free's draws), any heading
+            inj_xy.append(pf.grid.sample_free(k, pf.rng))
+            inj_h.append(pf.rng.uniform(-np.pi, np.pi, size=k))
+    if len(inj_xy) > 1:
+        return np.concatenate(inj_xy), np.concatenate(inj_h)
+    return (inj_xy[0], inj_h[0]) if inj_xy else (_NO_XY, _NO_H)

@@ -15,10 +15,10 @@ import math
 import numpy as np
 
 from estimators.geometry import wrap_angle
-from estimators.mcl._team_kernels import weigh_blocks
+from estimators.mcl._team_kernels import FIX_COLUMNS, weigh_blocks
 from estimators.mcl.team import ParticleSet, ParticleTeam
 
-__all__ = ["NO_FIELD", "weigh_team"]
+__all__ = ["NO_FIELD", "fix_parameters", "weigh_team"]
 
 # placeholders of the likelihood-field arguments of weigh_blocks when no field is read
 NO_FIELD = (np.zeros(1, dtype=np.float32), 1, 0, np.float32(0), np.float32(1), np.float32(0),
@@ -106,3 +106,27 @@ def _weights_in_logs(ps: ParticleSet, w_prev: np.ndarray, loglik: np.ndarray | N
     return e, log_evidence
 
 
+
+
+def fix_parameters(origin: np.ndarray, xy: np.ndarray | None = None, xy_var: float = 1.0,
+                   heading: float | None = None, heading_std: float = 1.0) -> np.ndarray:
+    """A position fix ``xy`` (m, variance ``xy_var`` m^2) and / or a heading fix (rad,
+    standard deviation ``heading_std``), checked, as :func:`weigh_team` reads them:
+    ``[gps?, x, y, -0.5 / xy_var, compass?, heading, -0.5 / heading_std**2]`` with
+    positions from ``origin`` ``(3, 1)`` (a :class:`ParticleSet`'s)."""
+    fix = np.zeros(FIX_COLUMNS)
+    if xy is not None:
+        t = np.asarray(xy, dtype=float)
+        if t.shape != (2,) or not np.all(np.isfinite(t)):
+            raise ValueError(f"xy must be 2 finite numbers, got {xy}")
+        if not (math.isfinite(xy_var) and xy_var > 0):
+            raise ValueError(f"xy_var must be finite and > 0, got {xy_var}")
+        org = origin
+        fix[:4] = (1.0, t[0] - org[0, 0], t[1] - org[1, 0], -0.5 / xy_var)
+    if heading is not None:
+        if not math.isfinite(heading):
+            raise ValueError(f"heading must be finite, got {heading}")
+        if not (math.isfinite(heading_std) and heading_std > 0):
+            raise ValueError(f"heading_std must be finite and > 0, got {heading_std}")
+        fix[4:] = (1.0, heading, -0.5 / heading_std**2)
+    return fix
