@@ -94,7 +94,9 @@ class ParticleFilter:
     The filter starts with ``config.n_particles`` particles uniformly spread
     over free space (global localization); call :meth:`init_gaussian` for
     position tracking. ``odometer`` accumulates the absolute translation
-    reported by odometry (used by the detection lockout).
+    reported by odometry (used by the detection lockout). ``particle_set`` is this
+    robot's :class:`~estimators.mcl.team.ParticleSet`, whose arrays the team passes of
+    :mod:`estimators.mcl.batch` make views of a :class:`~estimators.mcl.team.ParticleTeam`'s.
 
     Recommended order per step: :meth:`resample_if_needed` (which also injects
     random particles), :meth:`predict_odometry`, the measurement updates,

@@ -122,12 +122,19 @@ _ENDS: dict[tuple[int, ...], np.ndarray] = {}  # segment ends by particle counts
 class ParticleTeam:
     """``R`` robots' particle sets in flat arrays (block layout).
 
-    Fields: ``members`` (the ``R`` robots' filters), ``sets`` (their
-    :class:`ParticleSet`), ``state`` ``(3 N,)`` float32 (every set's state is a view
-    of it), ``ends`` ``(R,)`` intp (segment ends; ``N = ends[-1]``), and derived
-    ``starts`` ``(R,)``, ``origins`` ``(R, 2)`` float64 (m, each set's origin),
-    ``rngs`` (each robot's generator: robot ``r`` draws only from ``rngs[r]``), and
-    :meth:`weights` ``(N,)``. Build one with :meth:`gather` (or :meth:`alone`).
+    Fields:
+
+    * ``members``: the ``R`` robots' filters (:class:`TeamMember`), ``sets``: their
+      :class:`ParticleSet` (one robot's view of the arrays below);
+    * ``state`` ``(3 N,)`` float32: every robot's ``x, y`` (m, from its origin) and
+      heading (rad) rows, robot ``r``'s ``(3, n_r)`` block at ``3 * starts[r]``;
+    * ``ends`` ``(R,)`` intp: segment ends (``N = ends[-1]``); ``starts`` ``(R,)``;
+    * :meth:`weights` ``(N,)`` float64, each segment normalized; ``ess`` ``(R,)``;
+    * ``origins`` ``(R, 2)`` float64: world ``x, y`` (m) of each robot's state origin;
+    * ``rngs``: each robot's generator (robot ``r`` draws only from ``rngs[r]``).
+
+    Build one with :meth:`gather` (or :meth:`alone`). A pass that replaces the state
+    (:func:`~estimators.mcl.sampling.resample_team`) updates ``state`` and ``ends``.
     """
 
     def __init__(self, members: Sequence[TeamMember], state: np.ndarray,
@@ -206,3 +213,8 @@ class ParticleTeam:
     def rngs(self) -> list[np.random.Generator]:
         """Each robot's generator."""
         return [m.rng for m in self.members]
+
+    @property
+    def ess(self) -> np.ndarray:
+        """``(R,)`` each set's effective sample size ``1 / sum(w^2)``."""
+        return np.array([ps.ess for ps in self.sets], dtype=float)
