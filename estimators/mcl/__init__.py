@@ -22,6 +22,7 @@ from estimators.mcl.detection_transfer import (
 from estimators.mcl.features import belief_feature_names
 from estimators.mcl.filter import ParticleFilter
 from estimators.mcl.occupancy import OccupancyGrid
+from estimators.mcl.team import ParticleSet, ParticleTeam
 
 __all__ = [
     "DensityTree",
@@ -31,6 +32,8 @@ __all__ = [
     "ParticleBelief",
     "ParticleFilter",
     "ParticleMotionNoise",
+    "ParticleSet",
+    "ParticleTeam",
     "RobotDetection",
     "TransferConfig",
     "belief_feature_names",
