@@ -54,6 +54,7 @@ from estimators.mcl.beam_table import (
 )
 from estimators.mcl.config import MCLConfig, ParticleBelief, ParticleMotionNoise
 from estimators.mcl.features import belief_feature_names, belief_features, check_feature_args
+from estimators.mcl.inputs import check_scan, fix_parameters
 from estimators.mcl.likelihood_field import LF_POWER, LFField, build_lf_field, lf_endpoints
 from estimators.mcl.motion import compose_odometry, motion_parameters
 from estimators.mcl.occupancy import OccupancyGrid
@@ -63,9 +64,8 @@ from estimators.mcl.sampling import (
     resample_team,
     standard_normals,
 )
-from estimators.mcl.scans import check_scan
 from estimators.mcl.team import ParticleSet, ParticleTeam
-from estimators.mcl.weighting import NO_FIELD, fix_parameters, weigh_team
+from estimators.mcl.weighting import NO_FIELD, weigh_team
 
 __all__ = [
     "MCLConfig",

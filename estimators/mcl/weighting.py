@@ -1,11 +1,11 @@
-"""Weighting a team of particle sets in one compiled pass.
+"""Weighting one or several particle filters in one compiled pass.
 
-:func:`weigh_team` multiplies each robot's weights by its scan likelihood
+:func:`weigh_team` multiplies each filter's weights by its scan likelihood
 (a likelihood-field laser scan scored in the pass, or scan log-likelihoods
 scored before, e.g. by the beam model's tables) and its DGPS / compass fixes
 (:func:`estimators.mcl._team_kernels.weigh_blocks`), normalizes them, and updates
 the filters' augmented-MCL averages. :class:`~estimators.mcl.filter.ParticleFilter`
-uses it for a team of one, :mod:`estimators.mcl.batch` for a team.
+uses it for one filter, :mod:`estimators.mcl.batch` for a team.
 """
 
 from __future__ import annotations
@@ -15,10 +15,10 @@ import math
 import numpy as np
 
 from estimators.geometry import wrap_angle
-from estimators.mcl._team_kernels import FIX_COLUMNS, weigh_blocks
+from estimators.mcl._team_kernels import weigh_blocks
 from estimators.mcl.team import ParticleSet, ParticleTeam
 
-__all__ = ["NO_FIELD", "fix_parameters", "weigh_team"]
+__all__ = ["NO_FIELD", "weigh_team"]
 
 # placeholders of the likelihood-field arguments of weigh_blocks when no field is read
 NO_FIELD = (np.zeros(1, dtype=np.float32), 1, 0, np.float32(0), np.float32(1), np.float32(0),
@@ -37,11 +37,10 @@ def weigh_team(
 
     Robot ``r`` has a scan when ``nb[r] >= 0``: with ``scored`` its log-likelihoods
     are ``loglik``'s segment, otherwise ``nb[r]`` likelihood-field endpoints ``ux, uy``
-    scored in the pass into ``loglik`` (``lf_args``:
-    :meth:`~estimators.mcl.filter.ParticleFilter.lf_kernel_args`, ``power``: the
-    field's power). Its scan's log evidence is the pass's plus ``offsets[r]``; the
-    augmented-MCL averages track it over ``n_eff[r]`` beams (none when 0). Returns the
-    log evidences (NaN: no scan).
+    scored in the pass (``lf_args``: :meth:`ParticleFilter.lf_kernel_args`, ``power``:
+    the field's power) into ``loglik``. Its scan's log evidence is the pass's plus
+    ``offsets[r]``; the augmented-MCL averages track it over ``n_eff[r]`` beams
+    (none when 0). Returns the log evidences (NaN: no scan).
     """
     filters, flat, ends = team.members, team.state, team.ends
     nr = len(filters)
@@ -68,7 +67,7 @@ def weigh_team(
                 ps.weights_start = start
                 ps.ess_cache = (ps.weights, ess)
                 ev = ev_r + float(offsets[r])
-            else:  # the products underflowed: redo this robot in log space
+            else:  # the products underflowed: redo this filter in log space
                 ps.weights, ev = _weights_in_logs(ps, w_prev[start:end],
                                                   loglik[start:end] if scan else None,
                                                   fixes[r])
@@ -82,7 +81,7 @@ def weigh_team(
 
 def _weights_in_logs(ps: ParticleSet, w_prev: np.ndarray, loglik: np.ndarray | None,
                      fix: np.ndarray) -> tuple[np.ndarray, float]:
-    """:func:`weigh_team` for one robot in log space: normalized weights and the
+    """:func:`weigh_team` for one filter in log space: normalized weights and the
     scan's log evidence (less the caller's offset; NaN without a scan)."""
     st = ps.state
     with np.errstate(divide="ignore"):
@@ -107,26 +106,3 @@ def _weights_in_logs(ps: ParticleSet, w_prev: np.ndarray, loglik: np.ndarray | N
 
 
 
-
-def fix_parameters(origin: np.ndarray, xy: np.ndarray | None = None, xy_var: float = 1.0,
-                   heading: float | None = None, heading_std: float = 1.0) -> np.ndarray:
-    """A position fix ``xy`` (m, variance ``xy_var`` m^2) and / or a heading fix (rad,
-    standard deviation ``heading_std``), checked, as :func:`weigh_team` reads them:
-    ``[gps?, x, y, -0.5 / xy_var, compass?, heading, -0.5 / heading_std**2]`` with
-    positions from ``origin`` ``(3, 1)`` (a :class:`ParticleSet`'s)."""
-    fix = np.zeros(FIX_COLUMNS)
-    if xy is not None:
-        t = np.asarray(xy, dtype=float)
-        if t.shape != (2,) or not np.all(np.isfinite(t)):
-            raise ValueError(f"xy must be 2 finite numbers, got {xy}")
-        if not (math.isfinite(xy_var) and xy_var > 0):
-            raise ValueError(f"xy_var must be finite and > 0, got {xy_var}")
-        org = origin
-        fix[:4] = (1.0, t[0] - org[0, 0], t[1] - org[1, 0], -0.5 / xy_var)
-    if heading is not None:
-        if not math.isfinite(heading):
-            raise ValueError(f"heading must be finite, got {heading}")
-        if not (math.isfinite(heading_std) and heading_std > 0):
-            raise ValueError(f"heading_std must be finite and > 0, got {heading_std}")
-        fix[4:] = (1.0, heading, -0.5 / heading_std**2)
-    return fix
