@@ -39,8 +39,8 @@ from gymnasium import spaces
 from scipy.special import ndtr
 
 from coop_loc_env.obs_blocks import OBS_LIMIT, ObsBlock, ObsInputs, ObsSetup
-from estimators.mcl_batch import team_state, team_weights
-from estimators.particle_modes import MODE_FIELDS, particle_modes, raster_particles
+from estimators.mcl.batch import team_state, team_weights
+from estimators.mcl.modes import MODE_FIELDS, particle_modes, raster_particles
 
 MODE_RADIUS = 2.0  # m: a mode holds the particles within this of its seed ...
 MODE_HEADING_TOL = math.pi / 4  # ... and within this of its heading (rad)
@@ -145,7 +145,7 @@ class BeliefMapBlock(ObsBlock):
     Args:
         cfg: the scenario (``belief_map_cells``, ``belief_map_headings``, ``world_size``).
         grids: each robot's known occupancy grid
-            (:class:`~estimators.occupancy.OccupancyGrid`), one per robot.
+            (:class:`~estimators.mcl.occupancy.OccupancyGrid`), one per robot.
     """
 
     name = "belief_map"

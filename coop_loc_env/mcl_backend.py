@@ -1,6 +1,6 @@
 """Monte Carlo localization backend (Fox, Burgard, Kruppa, Thrun): ``estimator="mcl"``.
 
-Each MCL robot keeps its own particle set (:class:`estimators.particle_filter.ParticleFilter`)
+Each MCL robot keeps its own particle set (:class:`estimators.mcl.filter.ParticleFilter`)
 in a known map built from the scenario's layout. Per env step and robot:
 
 1. resample when the effective sample size falls below half the count
@@ -14,25 +14,25 @@ in a known map built from the scenario's layout. Per env step and robot:
    beam model without cones, ``extras["mcl_laser_model"] = "beam"``), the beam
    model with wide cones for a sonar (``cone_half_width = 0.5 * sonar_fov / sonar_beams``);
    beam models look expected ranges and likelihoods up in tables built once per
-   map (:mod:`estimators.beam_table`), all robots of a sensor type in one call
-   (:func:`estimators.mcl_batch.update_beam_batch`);
+   map (:mod:`estimators.mcl.beam_table`), all robots of a sensor type in one call
+   (:func:`estimators.mcl.batch.update_beam_batch`);
 4. weight by DGPS fixes and compass readings when the robot has them
    (Gaussian likelihoods with the variances the receivers report);
 5. detections between two MCL robots (``cooperative_updates``): the observed
    robot's belief is multiplied by the density of where the observer's particles
-   say it is (:class:`estimators.detection_transfer.DetectionTransfer`, density
+   say it is (:class:`estimators.mcl.detection_transfer.DetectionTransfer`, density
    trees, the paper's 2.5 m lockout, negative sightings ignored; the factor may
    be tempered, ``extras["mcl_detection_exponent"]``). Without
    ``cfg.detection_orientation`` the transfer samples (x, y) only. Every
    detection is first checked against both robots' beliefs
-   (:mod:`estimators.detection_consistency`, ``extras["mcl_detection_check"]``,
+   (:mod:`estimators.mcl.detection_consistency`, ``extras["mcl_detection_check"]``,
    on by default): one that contradicts a confident detected robot is not
    transferred but counted as a conflict for both robots (info
    ``detection_conflicts``), and once a second conflict confirms it, each
    robot's own recent scans decide whom to trust, or both keep a minority
    hypothesis where the other claims they are (:meth:`MCLBackend._widen`).
 
-Maps: one :class:`~estimators.occupancy.OccupancyGrid` per range-sensor type,
+Maps: one :class:`~estimators.mcl.occupancy.OccupancyGrid` per range-sensor type,
 rasterized from ``world.layout.obstacles`` honouring each obstacle's
 ``visible_to`` (a laser robot's map lacks the sonar-only features) plus the
 world's border. Grids and their derived tables are cached per process, so
@@ -52,13 +52,13 @@ estimator (EKF/MLE) are ignored by this backend (and by the EKF's); the
 relative measurement would need a Gaussian <-> particle conversion.
 
 Steps 1-4 run for the whole team at once, as compiled passes over one flat
-array of all robots' particles (:mod:`estimators.mcl_batch`; each filter keeps
+array of all robots' particles (:mod:`estimators.mcl.batch`; each filter keeps
 its own random generator, so the result equals stepping the robots one by
 one), and the means, covariances, features and particle spreads of all
 filters are computed together once per step.
 
 Observation features: :meth:`ParticleFilter.belief_features` (48 values, layout
-in :func:`estimators.particle_filter.belief_feature_names`): weighted mean and
+in :func:`estimators.mcl.filter.belief_feature_names`): weighted mean and
 covariance (as the EKF's first ten entries), heading resultant, normalized
 effective sample size, histogram entropy, particle-count fraction, a 5 x 5
 egocentric histogram of particle mass (``HIST_CELL`` m cells) plus the mass
@@ -78,9 +78,17 @@ from coop_loc_env.estimation import EstimatorBackend, noisy_start
 from coop_loc_env.mcl_options import check_extra
 from coop_loc_env.sensors import Readings, beam_angles
 from coop_loc_env.world import World
-from estimators.beam_table import BeamLUT, RangeTable
-from estimators.density_tree import load_kernels
-from estimators.detection_consistency import (
+from estimators.mcl.batch import (
+    belief_summaries,
+    compose_odometry_batch,
+    particle_spreads,
+    predict_batch,
+    update_beam_batch,
+    weigh_batch,
+)
+from estimators.mcl.beam_table import BeamLUT, RangeTable
+from estimators.mcl.density_tree import load_kernels
+from estimators.mcl.detection_consistency import (
     ConsistencyConfig,
     backtrack,
     main_mode,
@@ -89,7 +97,7 @@ from estimators.detection_consistency import (
     scan_loglik_along,
     widen,
 )
-from estimators.detection_transfer import (
+from estimators.mcl.detection_transfer import (
     DetectionTransfer,
     RobotDetection,
     TransferConfig,
@@ -97,25 +105,16 @@ from estimators.detection_transfer import (
     sample_detected_poses,
     sample_observer_poses,
 )
-from estimators.mcl_batch import (
-    belief_summaries,
-    compose_odometry_batch,
-    particle_spreads,
-    predict_batch,
-    team_state,
-    team_weights,
-    update_beam_batch,
-    weigh_batch,
-)
-from estimators.occupancy import OccupancyGrid
-from estimators.particle_filter import (
+from estimators.mcl.filter import (
     MCLConfig,
     ParticleFilter,
     ParticleMotionNoise,
     belief_feature_names,
     low_variance_indices,
 )
-from estimators.particle_sampling import resample_filters
+from estimators.mcl.occupancy import OccupancyGrid
+from estimators.mcl.sampling import resample_team
+from estimators.mcl.team import ParticleTeam
 
 __all__ = ["MCLBackend", "beam_angles", "known_map", "map_resolution"]
 
@@ -400,8 +399,8 @@ class MCLBackend(EstimatorBackend):
         which = [self.resample_every_step
                  or pf.ess < pf.config.resample_ess_fraction * pf.n_particles for pf in team]
         if any(which):
-            flat, ends = team_state(team)
-            resample_filters(team, flat, ends, team_weights(team), which)
+            joined = ParticleTeam.gather(team)
+            resample_team(joined, joined.weights(), which)
         if live:
             odo = readings.odometry[:, self.robots[live]]  # (substeps, robots, 2)
             deltas = compose_odometry_batch(odo[..., 0].T, odo[..., 1].T, dt_sub)
@@ -465,7 +464,7 @@ class MCLBackend(EstimatorBackend):
         poses (tempered log-likelihood ratio), and the best pose of each hypothesis.
 
         Each hypothesis (the main mode's pose, and the claim's:
-        :func:`~estimators.detection_consistency.pose_estimate`) is searched over a
+        :func:`~estimators.mcl.detection_consistency.pose_estimate`) is searched over a
         small grid of poses around it (``EVIDENCE_TURNS`` x ``EVIDENCE_SHIFTS``: a claim is
         blurred by the detection noise, and a heading off by a few hundredths of a radian
         takes a trajectory into the walls a few tens of metres back); every pose is taken
@@ -502,7 +501,7 @@ class MCLBackend(EstimatorBackend):
         ``ADOPT_MASS`` of its weight to the trusted robot's claim (its own mode
         carried there rigidly, keeping the rest where it was). When no robot's
         scans reject a claim, each claimed-about robot keeps ``widen_mass`` where
-        the other says it is (:func:`estimators.detection_consistency.widen`).
+        the other says it is (:func:`estimators.mcl.detection_consistency.widen`).
         Otherwise nothing changes. A single conflict may be a
         false positive, so this waits for a second (:meth:`_confirmed_conflict`).
         """
@@ -657,9 +656,9 @@ class MCLBackend(EstimatorBackend):
         readings; returns how many scans.
 
         Robots sharing a beam model (sonars; lasers with ``mcl_laser_model="beam"``)
-        are weighted by their scans together (:func:`estimators.mcl_batch.update_beam_batch`);
+        are weighted by their scans together (:func:`estimators.mcl.batch.update_beam_batch`);
         then the likelihood-field laser scans and all fixes in one pass
-        (:func:`estimators.mcl_batch.weigh_batch`).
+        (:func:`estimators.mcl.batch.weigh_batch`).
         """
         if not live:
             return 0

@@ -6,7 +6,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from coop_loc_env.extras import BackendOptions, flag, is_int, is_number, option
-from estimators.particle_filter import MCLConfig
+from estimators.mcl.config import MCLConfig
 
 #: MCLConfig fields a scenario may set through ``extras["mcl"]`` / ``["mcl_laser"]`` /
 #: ``["mcl_sonar"]`` (the particle counts come from the config key ``n_particles``).

@@ -12,7 +12,7 @@ belief                 ``belief_size``             the estimator backend's featu
                                                    ``coop_loc_env.mle_backend``; MCL: 48
                                                    values, the same 10 first, then particle
                                                    statistics and histograms, layout in
-                                                   ``particle_filter.belief_feature_names``)
+                                                   ``mcl.filter.belief_feature_names``)
 gps                    2                           fix held (0/1), satellites in view / 12, as of
                                                    the last DGPS reading (also one with none)
 inclinometer           2                           last pitch and roll (rad)

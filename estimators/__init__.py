@@ -10,28 +10,28 @@ real robot logs alike:
   readings) recover them from validation-gate lock-out;
 - :class:`ParticleFilter`, :class:`DensityTree`, :class:`DetectionTransfer` —
   multi-robot Monte Carlo localization (Fox et al.), with per-map beam-model
-  tables (:mod:`estimators.beam_table`) and team-level batched updates
-  (:mod:`estimators.mcl_batch`);
+  tables (:mod:`estimators.mcl.beam_table`) and team-level batched updates
+  (:mod:`estimators.mcl.batch`);
 - :class:`PoseGraph`, :class:`TeamMLE` — maximum-likelihood team localization
   (Howard et al.) and its Eq. 15 metrics;
 - :class:`TerrainMap` — elevation-gradient terrain mapping;
 - :func:`load_mrclam` — the UTIAS MR.CLAM log format.
 """
 
-from estimators.density_tree import DensityTree
-from estimators.detection_transfer import (
+from estimators.ekf import Belief, PoseEKF, chi2_threshold
+from estimators.gating import GateMonitor
+from estimators.geometry import compose_relative, relative_pose, wrap_angle, wrap_angle_in_place
+from estimators.mcl.density_tree import DensityTree
+from estimators.mcl.detection_transfer import (
     DetectionTransfer,
     RobotDetection,
     TransferConfig,
     detection_from_measurement,
 )
-from estimators.ekf import Belief, PoseEKF, chi2_threshold
-from estimators.gating import GateMonitor
-from estimators.geometry import compose_relative, relative_pose, wrap_angle, wrap_angle_in_place
+from estimators.mcl.filter import MCLConfig, ParticleFilter, belief_feature_names
+from estimators.mcl.occupancy import OccupancyGrid
 from estimators.mle_online import TeamMLE
 from estimators.mrclam import load_mrclam
-from estimators.occupancy import OccupancyGrid
-from estimators.particle_filter import MCLConfig, ParticleFilter, belief_feature_names
 from estimators.pose_graph import PoseGraph, marginal_covariances, optimize
 from estimators.relative_metrics import (
     relative_error_dict,

@@ -6,7 +6,7 @@ the occupancy-based cost of the path; Dudek, Romanik and Whitesides drive to
 where the hypotheses predict different readings. Here, for every robot that
 runs MCL:
 
-1. **Modes.** The belief's top modes (:func:`estimators.particle_modes.particle_modes`,
+1. **Modes.** The belief's top modes (:func:`estimators.mcl.modes.particle_modes`,
    the same extraction as the dict observation's ``belief_modes``); those above
    ``min_weight`` are the hypotheses. While they hold less than ``min_cover``
    of the mass (early in global localization), the robot explores as ``corridor``.
@@ -61,7 +61,7 @@ import numpy as np
 
 from coop_loc_env.belief_map import TeamBeliefs
 from estimators.geometry import wrap_angle
-from estimators.particle_modes import particle_modes
+from estimators.mcl.modes import particle_modes
 from policies.scripted.corridor import SIDE, SIDE_GAIN, SLOW, TURN_PENALTY, CorridorPolicy, follow
 from policies.scripted.planning import PlanGrid
 

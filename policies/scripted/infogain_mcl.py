@@ -68,8 +68,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimators.beam_table import BeamLUT, RangeTable, beam_lut
 from estimators.geometry import wrap_angle
+from estimators.mcl.beam_table import BeamLUT, RangeTable, beam_lut
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,7 @@
 """Geodesic path planning on the known map: a coarse grid of drivable cells and Dijkstra.
 
 :class:`PlanGrid` resamples a known occupancy grid
-(:class:`estimators.occupancy.OccupancyGrid`) into cells of ``cell`` m whose centres
+(:class:`estimators.mcl.occupancy.OccupancyGrid`) into cells of ``cell`` m whose centres
 keep at least ``clearance`` m from every obstacle, links each to its 8 neighbours
 (edge cost: the step length, raised near the walls so paths keep to the middle
 of a corridor) and answers geodesic distances and paths with

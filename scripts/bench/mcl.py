@@ -16,8 +16,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from estimators.occupancy import OccupancyGrid
-from estimators.particle_filter import MCLConfig, ParticleFilter
+from estimators.mcl.filter import MCLConfig, ParticleFilter
+from estimators.mcl.occupancy import OccupancyGrid
 
 __all__ = ["bench_mcl", "bench_map"]
 
@@ -104,7 +104,7 @@ def bench_mcl(
     angles = np.linspace(-np.pi, np.pi, n_beams, endpoint=False)
     max_range = 10.0
     ranges = grid.simulate_scan(pose, angles, max_range)
-    lf = pf._lf_field(max_range)  # the same table the update gathers from
+    lf = pf.lf_field(max_range)  # the same table the update gathers from
     field = lf.table
     idx = rng.integers(0, lf.offset, size=n_particles * n_beams)
 

@@ -194,10 +194,11 @@ def table_memory_mb() -> dict[str, float]:
             if not isinstance(backend, MCLBackend):
                 continue
             for pf in backend.filters:
-                for table, lut in pf._beam_tabs.values():
+                beam, fields = pf.cached_tables()
+                for table, lut in beam:
                     for arr in (table.rows, table.free_cells, lut.table):
                         arrays[id(arr)] = arr.nbytes
-                for lf in pf._lf_cache.values():
+                for lf in fields:
                     arrays[id(lf.table)] = lf.table.nbytes
         label = name if mcl else f"{name} (estimator=mcl)"
         out[f"tables_mb_{label}"] = sum(arrays.values()) / 2**20
@@ -208,10 +209,10 @@ def table_memory_mb() -> dict[str, float]:
 
 def table_accuracy(n: int = 20000) -> dict[str, float]:
     """Percentiles (m) of the range-table error against exact ray casts
-    (:func:`estimators.beam_table.table_error`, ``n`` random free poses) for the beam-model
+    (:func:`estimators.mcl.beam_table.table_error`, ``n`` random free poses) for the beam-model
     maps of the shipped MCL scenarios."""
     from coop_loc_env.mcl_backend import MCLBackend
-    from estimators.beam_table import table_error
+    from estimators.mcl.beam_table import table_error
 
     out: dict[str, float] = {}
     for name in ("symmetric_hallway", "hexagon"):
@@ -222,7 +223,7 @@ def table_accuracy(n: int = 20000) -> dict[str, float]:
                 continue
             done = set()
             for pf in backend.filters:
-                for table, _ in pf._beam_tabs.values():
+                for table, _ in pf.cached_tables()[0]:
                     sensor = "sonar" if table.rays_per_cone > 1 else "laser"
                     if sensor in done:
                         continue

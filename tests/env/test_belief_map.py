@@ -10,7 +10,7 @@ from pettingzoo.test import parallel_api_test
 
 import coop_loc_env
 from coop_loc_env.belief_map import TeamBeliefs
-from estimators.particle_modes import particle_modes, raster_particles
+from estimators.mcl.modes import particle_modes, raster_particles
 
 FAST = {"max_cycles": 12, "n_particles": 200}
 

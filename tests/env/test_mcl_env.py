@@ -13,7 +13,7 @@ import coop_loc_env
 from coop_loc_env.config import RobotSpec
 from coop_loc_env.mcl_backend import MCLBackend, beam_angles, known_map
 from coop_loc_env.sensors import SensorSuite
-from estimators.particle_filter import belief_feature_names
+from estimators.mcl.filter import belief_feature_names
 
 SCENARIOS = coop_loc_env.list_scenarios()
 # Small particle sets and short episodes keep this fast.
@@ -271,7 +271,7 @@ def test_reset_loads_the_detection_kernels():
 
     code = (
         "import coop_loc_env\n"
-        "from estimators._kernels import grow_tree, tree_density\n"
+        "from estimators.mcl._kernels import grow_tree, tree_density\n"
         "env = coop_loc_env.parallel_env('symmetric_hallway', n_robots=2, n_particles=50)\n"
         "env.reset(seed=0)\n"
         "print(len(grow_tree.signatures), len(tree_density.signatures))\n"
@@ -285,7 +285,7 @@ def test_reset_loads_the_detection_kernels():
 
 
 # A 10 m x 6 m room with boxes placed without symmetry (the room of
-# tests/estimators/test_particle_filter.py), for a laser-only robot.
+# tests/estimators/mcl/test_particle_filter.py), for a laser-only robot.
 ROOM_BOXES = [(2.0, 2.0, 3.0, 2.6), (6.5, 3.2, 7.0, 4.2), (4.5, 0.0, 4.8, 1.2),
               (8.0, 1.0, 9.0, 1.5), (3.5, 5.4, 4.5, 6.0), (5.8, 2.8, 6.1, 3.1),
               (9.5, 5.5, 10.0, 6.0)]

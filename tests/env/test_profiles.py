@@ -48,13 +48,13 @@ def test_fox_paper_profile():
 
 def test_random_particles_after_every_step(monkeypatch):
     calls = []
-    original = mcl_backend.resample_filters  # the backend resamples its team at once
+    original = mcl_backend.resample_team  # the backend resamples its team at once
 
-    def counting(filters, flat, ends, w, which):
+    def counting(team, w, which):
         calls.extend([1] * sum(which))  # one per filter resampled
-        return original(filters, flat, ends, w, which)
+        return original(team, w, which)
 
-    monkeypatch.setattr(mcl_backend, "resample_filters", counting)
+    monkeypatch.setattr(mcl_backend, "resample_team", counting)
     counts = {}
     for every in (False, True):
         calls.clear()

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 import coop_loc_env
-from estimators.beam_table import beam_lut, range_table
-from estimators.occupancy import OccupancyGrid
+from estimators.mcl.beam_table import beam_lut, range_table
+from estimators.mcl.occupancy import OccupancyGrid
 from policies.learning.loader import make_policy
 from policies.scripted import InfoGainPolicy
 from policies.scripted.infogain_mcl import (

@@ -7,8 +7,7 @@ import pytest
 from scipy.stats import chi2
 
 from estimators.geometry import wrap_angle
-from estimators.occupancy import OccupancyGrid
-from estimators.particle_filter import (
+from estimators.mcl.filter import (
     MCLConfig,
     ParticleFilter,
     ParticleMotionNoise,
@@ -17,6 +16,7 @@ from estimators.particle_filter import (
     kld_sample_bound,
     low_variance_indices,
 )
+from estimators.mcl.occupancy import OccupancyGrid
 
 RES = 0.1
 MAX_RANGE = 8.0
@@ -505,8 +505,8 @@ def test_filters_on_one_map_share_the_likelihood_table():
     a = ParticleFilter(g, np.random.default_rng(0), MCLConfig(n_particles=10))
     b = ParticleFilter(g, np.random.default_rng(1), MCLConfig(n_particles=10))
     c = ParticleFilter(g, np.random.default_rng(1), MCLConfig(n_particles=10, lf_sigma=0.5))
-    assert a._lf_field(MAX_RANGE) is b._lf_field(MAX_RANGE)
-    assert c._lf_field(MAX_RANGE) is not a._lf_field(MAX_RANGE)
+    assert a.lf_field(MAX_RANGE) is b.lf_field(MAX_RANGE)
+    assert c.lf_field(MAX_RANGE) is not a.lf_field(MAX_RANGE)
 
 
 def test_beam_model_prefers_the_true_pose_and_scores_max_range_readings():

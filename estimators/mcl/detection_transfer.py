@@ -9,7 +9,7 @@ belief is multiplied by ``m``'s belief about where ``n`` is::
 Implementation (as in the paper): draw poses of ``m`` from its particles,
 push each through the detection model (measurement noise sampled from the
 reported standard deviations, :func:`sample_detected_poses`), grow a
-:class:`~estimators.density_tree.DensityTree` from those samples over the
+:class:`~estimators.mcl.density_tree.DensityTree` from those samples over the
 map's box (``(x, y)``, or ``(x, y, heading)`` when the orientation is
 measured), and multiply every particle of ``n`` by the tree's density there.
 The symmetric update of ``m`` from ``n``'s belief is optional
@@ -55,7 +55,7 @@ domain (a uniform density over the same box). Consequences:
   was false, ``p_fp / V / ((1 - p_fp) E[tree_pdf] + p_fp / V)``, is reported as
   ``false_positive_posterior`` and is then close to 1;
 * if ``n`` is lost, a false positive does pull its belief towards the wrong
-  place; augmented-MCL injection in :class:`~estimators.particle_filter.ParticleFilter`
+  place; augmented-MCL injection in :class:`~estimators.mcl.filter.ParticleFilter`
   (the slow/fast likelihood averages) is what recovers from that, as from
   any other localization failure. With ``p_fp = 0`` and a tree that is zero
   at every particle, the weights are left unchanged.
@@ -69,10 +69,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from estimators.density_tree import DensityTree
-from estimators.detection_consistency import ConsistencyConfig, assess_detection, tree_bayes_factor
 from estimators.geometry import compose_relative, wrap_angle
-from estimators.particle_filter import ParticleFilter, low_variance_indices
+from estimators.mcl.density_tree import DensityTree
+from estimators.mcl.detection_consistency import (
+    ConsistencyConfig,
+    assess_detection,
+    tree_bayes_factor,
+)
+from estimators.mcl.filter import ParticleFilter, low_variance_indices
 
 __all__ = [
     "DetectionLockout",
@@ -168,7 +172,7 @@ class TransferConfig:
     paper's Eq. 14; see the module docstring for when less is needed). ``consistency``
     (``None``, the paper's transfer, by default) checks every detection against both
     beliefs first and skips the transfer when it conflicts with a confident detected
-    robot (:mod:`estimators.detection_consistency`).
+    robot (:mod:`estimators.mcl.detection_consistency`).
     """
 
     lockout_distance: float = 2.5
@@ -207,7 +211,7 @@ class TransferResult:
     ``false_positive_posterior`` is the probability, after the update, that
     the detection was spurious (``None`` when not applied); ``bayes_factor``
     the detection's consistency with both beliefs
-    (:func:`estimators.detection_consistency.tree_bayes_factor`; ``None`` when
+    (:func:`estimators.mcl.detection_consistency.tree_bayes_factor`; ``None`` when
     no tree was grown).
     """
 

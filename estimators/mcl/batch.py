@@ -1,18 +1,18 @@
 """Several robots' particle filters updated together in flat arrays.
 
-A team of :class:`~estimators.particle_filter.ParticleFilter` objects can be
-stepped with one compiled call per operation instead of one per robot:
+A team of :class:`~estimators.mcl.filter.ParticleFilter` objects can be
+stepped with one compiled call per operation instead of one per robot; each call
+joins them in a :class:`~estimators.mcl.team.ParticleTeam` (every filter's state a
+view of its flat array, reused in place by the next call):
 
-* :func:`team_state` gathers the filters' states into one flat array (each
-  filter's state becomes a view of it, so later team calls reuse it as long as
-  no filter replaced its state);
+* :func:`team_state` and :func:`team_weights`: the team's flat state and weights;
 * :func:`compose_odometry_batch` composes every robot's odometry sub-steps at once;
 * :func:`predict_batch` moves every robot's particles (each filter draws its
   noise from its own generator; the result equals
   :meth:`ParticleFilter.predict_delta` robot by robot, bit for bit);
 * :func:`update_beam_batch` weights all robots' particles by their scans with
-  one lookup in the shared :class:`~estimators.beam_table.RangeTable` and
-  :class:`~estimators.beam_table.BeamLUT` (the result equals calling
+  one lookup in the shared :class:`~estimators.mcl.beam_table.RangeTable` and
+  :class:`~estimators.mcl.beam_table.BeamLUT` (the result equals calling
   :meth:`ParticleFilter.update_beam` robot by robot, bit for bit);
 * :func:`weigh_batch` weights all robots' particles by their likelihood-field
   laser scans and their DGPS / compass fixes in one pass;
@@ -30,13 +30,13 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from estimators._kernels import summary_features, weighted_distances
-from estimators._team_kernels import FIX_COLUMNS, compose_rows, lf_scan_rows, predict_blocks
-from estimators.beam_table import scan_loglik
-from estimators.likelihood_field import LF_POWER, beam_units
-from estimators.particle_filter import ParticleFilter
-from estimators.particle_sampling import standard_normals
-from estimators.particle_weighting import weigh_filters
+from estimators.mcl._kernels import summary_features, weighted_distances
+from estimators.mcl._team_kernels import FIX_COLUMNS, compose_rows, lf_scan_rows, predict_blocks
+from estimators.mcl.beam_table import scan_loglik
+from estimators.mcl.likelihood_field import LF_POWER, beam_units
+from estimators.mcl.sampling import standard_normals
+from estimators.mcl.team import ParticleTeam, TeamMember
+from estimators.mcl.weighting import weigh_team
 
 __all__ = [
     "belief_summaries", "compose_odometry_batch", "particle_spreads", "predict_batch",
@@ -44,63 +44,22 @@ __all__ = [
 ]
 
 
-_ENDS: dict[tuple[int, ...], np.ndarray] = {}  # segment ends by particle counts (not written)
-
-
-def team_state(filters: Sequence[ParticleFilter]) -> tuple[np.ndarray, np.ndarray]:
+def team_state(filters: Sequence[TeamMember]) -> tuple[np.ndarray, np.ndarray]:
     """The filters' states in one flat float32 array (block layout, see
-    :mod:`estimators._team_kernels`) and the particle segments' ends ``(R,)``.
-
-    Each filter's state is made a view of the array, so a later call finds it
-    in place (no copy) unless a filter replaced its state meanwhile.
-    """
-    if not filters:
-        return np.zeros(0, dtype=np.float32), np.zeros(0, dtype=np.intp)
-    flat = filters[0]._state.base
-    valid = flat is not None
-    counts = []
-    start = 0
-    for pf in filters:
-        n = pf._weights.size
-        counts.append(n)
-        if valid and (pf._state.base is not flat or pf._block_start != start):
-            valid = False
-        start += n
-    key = tuple(counts)
-    ends = _ENDS.get(key)
-    if ends is None:
-        if len(_ENDS) > 256:  # adaptive counts vary: keep the cache small
-            _ENDS.clear()
-        ends = _ENDS[key] = np.cumsum(np.array(counts, dtype=np.intp))
-    if valid and flat.size == 3 * start:
-        return flat, ends
-    flat = np.concatenate([pf._flat_state() for pf in filters])
-    start = 0
-    for pf, n in zip(filters, counts, strict=True):
-        pf._state = flat[3 * start:3 * (start + n)].reshape(3, n)
-        pf._block_start = start
-        start += n
-    return flat, ends
+    :mod:`estimators.mcl.team`) and the particle segments' ends ``(R,)``
+    (:meth:`ParticleTeam.gather`: each filter's state is made a view of the array)."""
+    team = ParticleTeam.gather(filters)
+    return team.state, team.ends
 
 
-def team_weights(filters: Sequence[ParticleFilter]) -> np.ndarray:
-    """The filters' weights in one ``(N,)`` array (a view of the last
-    :func:`weigh_batch`'s output when no filter changed its weights since)."""
-    if not filters:
-        return np.zeros(0)
-    w = filters[0]._weights.base
-    start = 0
-    for pf in filters:
-        if w is None or pf._weights.base is not w or pf._wblock_start != start:
-            break
-        start += pf._weights.size
-    else:
-        if w.size == start:
-            return w
-    return np.concatenate([pf._weights for pf in filters])
+def team_weights(filters: Sequence[TeamMember]) -> np.ndarray:
+    """The filters' weights in one ``(N,)`` array (:meth:`ParticleTeam.weights`: a view
+    of the last :func:`weigh_batch`'s output when no filter changed its weights since)."""
+    return ParticleTeam(filters, np.zeros(0, dtype=np.float32), np.zeros(0, dtype=np.intp)
+                        ).weights()
 
 
-def predict_batch(filters: Sequence[ParticleFilter], deltas: np.ndarray) -> None:
+def predict_batch(filters: Sequence[TeamMember], deltas: np.ndarray) -> None:
     """:meth:`ParticleFilter.predict_delta` of every filter with its row of ``deltas (R, 3)``,
     in one compiled pass (each filter draws its noise from its own generator)."""
     deltas = np.asarray(deltas, dtype=float)
@@ -108,21 +67,22 @@ def predict_batch(filters: Sequence[ParticleFilter], deltas: np.ndarray) -> None
         raise ValueError(f"deltas must be ({len(filters)}, 3) finite, got {deltas}")
     if not filters:
         return
-    flat, ends = team_state(filters)
+    team = ParticleTeam.gather(filters)
+    flat, ends = team.state, team.ends
     z = np.empty(flat.size, dtype=np.float32)
     rows = []
     start = 0
     for pf, d, end in zip(filters, deltas.tolist(), ends.tolist(), strict=True):
-        rows.append(pf._motion_draw(*d))
+        rows.append(pf.motion_draw(*d))
         standard_normals(pf.rng, z[3 * start:3 * end])
         start = end
     predict_blocks(flat, z, np.array(rows, dtype=np.float32), ends)
-    for pf in filters:
-        pf._after_motion()
+    for ps in team.sets:
+        ps.after_motion()
 
 
 def weigh_batch(
-    filters: Sequence[ParticleFilter],
+    filters: Sequence[TeamMember],
     ranges: np.ndarray | None,
     angles: np.ndarray | None,
     max_range: float | None,
@@ -145,13 +105,13 @@ def weigh_batch(
         raise ValueError(f"fixes must have shape ({nr}, {FIX_COLUMNS}), got {fixes.shape}")
     if not nr:
         return np.zeros(0)
-    flat, ends = team_state(filters)
-    n = int(ends[-1])
-    w_prev = team_weights(filters)
+    team = ParticleTeam.gather(filters)
+    n = int(team.ends[-1])
+    w_prev = team.weights()
     if ranges is None:
         nb = np.full(nr, -1, dtype=np.intp)
-        return weigh_filters(filters, flat, ends, w_prev, fixes, nb, np.empty(n), False,
-                             np.zeros(nr), np.zeros(nr))
+        return weigh_team(team, w_prev, fixes, nb, np.empty(n), False, np.zeros(nr),
+                          np.zeros(nr))
     ranges = np.asarray(ranges, dtype=float)
     angles = np.asarray(angles, dtype=float).ravel()
     if ranges.shape != (nr, angles.size):
@@ -171,17 +131,17 @@ def weigh_batch(
                              "and one config")
     if lead is None:
         return weigh_batch(filters, None, None, None, fixes)
-    lf = lead._lf_field(max_range)
+    lf = lead.lf_field(max_range)
     ux, uy, nb, k = lf_scan_rows(ranges, *beam_units(lf, angles), lf.reach, float(max_range))
-    return weigh_filters(filters, flat, ends, w_prev, fixes, nb, np.empty(n), False,
-                         k * lf.lmax, k * lead.config.likelihood_exponent,
-                         lead.lf_kernel_args(max_range), ux, uy, float(LF_POWER))
+    return weigh_team(team, w_prev, fixes, nb, np.empty(n), False, k * lf.lmax,
+                      k * lead.config.likelihood_exponent, lead.lf_kernel_args(max_range), ux, uy,
+                      float(LF_POWER))
 
 
 def compose_odometry_batch(v: np.ndarray, w: np.ndarray, dt: float) -> np.ndarray:
     """Relative motions ``(R, 3)`` of ``R`` robots' odometry sub-steps ``v, w`` ``(R, K)``.
 
-    Row ``r`` equals :func:`~estimators.particle_filter.compose_odometry` of ``v[r], w[r]``.
+    Row ``r`` equals :func:`~estimators.mcl.filter.compose_odometry` of ``v[r], w[r]``.
     """
     v = np.asarray(v, dtype=float)
     w = np.asarray(w, dtype=float)
@@ -196,7 +156,7 @@ def compose_odometry_batch(v: np.ndarray, w: np.ndarray, dt: float) -> np.ndarra
 
 
 def update_beam_batch(
-    filters: Sequence[ParticleFilter],
+    filters: Sequence[TeamMember],
     ranges: np.ndarray,
     angles: np.ndarray,
     max_range: float,
@@ -234,17 +194,17 @@ def update_beam_batch(
         raise ValueError(f"cone_half_width must be finite and >= 0, got {cone_half_width}")
     ok = np.isfinite(ranges)
     table, lut = pf0.beam_tables(max_range, cone_half_width)
-    flat, ends = team_state(filters)
+    team = ParticleTeam.gather(filters)
     rows = lut.rows(np.where(ok, ranges, np.nan))
-    loglik = scan_loglik(table, lut, flat, angles, rows, ends, cfg.occupied_loglik)
+    loglik = scan_loglik(table, lut, team.state, angles, rows, team.ends, cfg.occupied_loglik)
     n_beams = ok.sum(axis=1)
     nr = len(filters)
-    return weigh_filters(filters, flat, ends, team_weights(filters), np.zeros((nr, FIX_COLUMNS)),
-                         n_beams, loglik, True, np.zeros(nr), n_beams * cfg.likelihood_exponent)
+    return weigh_team(team, team.weights(), np.zeros((nr, FIX_COLUMNS)), n_beams, loglik, True,
+                      np.zeros(nr), n_beams * cfg.likelihood_exponent)
 
 
 def belief_summaries(
-    filters: Sequence[ParticleFilter],
+    filters: Sequence[TeamMember],
     hist_cells: int = 5,
     cell_size: float = 1.0,
     heading_bins: int = 8,
@@ -261,17 +221,16 @@ def belief_summaries(
     if not np.isfinite(cell_size) or cell_size <= 0:
         raise ValueError(f"cell_size must be positive, got {cell_size}")
     # positions relative to each filter's cell (0, 0) centre (small numbers)
-    flat, ends = team_state(filters)
-    w = team_weights(filters)
-    org = np.array([pf._org_xy for pf in filters]).reshape(-1, 2)
+    team = ParticleTeam.gather(filters)
+    w = team.weights()
     bounds = np.array([pf.grid.bounds for pf in filters], dtype=float).reshape(-1, 4)
-    count_frac = np.array([min(pf._weights.size / pf.config.n_max, 1.0) if pf.config.adaptive
-                           else 1.0 for pf in filters])
-    return summary_features(flat, w, ends, org, bounds, count_frac, int(hist_cells),
-                            1.0 / cell_size, int(heading_bins))
+    count_frac = np.array([min(ps.n / pf.config.n_max, 1.0) if pf.config.adaptive
+                           else 1.0 for pf, ps in zip(filters, team.sets, strict=True)])
+    return summary_features(team.state, w, team.ends, team.origins, bounds, count_frac,
+                            int(hist_cells), 1.0 / cell_size, int(heading_bins))
 
 
-def particle_spreads(filters: Sequence[ParticleFilter], true_xy: np.ndarray) -> np.ndarray:
+def particle_spreads(filters: Sequence[TeamMember], true_xy: np.ndarray) -> np.ndarray:
     """Weighted mean distances ``(R,)`` of each filter's particles from ``true_xy[r]`` ``(R, 2)``
     (:meth:`ParticleFilter.particle_spread`)."""
     true_xy = np.asarray(true_xy, dtype=float)
@@ -279,7 +238,5 @@ def particle_spreads(filters: Sequence[ParticleFilter], true_xy: np.ndarray) -> 
         raise ValueError(f"true_xy must be ({len(filters)}, 2) finite, got {true_xy.shape}")
     if not filters:
         return np.zeros(0)
-    flat, ends = team_state(filters)
-    w = team_weights(filters)
-    org = np.array([pf._org_xy for pf in filters])
-    return weighted_distances(flat, w, ends, true_xy - org)
+    team = ParticleTeam.gather(filters)
+    return weighted_distances(team.state, team.weights(), team.ends, true_xy - team.origins)

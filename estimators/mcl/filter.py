@@ -15,24 +15,21 @@ weighted particle set and offers
   KLD-sampling of the particle count (:meth:`ParticleFilter.resample`);
 * uniform initialization over free space for global localization;
 * :meth:`ParticleFilter.apply_weight_factors` for external evidence such as
-  the detection transfer of :mod:`estimators.detection_transfer`;
+  the detection transfer of :mod:`estimators.mcl.detection_transfer`;
 * a fixed-size belief embedding for learning
   (:meth:`ParticleFilter.belief_features`, layout in
   :func:`belief_feature_names`).
 
-One class in one file on purpose (about 750 lines): every method of
-:class:`ParticleFilter` works on the same private state layout (float32 poses
-relative to the centre of map cell (0, 0), lazily wrapped headings, a state
-that may be a view of a team array), which splitting the class would expose.
-What does not touch that state lives beside it: parameters in
-:mod:`estimators.particle_config`, the likelihood-field table in
-:mod:`estimators.likelihood_field`, resampling and motion-noise draws in
-:mod:`estimators.particle_sampling`, the compiled weighting in
-:mod:`estimators.particle_weighting`, the belief embedding in
-:mod:`estimators.particle_features` (their public names are importable from here
-too), per-map beam tables in :mod:`estimators.beam_table`, team-level batching in
-:mod:`estimators.mcl_batch`, compiled loops in :mod:`estimators._kernels` and
-:mod:`estimators._team_kernels` (one filter is a team of one).
+One class in one file on purpose (about 630 lines): its methods are the one-robot
+API over a :class:`~estimators.mcl.team.ParticleSet` (float32 poses from the centre of
+map cell (0, 0), lazily wrapped headings, arrays that may be views of a team's); the
+parts that do not need a filter live beside it in :mod:`estimators.mcl`: parameters
+(:mod:`~estimators.mcl.config`), motion arithmetic (:mod:`~estimators.mcl.motion`),
+sensor tables (:mod:`~estimators.mcl.likelihood_field`,
+:mod:`~estimators.mcl.beam_table`), the sampling and weighting passes
+(:mod:`~estimators.mcl.sampling`, :mod:`~estimators.mcl.weighting`, a filter alone is
+a team of one), the belief embedding (:mod:`~estimators.mcl.features`) and team
+batching (:mod:`~estimators.mcl.batch`).
 
 Numerics use numpy/scipy, plus the numba loops there. All randomness comes from the
 ``numpy.random.Generator`` given to the constructor, so two filters built with
@@ -45,8 +42,9 @@ import math
 
 import numpy as np
 
-from estimators._team_kernels import FIX_COLUMNS, predict_blocks
-from estimators.beam_table import (
+from estimators.geometry import wrap_angle
+from estimators.mcl._team_kernels import FIX_COLUMNS, predict_blocks
+from estimators.mcl.beam_table import (
     BeamLUT,
     RangeTable,
     beam_lut,
@@ -54,18 +52,20 @@ from estimators.beam_table import (
     range_table,
     scan_loglik,
 )
-from estimators.geometry import PI_BELOW, wrap_angle, wrap_angle_in_place
-from estimators.likelihood_field import LF_POWER, LFField, build_lf_field, lf_endpoints
-from estimators.occupancy import OccupancyGrid
-from estimators.particle_config import MCLConfig, ParticleBelief, ParticleMotionNoise
-from estimators.particle_features import belief_feature_names, belief_features, check_feature_args
-from estimators.particle_sampling import (
+from estimators.mcl.config import MCLConfig, ParticleBelief, ParticleMotionNoise
+from estimators.mcl.features import belief_feature_names, belief_features, check_feature_args
+from estimators.mcl.inputs import check_scan, fix_parameters
+from estimators.mcl.likelihood_field import LF_POWER, LFField, build_lf_field, lf_endpoints
+from estimators.mcl.motion import compose_odometry, motion_parameters
+from estimators.mcl.occupancy import OccupancyGrid
+from estimators.mcl.sampling import (
     kld_sample_bound,
     low_variance_indices,
-    resample_filters,
+    resample_team,
     standard_normals,
 )
-from estimators.particle_weighting import NO_FIELD, weigh_filters
+from estimators.mcl.team import ParticleSet, ParticleTeam
+from estimators.mcl.weighting import NO_FIELD, weigh_team
 
 __all__ = [
     "MCLConfig",
@@ -77,30 +77,6 @@ __all__ = [
     "kld_sample_bound",
     "low_variance_indices",
 ]
-
-
-def compose_odometry(v: np.ndarray, w: np.ndarray, dt: float) -> np.ndarray:
-    """Relative motion ``(dx, dy, dheading)`` of a sequence of unicycle odometry readings.
-
-    ``v``, ``w`` ``(K,)`` are speeds and turn rates held for ``dt`` each; the
-    result is expressed in the robot frame at the start (exact arcs), ready for
-    :meth:`ParticleFilter.predict_delta`. One prediction per env step instead
-    of one per odometry sub-step keeps the sampling cost down.
-    """
-    v = np.atleast_1d(np.asarray(v, dtype=float))
-    w = np.atleast_1d(np.asarray(w, dtype=float))
-    if v.shape != w.shape or v.ndim != 1:
-        raise ValueError(f"v and w must be 1D of equal length, got {v.shape} and {w.shape}")
-    if not (np.all(np.isfinite(v)) and np.all(np.isfinite(w)) and math.isfinite(dt)) or dt < 0:
-        raise ValueError(f"odometry must be finite with dt >= 0, got v={v}, w={w}, dt={dt}")
-    dth = w * dt
-    start = np.concatenate([[0.0], np.cumsum(dth)[:-1]])
-    turning = np.abs(dth) > 1e-9
-    safe_w = np.where(turning, w, 1.0)
-    lx = np.where(turning, v / safe_w * np.sin(dth), v * dt)
-    ly = np.where(turning, v / safe_w * (1.0 - np.cos(dth)), 0.0)
-    c, s = np.cos(start), np.sin(start)
-    return np.array([np.sum(c * lx - s * ly), np.sum(s * lx + c * ly), float(np.sum(dth))])
 
 
 class ParticleFilter:
@@ -118,7 +94,9 @@ class ParticleFilter:
     The filter starts with ``config.n_particles`` particles uniformly spread
     over free space (global localization); call :meth:`init_gaussian` for
     position tracking. ``odometer`` accumulates the absolute translation
-    reported by odometry (used by the detection lockout).
+    reported by odometry (used by the detection lockout). ``particle_set`` is this
+    robot's :class:`~estimators.mcl.team.ParticleSet`, whose arrays the team passes of
+    :mod:`estimators.mcl.batch` make views of a :class:`~estimators.mcl.team.ParticleTeam`'s.
 
     Recommended order per step: :meth:`resample_if_needed` (which also injects
     random particles), :meth:`predict_odometry`, the measurement updates,
@@ -143,24 +121,15 @@ class ParticleFilter:
         self.odometer = 0.0
         self.w_slow = 0.0
         self.w_fast = 0.0
-        self._unwrapped_steps = 0
         self._lf_cache: dict[float, LFField] = {}
         self._lf_args: dict[float, tuple] = {}  # compiled-kernel arguments by max range
         self._beam_tabs: dict[tuple[float, float], tuple[RangeTable, BeamLUT]] = {}
         self._angles_ok = b""  # bytes of the last beam angles found finite
         self._uniform_w = np.zeros(0)
-        # The state is float32 (x, y, heading) with positions relative to the centre of
-        # map cell (0, 0): float32 keeps ~1e-6 m there even for maps at UTM-size
-        # coordinates, and the likelihood field finds cells by rounding.
+        # float32 positions relative to the centre of map cell (0, 0) keep ~1e-6 m even
+        # for maps at UTM-size coordinates; the likelihood field finds cells by rounding
         res = grid.resolution
-        self._org = np.array([[grid.origin[0] + 0.5 * res], [grid.origin[1] + 0.5 * res], [0.0]])
-        self._org_xy = (float(self._org[0, 0]), float(self._org[1, 0]))
-        self._state = np.zeros((3, 0), dtype=np.float32)
-        self._weights = np.zeros(0)
-        # where the state / weights start in a team array they are views of
-        # (estimators.mcl_batch.team_state / weigh_batch)
-        self._block_start = self._wblock_start = -1
-        self._ess: tuple[np.ndarray, float] = (self._weights, 0.0)  # weights and their ESS
+        self.particle_set = ParticleSet((grid.origin[0] + 0.5 * res, grid.origin[1] + 0.5 * res))
         self.init_uniform()
 
     def __getstate__(self) -> dict:
@@ -186,7 +155,8 @@ class ParticleFilter:
         Wraps the copy, never the filter's own float32 state: re-wrapping that early
         would round it differently, so reading a belief would change how it evolves.
         """
-        world = self._state + self._org
+        ps = self.particle_set
+        world = ps.state + ps.origin
         h = world[2]
         # the state's headings drift outside [-pi, pi) for a few steps between wraps (and
         # float32 pi lies just beyond float64 pi): wrap only those (a floating modulo of
@@ -199,7 +169,7 @@ class ParticleFilter:
     def _from_world(self, poses: np.ndarray) -> np.ndarray:
         """Internal float32 state of ``(3, N)`` world poses (headings wrapped here)."""
         state = np.empty((3, poses.shape[1]), dtype=np.float32)
-        np.subtract(poses, self._org, out=state, casting="same_kind")
+        np.subtract(poses, self.particle_set.origin, out=state, casting="same_kind")
         state[2] = wrap_angle(poses[2])
         return state
 
@@ -207,28 +177,24 @@ class ParticleFilter:
     def state_origin(self) -> np.ndarray:
         """World ``(x, y)`` of the internal state's origin (the centre of map cell (0, 0));
         :meth:`fix_row` positions are measured from it."""
-        return self._org[:2, 0].copy()
+        return self.particle_set.origin[:2, 0].copy()
 
     @property
     def weights(self) -> np.ndarray:
         """``(N,)`` normalized weights (a read-only view)."""
-        view = self._weights.view()
+        view = self.particle_set.weights.view()
         view.flags.writeable = False
         return view
 
     @property
     def n_particles(self) -> int:
         """Current number of particles."""
-        return self._weights.size
+        return self.particle_set.weights.size
 
     @property
     def ess(self) -> float:
         """Effective sample size ``1 / sum(w^2)``."""
-        w, ess = self._ess
-        if w is not self._weights:  # weights are replaced, never changed in place
-            ess = float(1.0 / np.dot(self._weights, self._weights))
-            self._ess = (self._weights, ess)
-        return ess
+        return self.particle_set.ess
 
     @property
     def inject_probability(self) -> float:
@@ -258,9 +224,8 @@ class ParticleFilter:
                 raise ValueError(f"weights must be non-negative with a positive finite sum, "
                                  f"got sum={total}")
             w = w / total
-        self._state = self._from_world(particles.T)
-        self._unwrapped_steps = 0
-        self._weights = w
+        self.particle_set.replace_state(self._from_world(particles.T))
+        self.particle_set.weights = w
 
     def _uniform_poses(self, n: int) -> np.ndarray:
         """``(3, n)`` internal state of poses drawn uniformly over free space."""
@@ -273,9 +238,8 @@ class ParticleFilter:
         n = self.config.n_particles if n is None else int(n)
         if n < 1:
             raise ValueError(f"n must be >= 1, got {n}")
-        self._state = self._uniform_poses(n)
-        self._unwrapped_steps = 0
-        self._weights = np.full(n, 1.0 / n)
+        self.particle_set.replace_state(self._uniform_poses(n))
+        self.particle_set.weights = np.full(n, 1.0 / n)
         self.w_slow = self.w_fast = 0.0
 
     def init_gaussian(self, mean: np.ndarray, cov: np.ndarray, n: int | None = None) -> None:
@@ -292,9 +256,8 @@ class ParticleFilter:
         if not np.allclose(cov, cov.T) or np.linalg.eigvalsh(cov).min() < -1e-12:
             raise ValueError(f"cov must be symmetric positive semi-definite, got {cov.tolist()}")
         draws = self.rng.multivariate_normal(mean, cov, size=n, method="eigh")
-        self._state = self._from_world(draws.T)
-        self._unwrapped_steps = 0
-        self._weights = np.full(n, 1.0 / n)
+        self.particle_set.replace_state(self._from_world(draws.T))
+        self.particle_set.weights = np.full(n, 1.0 / n)
         self.w_slow = self.w_fast = 0.0
 
     # --------------------------------------------------------------- motion
@@ -334,86 +297,23 @@ class ParticleFilter:
 
     def _predict(self, dx: float, dy: float, dth: float) -> None:
         """:meth:`predict_delta` for a checked, finite motion."""
-        params = np.array([self._motion_draw(dx, dy, dth)], dtype=np.float32)
-        z = standard_normals(self.rng, np.empty(3 * self._weights.size, dtype=np.float32))
-        predict_blocks(self._flat_state(), z, params, np.array([z.size // 3]))
-        self._after_motion()
+        ps = self.particle_set
+        params = np.array([self.motion_draw(dx, dy, dth)], dtype=np.float32)
+        z = standard_normals(self.rng, np.empty(3 * ps.weights.size, dtype=np.float32))
+        predict_blocks(ps.flat_state(), z, params, np.array([z.size // 3]))
+        ps.after_motion()
 
-    def _motion_draw(self, dx: float, dy: float, dth: float) -> tuple[float, ...]:
+    def motion_draw(self, dx: float, dy: float, dth: float) -> tuple[float, ...]:
         """The motion's ``rot1, trans, rot2`` and their noise standard deviations
         (:class:`ParticleMotionNoise`), the parameters of one motion update (its noise:
         ``3 N`` standard normals drawn next from this filter's generator); adds the
         translation to :attr:`odometer`."""
-        trans = math.hypot(dx, dy)
-        if trans < 1e-9:
-            rot1 = 0.0
-        elif dx >= 0:
-            rot1 = math.atan2(dy, dx)
-        else:  # reversing: negative translation, not a half-turn
-            rot1 = math.atan2(-dy, -dx)
-            trans = -trans
-        rot2 = min((dth - rot1 + math.pi) % (2.0 * math.pi) - math.pi, PI_BELOW)
-        at = abs(trans)
-        self.odometer += at
-        mn = self.config.motion
-        sd_r1 = mn.rot_rot * abs(rot1) + mn.rot_trans * at + mn.min_heading
-        sd_t = mn.trans_trans * at + mn.trans_rot * (abs(rot1) + abs(rot2)) + mn.min_xy
-        sd_r2 = mn.rot_rot * abs(rot2) + mn.rot_trans * at + mn.min_heading
-        return rot1, trans, rot2, sd_r1, sd_t, sd_r2
-
-    def _flat_state(self) -> np.ndarray:
-        """The state as a flat view (``(3, N)`` C order; made contiguous if it is not)."""
-        if not self._state.flags.c_contiguous:
-            self._state = np.ascontiguousarray(self._state)
-        return self._state.reshape(-1)
-
-    def _after_motion(self) -> None:
-        # Headings are wrapped lazily (every few steps): consumers wrap as needed.
-        self._unwrapped_steps += 1
-        if self._unwrapped_steps >= 8:
-            self._wrap_headings()
-
-    def _wrap_headings(self) -> None:
-        wrap_angle_in_place(self._state[2])
-        self._unwrapped_steps = 0
+        params = motion_parameters(dx, dy, dth, self.config.motion)
+        self.odometer += abs(params[1])
+        return params
 
     # ---------------------------------------------------------- perception
-    def _scan_input(
-        self, ranges: np.ndarray, angles: np.ndarray, max_range: float
-    ) -> tuple[np.ndarray, np.ndarray, float, float]:
-        """Validated 1D ``ranges`` and ``angles`` (ranges may exceed ``max_range``).
-
-        Also returns the largest range (``-inf`` for an empty scan).
-        """
-        ranges = np.asarray(ranges, dtype=float)
-        angles = np.asarray(angles, dtype=float)
-        if ranges.ndim != 1:
-            ranges = ranges.ravel()
-            angles = angles.ravel()
-        if ranges.shape != angles.shape:
-            raise ValueError(f"ranges {ranges.shape} and angles {angles.shape} must match")
-        max_range = float(max_range)
-        if not (math.isfinite(max_range) and max_range > 0):
-            raise ValueError(f"max_range must be a positive finite number, got {max_range}")
-        hi = -math.inf
-        if ranges.size:
-            if ranges.size <= 64:  # small scans: cheaper in Python than three reductions
-                rl = ranges.tolist()
-                total = sum(rl)  # NaN when any range is
-                lo, hi = min(rl), max(rl)
-            else:
-                total = lo = float(ranges.min())
-                hi = float(ranges.max())
-            if not (lo >= 0 and total == total):
-                raise ValueError(f"ranges must be >= 0 and not NaN, got {ranges}")
-            key = angles.tobytes()  # scanners repeat their angles: check them once
-            if key != self._angles_ok:
-                if not math.isfinite(angles.sum()):
-                    raise ValueError(f"beam angles must be finite, got {angles}")
-                self._angles_ok = key
-        return ranges, angles, max_range, hi
-
-    def _lf_field(self, max_range: float) -> LFField:
+    def lf_field(self, max_range: float) -> LFField:
         """The likelihood-field tables for ``max_range`` (:func:`build_lf_field`; cached here
         and shared through the grid by every filter with the same map and model)."""
         key = float(max_range)
@@ -444,12 +344,13 @@ class ParticleFilter:
         skipped. Beam endpoints are precomputed in the robot frame (in cell
         units); one compiled pass moves them to every particle, reads the field
         there and the position penalty at the particle's own cell, and weights
-        (:func:`estimators.particle_weighting.weigh_filters`). Returns
+        (:func:`estimators.mcl.weighting.weigh_team`). Returns
         ``log sum_i w_i p(z | x_i)`` with the tempered likelihood and the
         position penalty included.
         """
-        ranges, angles, max_range, hi = self._scan_input(ranges, angles, max_range)
-        lf = self._lf_field(max_range)
+        ranges, angles, max_range, hi, self._angles_ok = check_scan(ranges, angles, max_range,
+                                                                    self._angles_ok)
+        lf = self.lf_field(max_range)
         if hi >= max_range:
             keep = ranges < max_range
             ranges, angles = ranges[keep], angles[keep]
@@ -461,13 +362,14 @@ class ParticleFilter:
     def _weigh_self(self, fix: np.ndarray, nb: int, loglik: np.ndarray | None,
                     offset: float = 0.0, n_beams: int = 0, lf_args: tuple = NO_FIELD,
                     ux: np.ndarray | None = None, uy: np.ndarray | None = None) -> float:
-        """:func:`estimators.particle_weighting.weigh_filters` of this filter alone: a scan
+        """:func:`estimators.mcl.weighting.weigh_team` of this filter alone: a scan
         of ``nb`` beams (-1: none) scored before (``loglik``) or by the likelihood field,
         and the fixes ``fix``. Returns the scan's log evidence."""
-        n = self._weights.size
+        w = self.particle_set.weights
+        n = w.size
         scored = loglik is not None
-        return float(weigh_filters(
-            [self], self._flat_state(), np.array([n]), self._weights, fix.reshape(1, -1),
+        return float(weigh_team(
+            ParticleTeam.alone(self), w, fix.reshape(1, -1),
             np.array([nb]), loglik if scored else np.empty(n), scored, np.array([offset]),
             np.array([n_beams * self.config.likelihood_exponent]), lf_args,
             None if ux is None else ux.reshape(1, -1), None if uy is None else uy.reshape(1, -1),
@@ -487,7 +389,7 @@ class ParticleFilter:
             raise ValueError(f"cone_half_width must be finite and >= 0, got {cone_half_width}")
         if self.config.beam_lookup_bins:
             table = self.beam_tables(max_range, cone_half_width)[0]
-            st = self._state
+            st = self.particle_set.state
             return table.expected(st[0], st[1], st[2], angles).astype(float)
         k = self.config.beam_rays_per_cone if cone_half_width > 0 else 1
         offsets = np.linspace(-cone_half_width, cone_half_width, k) if k > 1 else np.zeros(1)
@@ -500,7 +402,7 @@ class ParticleFilter:
                     ) -> tuple[RangeTable, BeamLUT]:
         """The shared range table and beam-likelihood table of this map and model.
 
-        Built on first use and cached per map (see :mod:`estimators.beam_table`).
+        Built on first use and cached per map (see :mod:`estimators.mcl.beam_table`).
         """
         key = (float(max_range), float(cone_half_width))
         tables = self._beam_tabs.get(key)
@@ -513,6 +415,11 @@ class ParticleFilter:
                            cfg.likelihood_exponent)
             tables = self._beam_tabs[key] = (table, lut)
         return tables
+
+    def cached_tables(self) -> tuple[list[tuple[RangeTable, BeamLUT]], list[LFField]]:
+        """The beam-model tables and likelihood fields this filter has built or looked up
+        so far (shared per map; for memory accounting)."""
+        return list(self._beam_tabs.values()), list(self._lf_cache.values())
 
     def update_beam(
         self,
@@ -528,7 +435,8 @@ class ParticleFilter:
         Max-range readings are scored by the ``beam_z_max`` term. Returns the
         scan's log evidence like :meth:`update_likelihood_field`.
         """
-        ranges, angles, max_range, _ = self._scan_input(ranges, angles, max_range)
+        ranges, angles, max_range, _, self._angles_ok = check_scan(ranges, angles, max_range,
+                                                                   self._angles_ok)
         cfg = self.config
         if ranges.size == 0:
             return self._weigh_self(np.zeros(FIX_COLUMNS), 0, self._position_penalty())
@@ -537,8 +445,9 @@ class ParticleFilter:
                 raise ValueError(f"cone_half_width must be finite and >= 0, "
                                  f"got {cone_half_width}")
             table, lut = self.beam_tables(max_range, cone_half_width)
-            loglik = scan_loglik(table, lut, self._flat_state(), angles, lut.rows(ranges)[None, :],
-                                 np.array([self.n_particles]), cfg.occupied_loglik)
+            loglik = scan_loglik(table, lut, self.particle_set.flat_state(), angles,
+                                 lut.rows(ranges)[None, :], np.array([self.n_particles]),
+                                 cfg.occupied_loglik)
             return self._weigh_self(np.zeros(FIX_COLUMNS), ranges.size, loglik,
                                     n_beams=ranges.size)
         zexp = self.expected_ranges(angles, max_range, cone_half_width)
@@ -548,7 +457,7 @@ class ParticleFilter:
         loglik = cfg.likelihood_exponent * np.log(p).sum(axis=1) + self._position_penalty()
         return self._weigh_self(np.zeros(FIX_COLUMNS), ranges.size, loglik, n_beams=ranges.size)
 
-    def _track_evidence(self, log_evidence: float, n_eff_beams: float) -> None:
+    def track_evidence(self, log_evidence: float, n_eff_beams: float) -> None:
         """Update the augmented-MCL slow / fast averages of the per-beam evidence."""
         if n_eff_beams > 0:
             cfg = self.config
@@ -567,14 +476,15 @@ class ParticleFilter:
         uninformative) rather than producing NaN.
         """
         f = np.asarray(factors, dtype=float)
-        if f.shape != self._weights.shape:
-            raise ValueError(f"factors must have shape {self._weights.shape}, got {f.shape}")
+        ps = self.particle_set
+        if f.shape != ps.weights.shape:
+            raise ValueError(f"factors must have shape {ps.weights.shape}, got {f.shape}")
         if not np.all(np.isfinite(f)) or f.min(initial=0.0) < 0:
             raise ValueError("factors must be finite and non-negative")
-        w = self._weights * f
+        w = ps.weights * f
         total = w.sum()
         if total > 0 and np.isfinite(total):
-            self._weights = w / total
+            ps.weights = w / total
 
     def update_fix(
         self,
@@ -605,29 +515,15 @@ class ParticleFilter:
         """The checked parameters of :meth:`update_fix` as the compiled update reads them:
         ``[gps?, x, y, -0.5 / xy_var, compass?, heading, -0.5 / heading_std**2]``
         (positions in state coordinates)."""
-        fix = np.zeros(FIX_COLUMNS)
-        if xy is not None:
-            t = np.asarray(xy, dtype=float)
-            if t.shape != (2,) or not np.all(np.isfinite(t)):
-                raise ValueError(f"xy must be 2 finite numbers, got {xy}")
-            if not (math.isfinite(xy_var) and xy_var > 0):
-                raise ValueError(f"xy_var must be finite and > 0, got {xy_var}")
-            org = self._org
-            fix[:4] = (1.0, t[0] - org[0, 0], t[1] - org[1, 0], -0.5 / xy_var)
-        if heading is not None:
-            if not math.isfinite(heading):
-                raise ValueError(f"heading must be finite, got {heading}")
-            if not (math.isfinite(heading_std) and heading_std > 0):
-                raise ValueError(f"heading_std must be finite and > 0, got {heading_std}")
-            fix[4:] = (1.0, heading, -0.5 / heading_std**2)
-        return fix
+        return fix_parameters(self.particle_set.origin, xy, xy_var, heading, heading_std)
 
     def lf_kernel_args(self, max_range: float | None) -> tuple:
-        """The likelihood field's arguments of the compiled weighting (:meth:`_weigh`);
-        placeholders for ``max_range=None`` (no scan)."""
+        """The likelihood field's arguments of the compiled weighting
+        (:func:`~estimators.mcl.weighting.weigh_team`); placeholders for ``max_range=None``
+        (no scan)."""
         if max_range is None:
             return NO_FIELD
-        lf = self._lf_field(max_range)
+        lf = self.lf_field(max_range)
         args = self._lf_args.get(float(max_range))
         if args is None:
             args = self._lf_args[float(max_range)] = (
@@ -650,12 +546,11 @@ class ParticleFilter:
         (binomial); fixed size:
         the injected count, the offset; then the injected positions
         (:meth:`OccupancyGrid.sample_free`) and headings.
-        (:func:`estimators.particle_sampling.resample_filters` does it for a team.)
+        (:func:`estimators.mcl.sampling.resample_team` does it for a team.)
         """
-        resample_filters([self], self._flat_state(), np.array([self._weights.size]),
-                         self._weights, [True])
+        resample_team(ParticleTeam.alone(self), self.particle_set.weights, [True])
 
-    def _uniform_weights(self, n: int) -> np.ndarray:
+    def uniform_weights(self, n: int) -> np.ndarray:
         """Weights ``1 / n`` (a shared read-only array: weights are never changed in place)."""
         w = self._uniform_w
         if w.size != n:
@@ -666,7 +561,7 @@ class ParticleFilter:
     def resample_if_needed(self) -> bool:
         """Resample when ESS < ``resample_ess_fraction * N`` or injection is due; report it."""
         cfg = self.config
-        if self.ess < cfg.resample_ess_fraction * self._weights.size or (
+        if self.ess < cfg.resample_ess_fraction * self.particle_set.weights.size or (
             self.inject_probability > 0
         ):
             self.resample()
@@ -676,7 +571,7 @@ class ParticleFilter:
     # --------------------------------------------------------------- output
     def mean_pose(self) -> np.ndarray:
         """Weighted mean ``(x, y, heading)`` with the circular mean heading."""
-        w = self._weights
+        w = self.particle_set.weights
         st = self._world()
         x = float(np.dot(w, st[0]))
         y = float(np.dot(w, st[1]))
@@ -687,7 +582,7 @@ class ParticleFilter:
         """Mean, weighted covariance (heading wrapped about the mean), particles, weights."""
         particles = self.particles.copy()
         mean = self.mean_pose()
-        w = self._weights
+        w = self.particle_set.weights
         d = particles.T - mean[:, None]
         d[2] = wrap_angle(d[2])
         cov = (d * w) @ d.T
@@ -696,8 +591,8 @@ class ParticleFilter:
 
     def position_std(self) -> float:
         """RMS per-axis weighted standard deviation (m) of the particles' positions."""
-        w = self._weights
-        st = self._state
+        w = self.particle_set.weights
+        st = self.particle_set.state
         total = 0.0
         for row in (st[0], st[1]):
             x = row.astype(np.float64)
@@ -714,7 +609,7 @@ class ParticleFilter:
             raise ValueError(f"true_pose must be 2 or 3 finite numbers, got {true_pose}")
         st = self._world()
         dist = np.hypot(st[0] - p[0], st[1] - p[1])
-        return float(np.dot(self._weights, dist))
+        return float(np.dot(self.particle_set.weights, dist))
 
 
     def belief_features(
@@ -728,13 +623,13 @@ class ParticleFilter:
         The egocentric histogram is a ``hist_cells x hist_cells`` grid of
         ``cell_size`` m cells centred on the mean pose and aligned with the mean
         heading. The length does not depend on the particle count
-        (:func:`estimators.particle_features.belief_features`).
+        (:func:`estimators.mcl.features.belief_features`).
         """
         check_feature_args(hist_cells, cell_size, heading_bins)
         st = self._world()
         mean = self.mean_pose()
         cfg = self.config
         count_fraction = self.n_particles / cfg.n_max if cfg.adaptive else 1.0
-        return belief_features(self._weights, st, mean, self.ess / self.n_particles,
+        return belief_features(self.particle_set.weights, st, mean, self.ess / self.n_particles,
                                count_fraction, self.grid.bounds, hist_cells, cell_size,
                                heading_bins)

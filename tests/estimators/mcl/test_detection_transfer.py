@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from estimators.detection_transfer import (
+from estimators.geometry import relative_pose, wrap_angle
+from estimators.mcl.detection_transfer import (
     DetectionTransfer,
     RobotDetection,
     TransferConfig,
@@ -13,9 +14,8 @@ from estimators.detection_transfer import (
     sample_detected_poses,
     sample_observer_poses,
 )
-from estimators.geometry import relative_pose, wrap_angle
-from estimators.occupancy import OccupancyGrid
-from estimators.particle_filter import MCLConfig, ParticleFilter
+from estimators.mcl.filter import MCLConfig, ParticleFilter
+from estimators.mcl.occupancy import OccupancyGrid
 
 POSE_M = np.array([2.0, 4.0, 0.0])
 POSE_N = np.array([4.5, 4.3, 1.0])

@@ -9,21 +9,21 @@ import pytest
 
 import coop_loc_env
 from coop_loc_env.mcl_backend import known_map, map_resolution
-from estimators.beam_table import (
+from estimators.mcl.batch import (
+    belief_summaries,
+    compose_odometry_batch,
+    particle_spreads,
+    update_beam_batch,
+)
+from estimators.mcl.beam_table import (
     beam_lut,
     beam_probability,
     range_table,
     scan_loglik,
     table_error,
 )
-from estimators.mcl_batch import (
-    belief_summaries,
-    compose_odometry_batch,
-    particle_spreads,
-    update_beam_batch,
-)
-from estimators.occupancy import OccupancyGrid
-from estimators.particle_filter import MCLConfig, ParticleFilter, compose_odometry
+from estimators.mcl.filter import MCLConfig, ParticleFilter, compose_odometry
+from estimators.mcl.occupancy import OccupancyGrid
 
 
 def hallway_map() -> tuple[OccupancyGrid, float, float]:

@@ -5,9 +5,9 @@ ends[r]``, ``start_r`` the previous end) have their float32 ``x, y, heading``
 rows stored as one C-ordered ``(3, n_r)`` block at offset ``3 * start_r`` of a
 flat array, so each filter's ``(3, n_r)`` state is a contiguous view of the team
 array and one call updates every robot. Weights and other per-particle values
-are flat ``(N,)`` arrays. Private helpers of :mod:`estimators.mcl_batch`,
-:mod:`estimators.particle_weighting`, :mod:`estimators.particle_sampling` and
-:class:`estimators.particle_filter.ParticleFilter` (one filter is a team of one);
+are flat ``(N,)`` arrays. Private helpers of :mod:`estimators.mcl.batch`,
+:mod:`estimators.mcl.weighting`, :mod:`estimators.mcl.sampling` and
+:class:`estimators.mcl.filter.ParticleFilter` (one filter is a team of one);
 inputs are checked there.
 """
 
@@ -31,7 +31,7 @@ FIX_COLUMNS = 7
 def compose_rows(v: np.ndarray, w: np.ndarray, dt: float) -> np.ndarray:  # pragma: no cover
     """Relative motions ``(R, 3)`` of unicycle odometry sub-steps ``v, w (R, K)`` held for
     ``dt`` each (exact arcs, in the robot frame at the start); ``nan`` rows where an input
-    is not finite (:func:`estimators.mcl_batch.compose_odometry_batch`)."""
+    is not finite (:func:`estimators.mcl.batch.compose_odometry_batch`)."""
     nr, k = v.shape
     out = np.zeros((nr, 3))
     for r in range(nr):
@@ -98,7 +98,7 @@ def lf_scan_rows(
     :func:`weigh_blocks` reads them: endpoints ``ux, uy (R, B)`` float32 in cells in the
     robot frame (NaN: no endpoint, for readings not below ``max_range``), each
     ``float32(unit * min(range, reach))`` with ``unit_x, unit_y (B,)`` float32 (as
-    :func:`estimators.likelihood_field.lf_endpoints` rounds them); the beam counts
+    :func:`estimators.mcl.likelihood_field.lf_endpoints` rounds them); the beam counts
     ``nb (R,)`` (-1 for a row of NaN: no scan) and the endpoint counts ``k (R,)``."""
     nr, nbeams = ranges.shape
     ux = np.empty((nr, nbeams), dtype=np.float32)
@@ -135,8 +135,9 @@ def weigh_blocks(
     Robot ``r`` with ``nb[r] >= 0`` has a scan of ``nb[r]`` endpoints: the finite
     ``ux[r, b], uy[r, b]`` (float32, cells; NaN: no endpoint) in its frame. Each
     particle's scan score is the float32 sum, in this order, of the field's penalty
-    at its own cell and the field at its endpoints (as :func:`estimators.likelihood_field.lf_loglik`
-    computes it), ``loglik = power * score`` (float64). ``fix[r]`` adds a DGPS
+    at its own cell and the field at its endpoints (as
+    :func:`estimators.mcl.likelihood_field.lf_loglik` computes it), ``loglik = power *
+    score`` (float64). ``fix[r]`` adds a DGPS
     position factor ``exp(-0.5 |p - g|^2 / var) + 1e-12`` and a compass factor
     ``exp(-0.5 e^2 / std^2) + 1e-12`` (``e`` the wrapped heading error) when
     their flags are set. A robot with neither keeps ``w_prev``. With ``scored``
@@ -246,7 +247,7 @@ def select_blocks(
     (KLD-sampling); ``mode`` 0 robots are skipped.
 
     Robot ``r`` draws ``m[r]`` indices into its own particles with offset ``u[r]``
-    (as :func:`estimators.particle_sampling.low_variance_from_cumulative` does from
+    (as :func:`estimators.mcl.sampling.low_variance_from_cumulative` does from
     its weights' cumulative sums); with KLD-sampling they are shuffled (Fisher-Yates
     forward: position ``i`` swaps with ``i + floor(u (m[r] - i))``, ``u`` the top 53
     bits of ``bits[o_r + i]``; ``o_r`` the sum of the earlier ``m``) only as far as the

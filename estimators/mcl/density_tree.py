@@ -16,7 +16,7 @@ from functools import cache
 
 import numpy as np
 
-from estimators._kernels import grow_tree, tree_density
+from estimators.mcl._kernels import grow_tree, tree_density
 
 __all__ = ["DensityTree", "load_kernels"]
 
@@ -102,7 +102,7 @@ class DensityTree:
     def _build(self, x: np.ndarray, w: np.ndarray, scale: np.ndarray, leaf_size: int,
                max_depth: int) -> None:
         """Grow the tree breadth first, level by level, in one compiled pass
-        (:func:`estimators._kernels.grow_tree`); a node's children are consecutive."""
+        (:func:`estimators.mcl._kernels.grow_tree`); a node's children are consecutive."""
         lo, hi, dim, val, left, mass, depth = grow_tree(
             np.ascontiguousarray(x), w, self.low, self.high, scale, leaf_size, max_depth)
         self._lo = lo

@@ -9,14 +9,15 @@ import math
 import numpy as np
 import pytest
 
-from estimators._team_kernels import lf_scan_rows
 from estimators.geometry import wrap_angle
-from estimators.likelihood_field import LF_POWER, beam_units, lf_endpoints, lf_loglik
-from estimators.mcl_batch import predict_batch, team_state, team_weights, weigh_batch
-from estimators.occupancy import OccupancyGrid
-from estimators.particle_filter import MCLConfig, ParticleFilter
-from estimators.particle_sampling import kld_need, low_variance_from_cumulative, resample_filters
-from estimators.particle_weighting import weigh_filters
+from estimators.mcl._team_kernels import lf_scan_rows
+from estimators.mcl.batch import predict_batch, weigh_batch
+from estimators.mcl.filter import MCLConfig, ParticleFilter
+from estimators.mcl.likelihood_field import LF_POWER, beam_units, lf_endpoints, lf_loglik
+from estimators.mcl.occupancy import OccupancyGrid
+from estimators.mcl.sampling import kld_need, low_variance_from_cumulative, resample_team
+from estimators.mcl.team import ParticleTeam
+from estimators.mcl.weighting import weigh_team
 
 BEAMS = np.linspace(-np.pi, np.pi, 20, endpoint=False)
 
@@ -44,11 +45,11 @@ def test_compiled_field_scores_repeat_the_numpy_lookups():
     poses = np.column_stack([rng.uniform(-2.0, 11.0, 3000), rng.uniform(-2.0, 8.0, 3000),
                              rng.uniform(-3.0, 3.0, 3000)])
     pf.set_particles(poses)
-    pf._state[2] *= 3.0
+    pf.particle_set.state[2] *= 3.0
     ranges = rng.uniform(0.1, 7.0, BEAMS.size)
-    lf = pf._lf_field(8.0)
+    lf = pf.lf_field(8.0)
     bufs: dict = {}
-    numpy_sum = lf_loglik(lf, pf._state, ranges, BEAMS, {}, bufs).astype(np.float64)
+    numpy_sum = lf_loglik(lf, pf.particle_set.state, ranges, BEAMS, {}, bufs).astype(np.float64)
     gathered = next(iter(bufs.values()))[7]  # (beams + 1, n): the field at each endpoint,
     acc = gathered[-1].copy()  # then the penalty at the particle's own cell
     for row in gathered[:-1]:  # summed in the compiled pass's order
@@ -60,9 +61,9 @@ def test_compiled_field_scores_repeat_the_numpy_lookups():
     w_prev = rng.random(n)
     w_prev /= w_prev.sum()
     loglik = np.empty(n)
-    ev = weigh_filters([pf], pf._flat_state(), np.array([n]), w_prev, np.zeros((1, 7)),
-                       np.array([BEAMS.size]), loglik, False, np.zeros(1), np.ones(1),
-                       pf.lf_kernel_args(8.0), ux[None], uy[None], float(LF_POWER))
+    ev = weigh_team(ParticleTeam.alone(pf), w_prev, np.zeros((1, 7)),
+                    np.array([BEAMS.size]), loglik, False, np.zeros(1), np.ones(1),
+                    pf.lf_kernel_args(8.0), ux[None], uy[None], float(LF_POWER))
     np.testing.assert_array_equal(loglik, ref)  # the same cells and float32 sums, bit for bit
     w = w_prev * np.exp(ref - ref.max())
     np.testing.assert_allclose(pf.weights, w / w.sum(), rtol=1e-12, atol=1e-300)
@@ -71,7 +72,7 @@ def test_compiled_field_scores_repeat_the_numpy_lookups():
 
 def test_compiled_scan_rows_round_as_the_numpy_endpoints():
     pf = ParticleFilter(field_map(), np.random.default_rng(0), MCLConfig(n_particles=10))
-    lf = pf._lf_field(8.0)
+    lf = pf.lf_field(8.0)
     rng = np.random.default_rng(2)
     ranges = rng.uniform(0.0, 30.0, (4, BEAMS.size))  # some beyond the field's reach
     ranges[1, :5] = np.inf
@@ -100,7 +101,8 @@ def test_team_step_equals_robot_by_robot_steps():
         for pf, d in zip(alone, deltas, strict=True):
             pf.predict_delta(d)
         for pf, other in zip(alone, filters, strict=True):
-            np.testing.assert_array_equal(pf._state, other._state)  # same draws, same motion
+            # same draws, same motion
+            np.testing.assert_array_equal(pf.particle_set.state, other.particle_set.state)
         rows = np.stack([f.fix_row(*fx) if fx else f.fix_row()
                          for f, fx in zip(filters, fixes, strict=True)])
         ev = weigh_batch(filters, ranges, BEAMS, 8.0, rows)
@@ -115,10 +117,11 @@ def test_team_step_equals_robot_by_robot_steps():
             # the fixes multiply before, not after, normalizing: equal up to rounding
             np.testing.assert_allclose(pf.weights, filters[r].weights, rtol=1e-12, atol=1e-300)
             assert pf.w_slow == filters[r].w_slow and pf.w_fast == filters[r].w_fast
-            filters[r]._weights = pf._weights.copy()  # continue from identical weights
+            # continue from identical weights
+            filters[r].particle_set.weights = pf.particle_set.weights.copy()
         which = [True, step != 1, True]
-        flat, ends = team_state(filters)
-        resample_filters(filters, flat, ends, team_weights(filters), which)
+        team = ParticleTeam.gather(filters)
+        resample_team(team, team.weights(), which)
         for pf, again in zip(alone, which, strict=True):
             if again:
                 pf.resample()
@@ -133,7 +136,7 @@ def reference_resample(pf: ParticleFilter) -> np.ndarray:
     cfg = pf.config
     rng = pf.rng
     p_inj = pf.inject_probability
-    st = pf._world() - pf._org
+    st = pf.particles.T - pf.particle_set.origin
     cum = np.add.accumulate(pf.weights)
     if cfg.adaptive:
         idx = low_variance_from_cumulative(cum, cfg.n_max, rng)
@@ -144,8 +147,8 @@ def reference_resample(pf: ParticleFilter) -> np.ndarray:
         sel = st[:, idx].astype(np.float32)
         bx, by, bt = cfg.kld_bin
         n_t = math.ceil(2 * math.pi / bt)
-        kx = np.floor((sel[0].astype(float) + pf._org[0, 0]) / bx).astype(np.int64)
-        ky = np.floor((sel[1].astype(float) + pf._org[1, 0]) / by).astype(np.int64)
+        kx = np.floor((sel[0].astype(float) + pf.particle_set.origin[0, 0]) / bx).astype(np.int64)
+        ky = np.floor((sel[1].astype(float) + pf.particle_set.origin[1, 0]) / by).astype(np.int64)
         kt = np.clip(np.floor((sel[2] + np.float32(np.pi)) * np.float32(1 / bt)), 0, n_t - 1)
         key = ((kx - kx.min()) * (ky.max() - ky.min() + 1) + ky - ky.min()) * n_t + kt
         _, first = np.unique(key, return_index=True)
@@ -162,7 +165,8 @@ def reference_resample(pf: ParticleFilter) -> np.ndarray:
         kept = st[:, low_variance_from_cumulative(cum, n - n_inj, rng)].astype(np.float32)
     xy = pf.grid.sample_free(n_inj, rng)
     th = rng.uniform(-np.pi, np.pi, n_inj)
-    injected = np.vstack([xy.T - pf._org[:2], wrap_angle(th)[None]]).astype(np.float32)
+    org = pf.particle_set.origin
+    injected = np.vstack([xy.T - org[:2], wrap_angle(th)[None]]).astype(np.float32)
     return np.concatenate([kept, injected], axis=1)
 
 
@@ -182,7 +186,7 @@ def test_resampling_repeats_the_numpy_algorithm():
             ref = copy.deepcopy(pf)
             expected = reference_resample(ref)
             pf.resample()
-            np.testing.assert_array_equal(pf._state, expected)
+            np.testing.assert_array_equal(pf.particle_set.state, expected)
             assert pf.n_particles == expected.shape[1]
             if cfg.adaptive and seed in (1, 2):
                 assert pf.n_particles < cfg.n_max // 2
@@ -192,7 +196,7 @@ def test_resampling_repeats_the_numpy_algorithm():
 def test_ziggurat_normals_are_standard_normal():
     from scipy import stats
 
-    from estimators.particle_sampling import standard_normals
+    from estimators.mcl.sampling import standard_normals
 
     rng = np.random.default_rng(0)
     z = np.concatenate([standard_normals(rng, np.empty(n, dtype=np.float32))

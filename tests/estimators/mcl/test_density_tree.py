@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from estimators.density_tree import DensityTree
+from estimators.mcl.density_tree import DensityTree
 
 LOW3 = np.array([0.0, 0.0, -np.pi])
 HIGH3 = np.array([10.0, 6.0, np.pi])

@@ -1,6 +1,6 @@
 """Is a robot detection consistent with both robots' beliefs? And what to do when it is not.
 
-Fox et al.'s transfer (Eq. 10/13, :mod:`estimators.detection_transfer`) trusts
+Fox et al.'s transfer (Eq. 10/13, :mod:`estimators.mcl.detection_transfer`) trusts
 the observer: the detected robot's belief is multiplied by the density the
 observer's belief predicts for it. When both beliefs are confident and
 disagree about where the pair is, at least one of them is wrong, and the
@@ -15,7 +15,7 @@ The measure. The detection's likelihood under both beliefs taken together,
 
 written in the detected robot's pose space (``k(x_n | x_m, z)``: the density
 of ``n``'s pose that ``m`` at ``x_m`` and the detection ``z`` imply, the one
-:func:`~estimators.detection_transfer.sample_detected_poses` draws from), is
+:func:`~estimators.mcl.detection_transfer.sample_detected_poses` draws from), is
 compared with the same integral for a detected robot that knows nothing
 (uniform over the map's box of volume ``V``, where it equals ``1 / V``). The
 ratio is a Bayes factor,
@@ -68,8 +68,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimators.beam_table import BeamLUT, RangeTable
 from estimators.geometry import wrap_angle
+from estimators.mcl.beam_table import BeamLUT, RangeTable
 
 __all__ = [
     "ConsistencyConfig",

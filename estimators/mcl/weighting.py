@@ -1,42 +1,39 @@
 """Weighting one or several particle filters in one compiled pass.
 
-:func:`weigh_filters` multiplies each filter's weights by its scan likelihood
+:func:`weigh_team` multiplies each filter's weights by its scan likelihood
 (a likelihood-field laser scan scored in the pass, or scan log-likelihoods
 scored before, e.g. by the beam model's tables) and its DGPS / compass fixes
-(:func:`estimators._team_kernels.weigh_blocks`), normalizes them, and updates
-the filters' augmented-MCL averages. :class:`~estimators.particle_filter.ParticleFilter`
-uses it for one filter, :mod:`estimators.mcl_batch` for a team.
+(:func:`estimators.mcl._team_kernels.weigh_blocks`), normalizes them, and updates
+the filters' augmented-MCL averages. :class:`~estimators.mcl.filter.ParticleFilter`
+uses it for one filter, :mod:`estimators.mcl.batch` for a team.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from estimators._team_kernels import weigh_blocks
 from estimators.geometry import wrap_angle
+from estimators.mcl._team_kernels import weigh_blocks
+from estimators.mcl.team import ParticleSet, ParticleTeam
 
-if TYPE_CHECKING:
-    from estimators.particle_filter import ParticleFilter
-
-__all__ = ["NO_FIELD", "weigh_filters"]
+__all__ = ["NO_FIELD", "weigh_team"]
 
 # placeholders of the likelihood-field arguments of weigh_blocks when no field is read
 NO_FIELD = (np.zeros(1, dtype=np.float32), 1, 0, np.float32(0), np.float32(1), np.float32(0),
             np.float32(0), np.float32(0), np.float32(0))
 
 
-def weigh_filters(
-    filters: Sequence[ParticleFilter], flat: np.ndarray, ends: np.ndarray, w_prev: np.ndarray,
-    fixes: np.ndarray, nb: np.ndarray, loglik: np.ndarray, scored: bool,
-    offsets: np.ndarray, n_eff: np.ndarray, lf_args: tuple = NO_FIELD,
-    ux: np.ndarray | None = None, uy: np.ndarray | None = None, power: float = 1.0,
+def weigh_team(
+    team: ParticleTeam, w_prev: np.ndarray, fixes: np.ndarray, nb: np.ndarray,
+    loglik: np.ndarray, scored: bool, offsets: np.ndarray, n_eff: np.ndarray,
+    lf_args: tuple = NO_FIELD, ux: np.ndarray | None = None, uy: np.ndarray | None = None,
+    power: float = 1.0,
 ) -> np.ndarray:
-    """Weight ``filters`` (states ``flat`` in the block layout, segment ``ends``, weights
-    ``w_prev``) by their scans and ``fixes`` (rows of :meth:`ParticleFilter.fix_row`).
+    """Weight ``team`` (weights ``w_prev``: :meth:`ParticleTeam.weights`, or a team of
+    one's own) by the scans and ``fixes`` (rows of
+    :meth:`~estimators.mcl.filter.ParticleFilter.fix_row`).
 
     Robot ``r`` has a scan when ``nb[r] >= 0``: with ``scored`` its log-likelihoods
     are ``loglik``'s segment, otherwise ``nb[r]`` likelihood-field endpoints ``ux, uy``
@@ -45,6 +42,7 @@ def weigh_filters(
     ``offsets[r]``; the augmented-MCL averages track it over ``n_eff[r]`` beams
     (none when 0). Returns the log evidences (NaN: no scan).
     """
+    filters, flat, ends = team.members, team.state, team.ends
     nr = len(filters)
     evidence = np.full(nr, np.nan)
     if not nr:
@@ -59,32 +57,33 @@ def weigh_filters(
                  w, res)
     start = 0
     fixed = (fixes[:, 0] != 0) | (fixes[:, 4] != 0)
-    for r, (pf, end, nb_r, (ev_r, ess, ok), has_fix) in enumerate(
-            zip(filters, ends.tolist(), nb.tolist(), res.tolist(), fixed.tolist(), strict=True)):
+    for r, (pf, ps, end, nb_r, (ev_r, ess, ok), has_fix) in enumerate(
+            zip(filters, team.sets, ends.tolist(), nb.tolist(), res.tolist(), fixed.tolist(),
+                strict=True)):
         scan = nb_r >= 0
         if scan or has_fix:
             if ok:
-                pf._weights = w[start:end]
-                pf._wblock_start = start
-                pf._ess = (pf._weights, ess)
+                ps.weights = w[start:end]
+                ps.weights_start = start
+                ps.ess_cache = (ps.weights, ess)
                 ev = ev_r + float(offsets[r])
             else:  # the products underflowed: redo this filter in log space
-                pf._weights, ev = _weights_in_logs(pf, w_prev[start:end],
-                                                   loglik[start:end] if scan else None,
-                                                   fixes[r])
+                ps.weights, ev = _weights_in_logs(ps, w_prev[start:end],
+                                                  loglik[start:end] if scan else None,
+                                                  fixes[r])
                 ev += float(offsets[r])
             if scan:
                 evidence[r] = ev
-                pf._track_evidence(ev, float(n_eff[r]))
+                pf.track_evidence(ev, float(n_eff[r]))
         start = end
     return evidence
 
 
-def _weights_in_logs(pf: ParticleFilter, w_prev: np.ndarray, loglik: np.ndarray | None,
+def _weights_in_logs(ps: ParticleSet, w_prev: np.ndarray, loglik: np.ndarray | None,
                      fix: np.ndarray) -> tuple[np.ndarray, float]:
-    """:func:`weigh_filters` for one filter in log space: normalized weights and the
+    """:func:`weigh_team` for one filter in log space: normalized weights and the
     scan's log evidence (less the caller's offset; NaN without a scan)."""
-    st = pf._state
+    st = ps.state
     with np.errstate(divide="ignore"):
         lw = np.log(w_prev)
     log_evidence = math.nan
@@ -104,5 +103,6 @@ def _weights_in_logs(pf: ParticleFilter, w_prev: np.ndarray, loglik: np.ndarray 
     e = np.exp(lw - m)
     e /= e.sum()
     return e, log_evidence
+
 
 

@@ -2,7 +2,7 @@
 
 Each kernel fuses what numpy would do in several passes with temporaries into
 one or two passes over the particles. They are private helpers of
-:mod:`estimators.mcl_batch`; inputs are checked there.
+:mod:`estimators.mcl.batch`; inputs are checked there.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ def summary_sums(
     """Per-segment weighted sums of particle sets stored back to back.
 
     ``flat`` holds ``x, y, heading`` in the block layout of
-    :mod:`estimators._team_kernels`, ``w`` ``(N,)`` the weights (each segment's
+    :mod:`estimators.mcl._team_kernels`, ``w`` ``(N,)`` the weights (each segment's
     summing to 1), segment ``r`` ending (exclusive) at ``ends[r]``.
     Returns ``sums (R, 5)`` (weighted sums of ``x, y, cos, sin`` and of ``w**2``),
     ``cov (R, 3, 3)`` (about the weighted mean, the heading wrapped about the
@@ -108,7 +108,7 @@ def summary_features(
     count_frac: np.ndarray, hist_cells: int, inv_cell: float, heading_bins: int,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover (compiled)
     """Means ``(R, 3)``, covariances ``(R, 3, 3)`` and belief features ``(R, F)`` float32
-    (:func:`estimators.particle_features.belief_features`' layout) of particle sets in the
+    (:func:`estimators.mcl.features.belief_features`' layout) of particle sets in the
     block layout, from :func:`summary_sums`; ``org (R, 2)``: each set's state origin,
     ``bounds (R, 4)``: its map's extent, ``count_frac (R,)``: its particle-count fraction."""
     sums, cov, hist, hhist = summary_sums(flat, w, ends, hist_cells, inv_cell, heading_bins)
@@ -177,7 +177,7 @@ def beam_loglik(
     occupied_loglik: float,
 ) -> np.ndarray:  # pragma: no cover (compiled)
     """Scan log-likelihoods ``(N,)`` of particle sets in the block layout of
-    :mod:`estimators._team_kernels` (see :meth:`RangeTable.expected` and
+    :mod:`estimators.mcl._team_kernels` (see :meth:`RangeTable.expected` and
     :meth:`BeamLUT.loglik`, whose float32 steps this repeats in the same order), plus
     ``occupied_loglik`` for particles outside the map's free cells.
 
@@ -254,7 +254,7 @@ def tree_density(
     points: np.ndarray, low: np.ndarray, high: np.ndarray, split_dim: np.ndarray,
     split_val: np.ndarray, left: np.ndarray, density: np.ndarray,
 ) -> np.ndarray:  # pragma: no cover (compiled)
-    """Density of a :class:`~estimators.density_tree.DensityTree` at ``points (M, d)``:
+    """Density of a :class:`~estimators.mcl.density_tree.DensityTree` at ``points (M, d)``:
     descend from the root (node 0; a node's right child is ``left + 1``) to the leaf;
     0 outside ``[low, high)``."""
     m, d = points.shape
@@ -306,7 +306,7 @@ def grow_tree(
     leaf_size: int, max_depth: int,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
     # pragma: no cover (compiled)
-    """Grow a :class:`~estimators.density_tree.DensityTree` breadth first.
+    """Grow a :class:`~estimators.mcl.density_tree.DensityTree` breadth first.
 
     Nodes are processed in creation order (level by level); a node holding
     more than ``leaf_size`` samples above ``max_depth`` is halved along its

@@ -2,7 +2,7 @@
 
 :func:`belief_feature_names` gives the layout; :func:`belief_features` computes it
 from a weighted particle set (:meth:`ParticleFilter.belief_features
-<estimators.particle_filter.ParticleFilter.belief_features>` passes its own).
+<estimators.mcl.filter.ParticleFilter.belief_features>` passes its own).
 """
 
 from __future__ import annotations

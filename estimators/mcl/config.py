@@ -1,4 +1,4 @@
-"""Parameters and result type of the particle filter (:mod:`estimators.particle_filter`).
+"""Parameters and result type of the particle filter (:mod:`estimators.mcl.filter`).
 
 :class:`ParticleMotionNoise` (odometry noise of the particle motion model; not
 the EKF's :class:`estimators.team_ekf.MotionNoise`), :class:`MCLConfig` (every
@@ -61,10 +61,10 @@ class MCLConfig:
     point mass at max range, ``beam_z_rand`` uniform. A beam with a cone
     (``cone_half_width`` > 0) expects the nearest of ``beam_rays_per_cone``
     rays spread over the cone. ``beam_lookup_bins`` > 0 replaces ray casting
-    by lookups in a :class:`~estimators.beam_table.RangeTable` (that many
+    by lookups in a :class:`~estimators.mcl.beam_table.RangeTable` (that many
     heading bins; ranges from the cell centre corrected to first order for
     the particle's exact position and heading) and the model's terms by a
-    :class:`~estimators.beam_table.BeamLUT` over ranges quantized to
+    :class:`~estimators.mcl.beam_table.BeamLUT` over ranges quantized to
     ``max_range / 511``: both built once per map and shared, then an update
     costs two gathers per particle and beam instead of a ray cast.
 

@@ -1,30 +1,27 @@
 """Resampling helpers of the particle filter: low-variance (systematic) resampling,
 the KLD-sampling bound (Fox 2003) on the number of particles, and the compiled
-resampling of one or several filters at once (:func:`resample_filters`)."""
+resampling of a :class:`~estimators.mcl.team.ParticleTeam` at once (:func:`resample_team`)."""
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
 from functools import lru_cache
-from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.special import ndtri
 
-from estimators._team_kernels import (
+from estimators.mcl._team_kernels import (
     build_blocks,
     normals_from_bits,
     select_blocks,
     ziggurat_tables,
 )
-
-if TYPE_CHECKING:
-    from estimators.particle_filter import ParticleFilter
+from estimators.mcl.team import ParticleTeam, TeamMember
 
 __all__ = [
     "kld_need", "kld_sample_bound", "low_variance_from_cumulative", "low_variance_indices",
-    "resample_filters", "standard_normals",
+    "resample_team", "standard_normals",
 ]
 
 _ZIGGURAT = ziggurat_tables()
@@ -107,52 +104,19 @@ def kld_need(epsilon: float, delta: float, n_min: int, n_max: int) -> np.ndarray
     return need
 
 
-def resample_filters(filters: Sequence[ParticleFilter], flat: np.ndarray, ends: np.ndarray,
-                     w: np.ndarray, which: Sequence[bool]) -> np.ndarray:
-    """:meth:`ParticleFilter.resample` of ``filters[r]`` where ``which[r]``, all in two
-    compiled passes over the team's arrays; returns the team's new state (block layout),
-    which every filter's state is then a view of (resampled filters get uniform weights).
+def resample_team(team: ParticleTeam, w: np.ndarray, which: Sequence[bool]) -> np.ndarray:
+    """:meth:`~estimators.mcl.filter.ParticleFilter.resample` of robot ``r`` where
+    ``which[r]``, all in two compiled passes over the team's arrays; returns the team's
+    new state (block layout), which every set's state is then a view of (resampled sets
+    get uniform weights).
 
-    ``flat``, ``ends``, ``w``: the filters' states (block layout, each filter's state a
-    view of ``flat``), segment ends and weights. Each filter draws from its own
-    generator in the order :meth:`ParticleFilter.resample` documents, so resampling a
-    team equals resampling its filters one by one.
+    ``w``: the team's weights (:meth:`ParticleTeam.weights`). Each robot draws from its
+    own generator in the order :meth:`~estimators.mcl.filter.ParticleFilter.resample`
+    documents, so resampling a team equals resampling its filters one by one.
     """
+    filters, flat, ends = team.members, team.state, team.ends
+    ints, u, p_inj, kld, words, needs = _first_draws(team, which)
     nr = len(filters)
-    # per robot: mode (0 keep, 1 fixed count, 2 KLD), indices to draw, injected count
-    ints = [(0, 0, 0)] * nr
-    u = [0.0] * nr
-    p_inj = [0.0] * nr
-    kld: np.ndarray | None = None
-    words: list[tuple[int, np.ndarray]] = []
-    needs: list[np.ndarray] = []
-    need_off = 0
-    start = 0
-    for r, (pf, end) in enumerate(zip(filters, ends.tolist(), strict=True)):
-        n, start = end - start, end
-        if not which[r]:
-            continue
-        cfg = pf.config
-        rng = pf.rng
-        p = p_inj[r] = pf.inject_probability
-        if cfg.adaptive:
-            u[r] = rng.random()
-            words.append((r, rng.bit_generator.random_raw(cfg.n_max)))  # the shuffle
-            ints[r] = (2, cfg.n_max, 0)
-            if pf._unwrapped_steps:
-                pf._wrap_headings()
-            bx, by, bt = cfg.kld_bin
-            need = kld_need(cfg.kld_epsilon, cfg.kld_delta, cfg.n_min, cfg.n_max)
-            if kld is None:
-                kld = np.zeros((nr, 8))
-            kld[r] = (pf._org[0, 0], pf._org[1, 0], 1.0 / bx, 1.0 / by, 1.0 / bt,
-                      math.ceil(2.0 * math.pi / bt), need_off, cfg.n_min)
-            needs.append(need)
-            need_off += need.size
-        else:
-            k = int(rng.binomial(n, p)) if p > 0 else 0
-            u[r] = rng.random()
-            ints[r] = (1, n - k, k)
     mode_a, m_a, n_inj_a = np.array(ints, dtype=np.intp).reshape(nr, 3).T.copy()
     if words:  # KLD robots' shuffle words at their offsets
         offsets = np.cumsum(m_a) - m_a
@@ -168,29 +132,82 @@ def resample_filters(filters: Sequence[ParticleFilter], flat: np.ndarray, ends: 
     idx, counts = select_blocks(flat, w, ends, mode_a, np.array(u), m_a, bits,
                                 _NO_KLD if kld is None else kld, need_all)
     keep = counts if words else m_a
+    xy_all, h_all = _injections(filters, ints, p_inj, counts, keep, n_inj_a)
+    new, new_ends = build_blocks(flat, ends, mode_a, idx, m_a, keep, xy_all, h_all, n_inj_a,
+                                 team.origins)
+    start = 0
+    for pf, ps, end, (mode, _, _) in zip(filters, team.sets, new_ends.tolist(), ints,
+                                         strict=True):
+        ps.state = new[3 * start:3 * end].reshape(3, end - start)
+        ps.state_start = start
+        if mode:
+            ps.weights = pf.uniform_weights(end - start)
+        start = end
+    team.state, team.ends = new, new_ends
+    return new
+
+
+def _first_draws(team: ParticleTeam, which: Sequence[bool]) -> tuple:
+    """The draws of :func:`resample_team` before its selection pass, robot by robot: per
+    robot ``(mode, indices to draw, injected count)`` (mode 0 keep, 1 fixed count,
+    2 KLD), the resampling offsets, injection probabilities, the KLD rows of
+    ``select_blocks`` (None: no KLD robot), the KLD robots' shuffle words and the KLD
+    bounds."""
+    nr = len(team.members)
+    ints = [(0, 0, 0)] * nr
+    u = [0.0] * nr
+    p_inj = [0.0] * nr
+    kld: np.ndarray | None = None
+    words: list[tuple[int, np.ndarray]] = []
+    needs: list[np.ndarray] = []
+    need_off = 0
+    start = 0
+    for r, (pf, ps, end) in enumerate(zip(team.members, team.sets, team.ends.tolist(),
+                                          strict=True)):
+        n, start = end - start, end
+        if not which[r]:
+            continue
+        cfg = pf.config
+        rng = pf.rng
+        p = p_inj[r] = pf.inject_probability
+        if cfg.adaptive:
+            u[r] = rng.random()
+            words.append((r, rng.bit_generator.random_raw(cfg.n_max)))  # the shuffle
+            ints[r] = (2, cfg.n_max, 0)
+            if ps.unwrapped_steps:
+                ps.wrap_headings()
+            bx, by, bt = cfg.kld_bin
+            need = kld_need(cfg.kld_epsilon, cfg.kld_delta, cfg.n_min, cfg.n_max)
+            if kld is None:
+                kld = np.zeros((nr, 8))
+            kld[r] = (ps.origin_xy[0], ps.origin_xy[1], 1.0 / bx, 1.0 / by, 1.0 / bt,
+                      math.ceil(2.0 * math.pi / bt), need_off, cfg.n_min)
+            needs.append(need)
+            need_off += need.size
+        else:
+            k = int(rng.binomial(n, p)) if p > 0 else 0
+            u[r] = rng.random()
+            ints[r] = (1, n - k, k)
+    return ints, u, p_inj, kld, words, needs
+
+
+def _injections(filters: Sequence[TeamMember], ints: list[tuple[int, int, int]],
+                p_inj: list[float], counts: np.ndarray, keep: np.ndarray,
+                n_inj: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The injected particles' positions ``(K, 2)`` and headings ``(K,)`` of every robot in
+    turn; a KLD robot's injected count is drawn here from its selected count (``keep`` and
+    ``n_inj`` are updated in place)."""
     inj_xy: list[np.ndarray] = []
     inj_h: list[np.ndarray] = []
     for r, pf in enumerate(filters):
         mode, _, k = ints[r]
         if mode == 2 and p_inj[r] > 0:
             n = int(counts[r])
-            k = n_inj_a[r] = int(pf.rng.binomial(n, p_inj[r]))
+            k = n_inj[r] = int(pf.rng.binomial(n, p_inj[r]))
             keep[r] = n - k
         if k:  # uniform over free space (OccupancyGrid.sample_free's draws), any heading
             inj_xy.append(pf.grid.sample_free(k, pf.rng))
             inj_h.append(pf.rng.uniform(-np.pi, np.pi, size=k))
-    org = np.array([pf._org_xy for pf in filters]).reshape(-1, 2)
     if len(inj_xy) > 1:
-        xy_all, h_all = np.concatenate(inj_xy), np.concatenate(inj_h)
-    else:
-        xy_all, h_all = (inj_xy[0], inj_h[0]) if inj_xy else (_NO_XY, _NO_H)
-    new, new_ends = build_blocks(flat, ends, mode_a, idx, m_a, keep, xy_all, h_all, n_inj_a,
-                                 org)
-    start = 0
-    for pf, end, (mode, _, _) in zip(filters, new_ends.tolist(), ints, strict=True):
-        pf._state = new[3 * start:3 * end].reshape(3, end - start)
-        pf._block_start = start
-        if mode:
-            pf._weights = pf._uniform_weights(end - start)
-        start = end
-    return new
+        return np.concatenate(inj_xy), np.concatenate(inj_h)
+    return (inj_xy[0], inj_h[0]) if inj_xy else (_NO_XY, _NO_H)

@@ -2,7 +2,7 @@
 
 A beam model (:meth:`ParticleFilter.update_beam`) needs, for every particle and
 beam, the range a ray cast in the map would return. :class:`RangeTable` holds,
-for every cell centre of an :class:`~estimators.occupancy.OccupancyGrid` and
+for every cell centre of an :class:`~estimators.mcl.occupancy.OccupancyGrid` and
 every one of ``n_bins`` heading bins, the ray-cast range (the nearest of
 ``rays_per_cone`` rays over a cone when the beam is wide) together with its
 first derivatives with respect to the origin's position and the beam's
@@ -10,7 +10,7 @@ direction (from the face of the cell the ray hits: a ray that ends on the
 vertical face ``x = X`` has range ``(X - x) / cos(phi)``). A lookup corrects the
 cell-centre range to the particle's exact position and heading to first order,
 which removes most of the error of quantizing poses to cells and bins
-(figures in ``tests/estimators/test_beam_table.py`` and :func:`table_error`).
+(figures in ``tests/estimators/mcl/test_beam_table.py`` and :func:`table_error`).
 
 :class:`BeamLUT` tabulates the beam model's per-beam log-likelihood (tempered
 by ``likelihood_exponent``) over quantized measured and expected ranges, so a
@@ -31,8 +31,8 @@ from typing import NamedTuple
 import numpy as np
 from scipy.special import ndtr
 
-from estimators._kernels import beam_loglik
-from estimators.occupancy import OccupancyGrid
+from estimators.mcl._kernels import beam_loglik
+from estimators.mcl.occupancy import OccupancyGrid
 
 __all__ = [
     "BeamLUT", "RangeTable", "beam_lut", "beam_probability", "range_table", "scan_loglik",
@@ -295,7 +295,7 @@ def scan_loglik(table: RangeTable, lut: BeamLUT, flat: np.ndarray, angles: np.nd
 
     ``flat`` holds the float32 ``x, y`` (m from the centre of cell ``(0, 0)``) and
     headings of robot ``r``'s particles, which end (exclusive) at ``ends[r]``, as one
-    ``(3, n_r)`` block (the block layout of :mod:`estimators._team_kernels`); its
+    ``(3, n_r)`` block (the block layout of :mod:`estimators.mcl._team_kernels`); its
     readings select the likelihood rows ``row_offsets[r]`` (:meth:`BeamLUT.rows`)
     for the beams at robot-frame ``angles``. Equals
     ``lut.loglik(table.expected(...), rows)`` plus ``occupied_loglik`` where

@@ -10,10 +10,10 @@
   distance of the mode's particles from its mean), sorted by weight, zero rows
   where fewer than ``K`` modes hold mass.
 
-Both read particle sets in the block layout of :mod:`estimators._team_kernels`
+Both read particle sets in the block layout of :mod:`estimators.mcl._team_kernels`
 (``flat`` float32, ``w`` weights, ``ends`` the segments' ends, ``org (R, 2)``
 each set's state origin: world position = state + origin); that is what
-:func:`estimators.mcl_batch.team_state` and :func:`~estimators.mcl_batch.team_weights`
+:func:`estimators.mcl.batch.team_state` and :func:`~estimators.mcl.batch.team_weights`
 return for a team of filters.
 """
 

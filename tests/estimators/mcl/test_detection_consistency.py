@@ -7,8 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from estimators.density_tree import DensityTree
-from estimators.detection_consistency import (
+from estimators.geometry import relative_pose
+from estimators.mcl.density_tree import DensityTree
+from estimators.mcl.detection_consistency import (
     ConsistencyConfig,
     assess_detection,
     backtrack,
@@ -18,15 +19,14 @@ from estimators.detection_consistency import (
     tree_bayes_factor,
     widen,
 )
-from estimators.detection_transfer import (
+from estimators.mcl.detection_transfer import (
     DetectionTransfer,
     RobotDetection,
     TransferConfig,
     sample_detected_poses,
 )
-from estimators.geometry import relative_pose
-from estimators.occupancy import OccupancyGrid
-from estimators.particle_filter import MCLConfig, ParticleFilter
+from estimators.mcl.filter import MCLConfig, ParticleFilter
+from estimators.mcl.occupancy import OccupancyGrid
 
 BOX = (20.0, 20.0)
 OBSERVER = np.array([[10.0, 10.0, 0.4]])

@@ -1,9 +1,9 @@
 """The likelihood-field laser model's table (used by :class:`ParticleFilter`).
 
-:func:`build_lf_field` turns a map and an :class:`~estimators.particle_config.MCLConfig`
+:func:`build_lf_field` turns a map and an :class:`~estimators.mcl.config.MCLConfig`
 into one flat ``float32`` table; :func:`lf_endpoints` turns a scan into the beam
 endpoints the filter's compiled weighting reads
-(:func:`estimators._team_kernels.weigh_blocks`). :func:`lf_loglik` is the same
+(:func:`estimators.mcl._team_kernels.weigh_blocks`). :func:`lf_loglik` is the same
 score in numpy (one matrix product and one gather, with its work arrays from
 :func:`beam_matrix` and :func:`lf_buffers`), kept as the reference the compiled
 kernel is tested against.
@@ -16,8 +16,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from estimators.occupancy import OccupancyGrid
-from estimators.particle_config import MCLConfig
+from estimators.mcl.config import MCLConfig
+from estimators.mcl.occupancy import OccupancyGrid
 
 __all__ = [
     "LF_POWER", "LFField", "beam_matrix", "beam_units", "build_lf_field", "lf_buffers",
@@ -116,7 +116,7 @@ def lf_endpoints(lf: LFField, ranges: np.ndarray, angles: np.ndarray
     """Beam endpoints ``(ux, uy)`` float32 in cells, in the robot frame, of readings
     ``ranges`` (``(..., B)``, below the maximum range; clipped here to ``lf.reach``; NaN
     gives NaN) at ``angles (B,)``: the scan as the compiled weighting
-    (:func:`estimators._team_kernels.weigh_blocks`) reads it, rounded as
+    (:func:`estimators.mcl._team_kernels.weigh_blocks`) reads it, rounded as
     :func:`lf_loglik` rounds it."""
     unit = beam_units(lf, angles)
     r = np.minimum(ranges, lf.reach)
