@@ -220,3 +220,21 @@ def test_recovery_stress_script_refuses_bad_input(script_main, tmp_path, capsys)
                 ["--cases", "kidnapped", "--kidnap", "9"], ["--noise-scale", "0"]):
         assert main([str(EXCERPT), *bad]) == 2
         assert capsys.readouterr().err.count("\n") == 1
+
+
+def test_recovery_table_groups_cases_and_compares_trees(script_module, script_main, tmp_path):
+    table = script_module("bench/recovery_table")
+    robots = {"1": [0.05, 0.06, 0], "2": [0.1, 0.3, 4]}
+    before = {
+        "0:300 biased_landmark 7 ekf": {"mean_position_error_m": 0.1, "nees_95_fraction": 0.9,
+                                        "recoveries": 2, "per_robot": robots},
+        "0:300 biased_landmark 12 ekf": {"mean_position_error_m": 0.2, "nees_95_fraction": 0.8,
+                                         "recoveries": 1, "per_robot": robots},
+    }
+    after = {k: dict(v, recoveries=0, per_robot={"1": [0.05, 0.06, 0]}) for k, v in before.items()}
+    text = table.table(before, after)
+    row = text.splitlines()[2]
+    assert row.startswith("| 0:300 | biased_landmark | `ekf` | 2 | 0.150 | 0.150 | 0.85 | 0.85 "
+                          "| 3 | 0 ")
+    assert "| 0.30 | 0.06 | 3.00 | 1.20 |" in row
+    assert script_main("bench/recovery_table")([str(tmp_path / "one.json")]) == 2
