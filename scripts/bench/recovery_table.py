@@ -36,7 +36,8 @@ def _summary(figs: list[dict]) -> dict:
         "rec": sum(f["recoveries"] or 0 for f in figs),
         "rmse": max(r[1] for r in robots),
         "ratio": max(r[1] / r[0] for r in robots if r[0] > 0),
-        "slowest": None if not kid else (None if None in kid else max(kid)),
+        "kidnapped": bool(kid),
+        "slowest": None if None in kid else max(kid, default=0.0),
     }
 
 
@@ -51,8 +52,7 @@ def table(before: dict, after: dict) -> str:
     ]
     for key in sorted(set(b) & set(a), key=lambda k: (float(k[0].split(":")[0]), k[1], k[2])):
         sb, sa = _summary(b[key]), _summary(a[key])
-        last = ("slowest", "{}") if sb["slowest"] is not None or sa["slowest"] is not None \
-            else ("ratio", "{:.2f}")
+        last = ("slowest", "{}") if sb["kidnapped"] else ("ratio", "{:.2f}")
 
         def fmt(s: dict, name: str = last[0], spec: str = last[1]) -> str:
             return "never" if s[name] is None else spec.format(s[name])
