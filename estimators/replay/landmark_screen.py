@@ -32,6 +32,26 @@ from estimators.gating import chi2_threshold
 __all__ = ["LandmarkScreen"]
 
 
+class _Track:
+    """One robot's recent readings of one landmark, with running sums."""
+
+    def __init__(self) -> None:
+        self.readings: deque[tuple[float, np.ndarray, np.ndarray]] = deque()
+        self.sum_offset = np.zeros(2)
+        self.sum_cov = np.zeros((2, 2))
+
+    def add(self, time: float, offset: np.ndarray, cov: np.ndarray) -> None:
+        self.readings.append((time, offset, cov))
+        self.sum_offset = self.sum_offset + offset
+        self.sum_cov = self.sum_cov + cov
+
+    def forget(self, before: float) -> None:
+        while self.readings and self.readings[0][0] < before:
+            _, offset, cov = self.readings.popleft()
+            self.sum_offset = self.sum_offset - offset
+            self.sum_cov = self.sum_cov - cov
+
+
 class LandmarkScreen:
     """Per-landmark, per-robot offsets of the implied landmark positions from the map.
 
@@ -61,7 +81,8 @@ class LandmarkScreen:
         self.min_offset_m = float(min_offset_m)
         self.bound = chi2_threshold(prob, 2)
         self.min_readings = min_readings
-        self._kept: dict[tuple[int, int], deque] = {}
+        # landmark -> robot -> (readings (time, offset, cov), running sums of offset, cov)
+        self._kept: dict[int, dict[int, _Track]] = {}
         self.flags = 0  # readings whose noise was inflated
 
     def add(
@@ -80,25 +101,22 @@ class LandmarkScreen:
         j_pose = np.array([[1.0, 0.0, -arm[1] - z[0] * u[1]], [0.0, 1.0, arm[0] + z[0] * u[0]]])
         j_z = np.column_stack([u, z[0] * perp])
         cov_off = j_pose @ cov @ j_pose.T + j_z @ r @ j_z.T
-        keep = self._kept.setdefault((landmark, robot), deque())
-        keep.append((float(time), implied - np.asarray(mark, dtype=float), cov_off))
-        while keep and keep[0][0] < time - self.window_s:
-            keep.popleft()
+        track = self._kept.setdefault(landmark, {}).setdefault(robot, _Track())
+        track.add(float(time), implied - np.asarray(mark, dtype=float), cov_off)
+        track.forget(time - self.window_s)
 
     def offset(self, landmark: int, time: float) -> np.ndarray | None:
         """The agreed world-frame offset ``(2,)`` of ``landmark`` from the map at ``time``,
         or ``None`` when it is not flagged."""
         means = []
-        for (lm, _), keep in self._kept.items():
-            if lm != landmark:
+        for track in self._kept.get(landmark, {}).values():
+            track.forget(time - self.window_s)
+            n = len(track.readings)
+            if n < self.min_readings:
                 continue
-            recent = [k for k in keep if k[0] >= time - self.window_s]
-            if len(recent) < self.min_readings:
-                continue
-            e = np.mean([k[1] for k in recent], axis=0)
-            c = np.mean([k[2] for k in recent], axis=0) / np.sqrt(len(recent))
+            e = track.sum_offset / n
             if float(np.hypot(*e)) >= self.min_offset_m:
-                means.append((e, c))
+                means.append((e, track.sum_cov / (n * np.sqrt(n))))
         if len(means) < self.min_robots:
             return None
         for a in range(len(means)):
