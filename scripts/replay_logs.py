@@ -51,6 +51,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument(
         "--no-landmarks", action="store_true", help="use robot-to-robot measurements only"
     )
+    p.add_argument(
+        "--no-landmark-screen",
+        action="store_true",
+        help="do not count the offset of a landmark several robots find off as map uncertainty",
+    )
     p.add_argument("--duration", type=float, default=600.0, help="seconds to replay [600]")
     p.add_argument(
         "--start-offset", type=float, default=0.0, help="seconds after the latest odometry start"
@@ -184,6 +189,7 @@ def _run(args: argparse.Namespace) -> int:
         use_landmarks=not args.no_landmarks,
         start_offset=args.start_offset,
         progress=progress,
+        screen_landmarks=not args.no_landmark_screen,
     )
     if bar is not None:
         bar.close()

@@ -18,9 +18,15 @@ ground truth by :func:`fit_noise_parameters` and stored as JSON; the package
 ships one fitted on MR.CLAM dataset 6 *outside* the standard evaluation window
 (see ``estimators/data/mrclam_noise.json``, field ``fitted_on``).
 
+Landmark readings pass a screen first
+(:class:`~estimators.replay.landmark_screen.LandmarkScreen`, ``screen_landmarks=False``
+switches it off): a landmark that several robots find off the map the same way has that
+offset counted as map uncertainty.
+
 Modules: :mod:`~estimators.replay.noise_model` (the parameters and their
 JSON files), :mod:`~estimators.replay.runner` (replay and evaluation),
-:mod:`~estimators.replay.calibration` (fitting the parameters).
+:mod:`~estimators.replay.calibration` (fitting the parameters),
+:mod:`~estimators.replay.landmark_screen` (the screen).
 """
 
 from estimators.replay.calibration import (
@@ -29,6 +35,7 @@ from estimators.replay.calibration import (
     scale_noise,
     tune_inflation,
 )
+from estimators.replay.landmark_screen import LandmarkScreen
 from estimators.replay.noise_model import (
     DEFAULT_NOISE_PATH,
     PER_ROBOT_KEYS,
@@ -41,6 +48,7 @@ from estimators.replay.runner import ESTIMATORS, ReplayResult, evaluate, replay
 __all__ = [
     "ESTIMATORS",
     "DEFAULT_NOISE_PATH",
+    "LandmarkScreen",
     "PER_ROBOT_KEYS",
     "TUNING_GRID",
     "NoiseParameters",

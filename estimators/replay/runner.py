@@ -15,6 +15,7 @@ from scipy.stats import chi2
 from estimators.gating import chi2_threshold
 from estimators.geometry import wrap_angle
 from estimators.mrclam import MrclamDataset, interpolate_groundtruth
+from estimators.replay.landmark_screen import LandmarkScreen
 from estimators.replay.noise_model import NoiseParameters
 from estimators.team_ekf import MotionNoise, OdometryTrack, TeamEKF
 
@@ -87,8 +88,13 @@ def replay(
     start_offset: float = 0.0,
     grid_step: float = 1.0,
     progress: Callable[[float], None] | None = None,
+    screen_landmarks: bool = True,
 ) -> ReplayResult:
     """Run ``estimator`` on ``dataset`` with the standard protocol (see module doc).
+
+    ``screen_landmarks``: the EKFs count the offset of a landmark that several robots
+    find off the same way as map uncertainty
+    (:class:`~estimators.replay.landmark_screen.LandmarkScreen`).
 
     ``start_offset`` shifts the start after the latest odometry start (to
     evaluate on other time spans); ``progress`` is called with the fraction
@@ -145,7 +151,8 @@ def replay(
             dataset, params, ekf.tracks, init, t0, grid, stream, progress
         )
     else:
-        est, cov = _run_ekf(ekf, dataset, params, grid, stream, progress)
+        screen = LandmarkScreen() if screen_landmarks else None
+        est, cov = _run_ekf(ekf, dataset, params, grid, stream, progress, screen)
         accepted, rejected = ekf.accepted.copy(), ekf.rejected.copy()
     if progress is not None:
         progress(1.0)
@@ -177,8 +184,11 @@ def _run_ekf(
     grid: np.ndarray,
     stream: np.ndarray,
     progress: Callable[[float], None] | None,
+    screen: LandmarkScreen | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Feed the time-sorted ``stream`` to ``ekf``; return the beliefs on ``grid``.
+    With ``screen``, each landmark reading is kept there first and its noise inflated
+    when the screen has flagged the landmark.
 
     Shapes ``(R, G, 3)`` and ``(R, G, 3, 3)``.
     """
@@ -210,7 +220,14 @@ def _run_ekf(
             ekf.update_robot(i, subj_index[s], z, params.measurement_cov(range_, True), t)
         else:
             r_cov = params.measurement_cov(range_, False)
-            ekf.update_landmark(i, dataset.landmarks[s], z, r_cov, t)
+            mark = dataset.landmarks[s]
+            if screen is not None:
+                ekf.predict_to(i, t)
+                belief = ekf.belief(i)
+                offset = ekf.sensor_offset[i]
+                screen.add(s, i, t, belief.mean, belief.cov, offset, mark, z, r_cov)
+                r_cov = screen.inflate(s, t, belief.mean, offset, mark, r_cov)
+            ekf.update_landmark(i, mark, z, r_cov, t)
         if progress is not None and e % report_every == 0:
             progress(e / max(n_events, 1))
     while g < len(grid):

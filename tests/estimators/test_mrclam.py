@@ -426,3 +426,68 @@ def test_cli_fit_writes_a_parameter_file_the_replay_reads(tmp_path: Path, script
     m = json.loads(out.read_text())
     assert m["params"] == str(pfile) and m["start_offset_s"] == 60.0
     assert all(r["evaluated_times"] == 20 for r in m["per_robot"])
+
+
+def _screen_readings(screen, robot: int, pose: np.ndarray, landmark: np.ndarray,
+                     mark: np.ndarray, rng: np.random.Generator, t0: float) -> None:
+    """Five readings of the landmark truly at ``landmark`` (the map says ``mark``) from
+    robot ``robot`` believed, rightly, at ``pose``."""
+    r = np.diag([0.05**2, 0.01**2])
+    for k in range(5):
+        d = landmark - pose[:2]
+        z = np.array([np.hypot(*d), np.arctan2(d[1], d[0]) - pose[2]])
+        z = z + rng.normal(0.0, [0.05, 0.01])
+        screen.add(7, robot, t0 + 0.2 * k, pose, np.eye(3) * 1e-4, np.zeros(2), mark, z, r)
+
+
+def test_landmark_screen_flags_a_landmark_that_two_robots_find_off_the_same_way() -> None:
+    from estimators.replay.landmark_screen import LandmarkScreen
+
+    rng = np.random.default_rng(0)
+    truth, mark = np.array([2.0, 1.0]), np.array([2.3, 1.2])  # the map is 0.36 m off
+    screen = LandmarkScreen()
+    _screen_readings(screen, 0, np.array([0.0, 0.0, 0.3]), truth, mark, rng, 0.0)
+    assert screen.offset(7, 1.0) is None  # one robot: it may be the robot that is off
+    r = np.diag([0.05**2, 0.01**2])
+    assert np.array_equal(screen.inflate(7, 1.0, np.zeros(3), np.zeros(2), mark, r), r)
+    _screen_readings(screen, 1, np.array([4.0, 3.0, -2.0]), truth, mark, rng, 1.0)
+    off = screen.offset(7, 2.0)
+    assert off is not None and np.linalg.norm(off - (truth - mark)) < 0.05
+    # Seen from where the line of sight is across the offset, the bearing widens, the
+    # range hardly.
+    side = mark + 3.0 * np.array([-off[1], off[0]]) / np.linalg.norm(off)
+    wide = screen.inflate(7, 2.0, np.array([*side, 0.0]), np.zeros(2), mark, r)
+    assert wide[1, 1] > 10 * r[1, 1] and wide[0, 0] < 1.5 * r[0, 0]
+    # A third robot's own error (offset the other way) breaks the agreement.
+    _screen_readings(screen, 2, np.array([0.0, 3.0, 0.0]), truth + 2 * (mark - truth), mark,
+                     rng, 1.5)
+    assert screen.offset(7, 2.5) is None
+    assert screen.offset(7, 40.0) is None  # forgotten after window_s
+
+
+def test_landmark_screen_checks_its_arguments() -> None:
+    from estimators.replay.landmark_screen import LandmarkScreen
+
+    for kwargs, match in (({"window_s": 0.0}, "window_s"), ({"min_robots": 1}, "min_robots"),
+                          ({"min_offset_m": -1.0}, "min_offset_m"),
+                          ({"min_readings": 0}, "min_readings"), ({"prob": 1.0}, "probability")):
+        with pytest.raises(ValueError, match=match):
+            LandmarkScreen(**kwargs)
+
+
+def test_a_landmark_misplaced_in_the_map_costs_less_with_the_screen(dataset, params) -> None:
+    """Landmark 19 put 0.4 m off in the map: the robots that read it agree on where it is,
+    and counting that offset as map uncertainty keeps it from pulling them."""
+    import dataclasses
+
+    marks = dict(dataset.landmarks)
+    marks[19] = marks[19] + 0.4 / np.sqrt(2.0)
+    biased = dataclasses.replace(dataset, landmarks=marks)
+    for est, bound in (("ekf_team", 0.072), ("ekf", 0.135)):
+        on = evaluate(replay(biased, est, params, duration=100.0))
+        off = evaluate(replay(biased, est, params, duration=100.0, screen_landmarks=False))
+        assert on["mean_position_error_m"] < bound < off["mean_position_error_m"], est
+    clean_on = evaluate(replay(dataset, "ekf_team", params, duration=100.0))
+    clean_off = evaluate(replay(dataset, "ekf_team", params, duration=100.0,
+                                screen_landmarks=False))
+    assert clean_on["mean_position_error_m"] < 1.02 * clean_off["mean_position_error_m"]
