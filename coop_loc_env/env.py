@@ -17,8 +17,9 @@ from coop_loc_env.depth_from_motion import CameraRecord, DepthFromMotion
 from coop_loc_env.estimation import GAUSSIAN_FEATURE_NAMES, make_backends
 from coop_loc_env.mapping import TeamMapper
 from coop_loc_env.observations import ObservationBuilder, teammate_features
+from coop_loc_env.records import Beliefs, JoinedSampler, Readings
 from coop_loc_env.scenarios import make_config
-from coop_loc_env.sensors import Readings, SensorSuite
+from coop_loc_env.sensors import SensorSuite
 from coop_loc_env.world import World
 from estimators.geometry import wrap_angle
 
@@ -94,9 +95,8 @@ class CoopLocParallelEnv(ParallelEnv):
         self.agent_name_mapping = {a: i for i, a in enumerate(self.possible_agents)}
         self.world = World(cfg)
         self._speed_limits = np.stack([self.world.max_speed, self.world.max_turn_rate], axis=1)
-        self.sensors = SensorSuite(cfg, self.world)
-        self.sensors.camera_lists = False  # depth from motion reads the camera_sightings
-        self.sensors.defer_camera = True  # the camera pipeline runs when its records are read
+        # Depth from motion reads the camera's sightings, not its noisy-range lists.
+        self.sensors = SensorSuite(cfg, self.world, camera_lists=False)
         self.backends = make_backends(cfg, self.world)
         self.mapper = TeamMapper(cfg, self.world)
         self.depth = DepthFromMotion(cfg, len(self.world.layout.ooi_centers))
@@ -151,22 +151,32 @@ class CoopLocParallelEnv(ParallelEnv):
         return self._np_random
 
     @property
+    def beliefs(self) -> Beliefs:
+        """The team's beliefs after the last step or reset (:class:`~coop_loc_env.records.
+        Beliefs`: every robot's mean, covariance, belief features and, for particle
+        filters, its particle set); shared arrays: copy before changing them."""
+        return self._beliefs
+
+    @property
     def estimated_poses(self) -> np.ndarray:
-        """Current belief means of all robots ``(n, 3)``."""
-        return self._est_mean.copy()
+        """Current belief means of all robots ``(n, 3)`` (a copy)."""
+        return self._beliefs.mean.copy()
 
     @property
     def estimated_covariances(self) -> np.ndarray:
-        """Current belief covariances of all robots ``(n, 3, 3)``."""
-        return self._est_cov.copy()
+        """Current belief covariances of all robots ``(n, 3, 3)`` (a copy)."""
+        return self._beliefs.cov.copy()
 
     @property
     def last_readings(self) -> Readings | None:
-        """The sensor readings of the last step (``None`` right after :meth:`reset`)."""
-        if self._last_readings is not None and not self._camera_filled:
-            self.camera.fill(self._last_readings)  # the camera runs when first read
-            self._camera_filled = True
+        """The sensor readings of the last step (``None`` right after :meth:`reset`); the
+        camera's part is computed when first read."""
         return self._last_readings
+
+    @property
+    def step_count(self) -> int:
+        """Steps taken in this episode."""
+        return self._step_count
 
     @property
     def terrain_map(self):
@@ -181,7 +191,9 @@ class CoopLocParallelEnv(ParallelEnv):
         range with its standard deviation.
         """
         self._check_agent_name(agent)
-        return list(self.camera.records()[self.agent_name_mapping[agent]])
+        if self._last_readings is None:
+            return []
+        return self._last_readings.camera_records[self.agent_name_mapping[agent]]
 
     def mark_object(self, agent: str, x: float, y: float, radius: float = 0.0) -> int:
         """``agent`` reports an object of interest at world ``(x, y)`` to the team map.
@@ -198,10 +210,10 @@ class CoopLocParallelEnv(ParallelEnv):
         self._active = np.ones(n, dtype=bool)
         self._tipped = np.zeros(n, dtype=bool)
         self._last_action = np.zeros((n, 2))
-        self._est_mean = np.zeros((n, 3))
-        self._est_cov = np.repeat(np.eye(3)[None], n, axis=0)
+        self._beliefs = Beliefs(np.arange(n), np.zeros((n, 3)),
+                                np.repeat(np.eye(3)[None], n, axis=0),
+                                np.zeros((n, self.observations.belief_size)))
         self._last_readings: Readings | None = None
-        self._camera_filled = False
         self._new_cells = np.zeros(n, dtype=np.int64)
         self._covered_cells = np.zeros(n, dtype=np.int64)
         self._half_logdet = np.zeros(n)  # 0.5 log det of each position covariance
@@ -219,9 +231,9 @@ class CoopLocParallelEnv(ParallelEnv):
             backend.reset(self.world.poses, rng)
         self.camera.reset(self.world.poses, rng)
         self.observations.reset()
-        self._gather_beliefs()
-        self._half_logdet = _half_logdet_xy(self._est_cov)
-        self.mapper.reset(self.world.poses, self._est_mean, self._est_cov)
+        self._beliefs = self._gather_beliefs()
+        self._half_logdet = _half_logdet_xy(self._beliefs.cov)
+        self.mapper.reset(self.world.poses, self._beliefs.mean, self._beliefs.cov)
         self.agents = list(self.possible_agents)
         zeros = np.zeros(self.config.n_robots)
         infos = self._infos(zeros, np.zeros(self.config.n_robots, dtype=int))[0]
@@ -245,32 +257,31 @@ class CoopLocParallelEnv(ParallelEnv):
         # (n, 2): commanded V and w. Only live agents act, and every live agent is active:
         # the rows of tipped-over robots are zeros, so they stand still.
         cmd = act * self._speed_limits
-        contacts = self.world.step(cmd[:, 0], cmd[:, 1], self._active, rng, idle_zeroed=True)
-        poses = self.world.poses
-        # The wheel encoders see the command at every substep.
-        readings = self.sensors.read(self._step_count, poses, cmd, rng, self._active)
-        self.camera.add_step(poses, readings.camera_mask)
+        physics = self.world.step(cmd[:, 0], cmd[:, 1], self._active, rng, idle_zeroed=True)
+        # The wheel encoders see the command at every substep; the camera's frame is
+        # queued (computed when read).
+        readings = self.sensors.read(self._step_count, physics.poses, cmd, rng, self._active,
+                                     touching=physics.touching, camera=self.camera.add_step)
         self._last_readings = readings
-        self._camera_filled = False
         for backend in self.backends:
             backend.step(readings, self._active)
-        self._gather_beliefs()
-        self._new_cells = self.mapper.step(
-            readings, self._est_mean, self._est_cov, self._active, true_poses=poses
-        )
+        self._beliefs = beliefs = self._gather_beliefs()
+        self.observations.ingest(readings, self.sensors.range_max)
+        self._new_cells = self.mapper.step(readings, beliefs, self._active,
+                                           self.observations.latched_pitch,
+                                           true_poses=physics.poses)
         self._covered_cells = self.mapper.last_covered_cells
-        self.observations.ingest(readings, self.sensors.range_max, self._step_count)
         self._last_action = act
         self._step_count += 1
 
-        newly_tipped = self.world.terrain.is_steep(poses[:, :2], self._active)
-        self._tipped |= newly_tipped
+        self._tipped |= physics.tipped
         if cfg.tip_over_terminates:
-            self._active &= ~newly_tipped
+            self._active &= ~physics.tipped
         truncate = self._step_count >= cfg.max_cycles
 
         infos, rewards = self._infos(
-            newly_tipped.astype(float), contacts, live, in_contact=self.world.in_contact
+            physics.tipped.astype(float), physics.new_contacts, live,
+            in_contact=physics.in_contact,
         )
         if truncate or np.count_nonzero(self._active) < self._active.size:
             active = self._active.tolist()
@@ -384,29 +395,32 @@ class CoopLocParallelEnv(ParallelEnv):
             raise ValueError(f"action of {agent!r} is outside [-1, 1]: {action!r}")
 
     # ------------------------------------------------------------------ beliefs, obs, infos
-    def _gather_beliefs(self) -> None:
+    def _gather_beliefs(self) -> Beliefs:
+        """The team's beliefs: each backend's, in robot order (features zero-padded)."""
         if self._one_backend:  # one estimator for the whole team, robots in order
-            self._est_mean[:] = self.backends[0].mean()
-            self._est_cov[:] = self.backends[0].cov()
-            return
+            return self.backends[0].beliefs()  # (ObservationBuilder pads its features)
+        n = self.config.n_robots
+        mean, cov = np.zeros((n, 3)), np.repeat(np.eye(3)[None], n, axis=0)
+        features = np.zeros((n, self.observations.belief_size))
+        samplers = []
         for backend in self.backends:
-            self._est_mean[backend.robots] = backend.mean()
-            self._est_cov[backend.robots] = backend.cov()
+            part = backend.beliefs()
+            mean[part.robots], cov[part.robots] = part.mean, part.cov
+            features[part.robots, : part.features.shape[1]] = part.features
+            if part.sampler is not None:
+                samplers.append(part.sampler)
+        return Beliefs(np.arange(n), mean, cov, features,
+                       JoinedSampler(samplers) if samplers else None)
 
     def _observe_all(self, agents: list[str]) -> dict[str, np.ndarray]:
-        if self._one_backend:
-            belief = self.backends[0].features()  # ObservationBuilder pads it
-        else:
-            belief = np.zeros((self.config.n_robots, self.observations.belief_size))
-            for backend in self.backends:
-                feats = backend.features()
-                belief[backend.robots, : feats.shape[1]] = feats
+        beliefs = self._beliefs
+        belief = beliefs.features  # ObservationBuilder pads it
         patch = None
         if self.config.map_patch_obs:
-            patch = self.mapper.patches(self._est_mean, self.config.map_patch_obs)
+            patch = self.mapper.patches(beliefs.mean, self.config.map_patch_obs)
         team = None
         if self.config.teammate_obs:
-            team = teammate_features(self._est_mean, self._est_cov, self.sensors.has_gps,
+            team = teammate_features(beliefs.mean, beliefs.cov, self.sensors.has_gps,
                                      self._active, self.config.detector_range)
         obs = self.observations.build_all(belief, self._last_action, self.world.poses, patch,
                                           team)
@@ -428,8 +442,8 @@ class CoopLocParallelEnv(ParallelEnv):
         """Infos and rewards of ``agents`` (all possible agents by default), in that order."""
         cfg = self.config
         poses = self.world.poses.copy()  # each agent's info holds rows of fresh copies
-        est = self._est_mean.copy()
-        cov = self._est_cov.copy()
+        est = self._beliefs.mean.copy()
+        cov = self._beliefs.cov.copy()
         diff = est - poses
         err_xy = np.hypot(diff[:, 0], diff[:, 1])
         err_th = np.abs(wrap_angle(diff[:, 2]))

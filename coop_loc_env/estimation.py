@@ -18,6 +18,7 @@ import numpy as np
 
 from coop_loc_env._step_kernels import gaussian_rows, odometry_variance_into
 from coop_loc_env.config import ScenarioConfig
+from coop_loc_env.records import Beliefs
 from coop_loc_env.sensors import Readings
 from coop_loc_env.world import World
 from estimators.ekf import PoseEKF
@@ -29,7 +30,9 @@ class EstimatorBackend:
     A backend owns the robots in :attr:`robots` (global indices) and is built as
     ``cls(cfg, robots, world)``. Subclasses implement :meth:`reset`, :meth:`step`,
     :meth:`mean`, :meth:`cov` and :meth:`features` and set :attr:`feature_size`;
-    :attr:`feature_names` and :meth:`extra_info` have no-op defaults. Make one
+    :meth:`beliefs` (what the env reads after a step) is built from those three by
+    default, :attr:`feature_names`, :meth:`particle_filter` and :meth:`extra_info` have
+    no-op defaults. Make one
     available as ``ScenarioConfig.estimator`` / ``RobotSpec.estimator`` with
     :func:`register_backend`.
     """
@@ -59,6 +62,17 @@ class EstimatorBackend:
     def features(self) -> np.ndarray:
         """Belief features of this backend's robots, ``(k, feature_size)``."""
         raise NotImplementedError
+
+    def beliefs(self) -> Beliefs:
+        """This backend's robots' beliefs after the last step (or reset), as values: copies
+        that later steps leave unchanged."""
+        return Beliefs(self.robots, np.array(self.mean(), dtype=float),
+                       np.array(self.cov(), dtype=float), self.features())
+
+    def particle_filter(self, i: int) -> Any:
+        """The particle filter of local robot ``i`` (the ``i``-th of :attr:`robots`), or
+        ``None`` when its belief is no particle set (the default)."""
+        return None
 
     def extra_info(self, true_poses: np.ndarray) -> dict[int, dict]:
         """Extra info entries per global robot index (may use the truth: logging only);
