@@ -11,6 +11,7 @@ from gymnasium import spaces
 from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
 
+from coop_loc_env.actions import ACTION_TOLERANCE, check_action
 from coop_loc_env.camera import CameraPipeline
 from coop_loc_env.config import ScenarioConfig
 from coop_loc_env.depth_from_motion import CameraRecord, DepthFromMotion
@@ -22,8 +23,6 @@ from coop_loc_env.scenarios import make_config
 from coop_loc_env.sensors import SensorSuite
 from coop_loc_env.world import World
 from estimators.geometry import wrap_angle
-
-ACTION_TOLERANCE = 1e-6
 
 
 class CoopLocParallelEnv(ParallelEnv):
@@ -323,7 +322,7 @@ class CoopLocParallelEnv(ParallelEnv):
         values = list(actions.values())
         if any(type(v) is not np.ndarray or v.dtype.kind not in "fiu" for v in values):
             for agent, action in actions.items():  # lists, or arrays of strings, bools...
-                self._check_action(agent, action)
+                check_action(agent, action)
         try:
             stacked = np.asarray(values, dtype=float)
         except (TypeError, ValueError):
@@ -334,7 +333,7 @@ class CoopLocParallelEnv(ParallelEnv):
             peak <= 1.0 + ACTION_TOLERANCE
         ):
             for agent, action in actions.items():  # find and name the bad one
-                self._check_action(agent, action)
+                check_action(agent, action)
         if rows is None:
             out = stacked
         else:
@@ -352,47 +351,6 @@ class CoopLocParallelEnv(ParallelEnv):
             self._rows_key = key
             self._rows = [self.agent_name_mapping[a] for a in agents]
         return self._rows
-
-    @staticmethod
-    def _check_action(agent: str, action: Any) -> None:
-        """Raise a ``ValueError`` naming ``agent`` if ``action`` is malformed.
-
-        An action is a numpy array of integers or floats, or a list or tuple of
-        two Python or numpy numbers; strings, booleans and complex numbers are refused.
-        """
-        if isinstance(action, np.ndarray):
-            if action.dtype.kind not in "fiu":
-                raise ValueError(
-                    f"action of {agent!r} must hold real numbers, got dtype {action.dtype}: "
-                    f"{action!r}"
-                )
-        elif isinstance(action, (list, tuple)):
-            for x in action:
-                if isinstance(x, (bool, np.bool_)) or not isinstance(
-                    x, (int, float, np.integer, np.floating)
-                ):
-                    raise ValueError(
-                        f"action of {agent!r} must hold two real numbers, got {x!r} in {action!r}"
-                    )
-        elif isinstance(action, (bool, np.bool_)) or not isinstance(
-            action, (int, float, np.number)
-        ):
-            raise ValueError(
-                f"action of {agent!r} is not numeric (an array or a list of two numbers): "
-                f"{type(action).__name__} {action!r}"
-            )
-        try:
-            a = np.asarray(action, dtype=float)
-        except (TypeError, ValueError) as err:
-            raise ValueError(f"action of {agent!r} is not numeric: {action!r}") from err
-        if a.shape != (2,):
-            raise ValueError(
-                f"action of {agent!r} must have shape (2,), got shape {a.shape}: {action!r}"
-            )
-        if not np.all(np.isfinite(a)):
-            raise ValueError(f"action of {agent!r} contains NaN or inf: {action!r}")
-        if np.any(np.abs(a) > 1.0 + ACTION_TOLERANCE):
-            raise ValueError(f"action of {agent!r} is outside [-1, 1]: {action!r}")
 
     # ------------------------------------------------------------------ beliefs, obs, infos
     def _gather_beliefs(self) -> Beliefs:

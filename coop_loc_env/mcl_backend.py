@@ -778,8 +778,8 @@ class MCLBackend(EstimatorBackend):
                        summary[2].astype(float), _ParticleSampler(self, summary))
 
     def particle_sets(self) -> dict[int, ParticleSet]:
-        """Global robot index -> its filter's particles and weights, now."""
-        return {g: ParticleSet(pf.particles, pf.weights)
+        """Global robot index -> its filter's particles, weights and ESS, now."""
+        return {g: ParticleSet(pf.particles, pf.weights, pf.ess)
                 for g, pf in zip(self._robot_ids, self.filters, strict=True)}
 
     def is_current(self, summary: tuple) -> bool:

@@ -185,15 +185,12 @@ class Readings:
 
 
 class ParticleSet(NamedTuple):
-    """One robot's particle belief: ``states (N, 3)`` world poses and ``weights (N,)``."""
+    """One robot's particle belief: ``states (N, 3)`` world poses, normalized ``weights
+    (N,)`` and the filter's effective sample size ``ess`` (``1 / sum(w^2)``)."""
 
     states: np.ndarray
     weights: np.ndarray
-
-    @property
-    def ess(self) -> float:
-        """Effective sample size ``1 / sum(w^2)``."""
-        return float(1.0 / np.dot(self.weights, self.weights))
+    ess: float
 
 
 @dataclass(frozen=True)
@@ -203,7 +200,7 @@ class Beliefs:
     ``robots (k,)``: their global indices; ``mean (k, 3)``, ``cov (k, 3, 3)``: Gaussian
     summaries; ``features (k, f)``: the observation's belief block. ``samples``: for
     robots whose belief is a particle set, global index -> :class:`ParticleSet`
-    (made on first read by ``sampler``; only until the estimators step again).
+    (made by ``sampler`` on first read, which must come before the estimators step again).
     """
 
     robots: np.ndarray
@@ -214,8 +211,13 @@ class Beliefs:
 
     @property
     def samples(self) -> dict[int, ParticleSet]:
-        """Global robot index -> particle set of each particle-filter robot (may be empty)."""
-        return {} if self.sampler is None else self.sampler()
+        """Global robot index -> particle set of each particle-filter robot (may be empty;
+        made on the first read, a snapshot from then on)."""
+        cached = self.__dict__.get("_samples")
+        if cached is None:
+            cached = {} if self.sampler is None else self.sampler()
+            self.__dict__["_samples"] = cached  # (memoized: the record's value is unchanged)
+        return dict(cached)
 
 
 class JoinedSampler:
