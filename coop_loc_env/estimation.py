@@ -1,9 +1,10 @@
 """Glue between the sensors and the estimators: one backend per estimator type.
 
 A backend owns the robots of the team that run its estimator, consumes a
-step's :class:`~coop_loc_env.sensors.Readings`, and exposes Gaussian beliefs
-(``mean``, ``cov``) plus a fixed-size feature vector per robot for the
-observation. Backends never see the true poses except at :meth:`reset`, where
+step's :class:`~coop_loc_env.records.Readings`, and reports its robots' beliefs
+as a :class:`~coop_loc_env.records.Beliefs` record (Gaussian ``mean`` and ``cov``,
+a fixed-size feature vector per robot for the observation and, for particle
+filters, the particle sets). Backends never see the true poses except at :meth:`reset`, where
 the initial belief is drawn around them (``init_pos_std``,
 ``init_heading_std``), as on a robot that was told roughly where it starts.
 """
@@ -31,10 +32,9 @@ class EstimatorBackend:
     ``cls(cfg, robots, world)``. Subclasses implement :meth:`reset`, :meth:`step`,
     :meth:`mean`, :meth:`cov` and :meth:`features` and set :attr:`feature_size`;
     :meth:`beliefs` (what the env reads after a step) is built from those three by
-    default, :attr:`feature_names`, :meth:`particle_filter` and :meth:`extra_info` have
-    no-op defaults. Make one
-    available as ``ScenarioConfig.estimator`` / ``RobotSpec.estimator`` with
-    :func:`register_backend`.
+    default; :attr:`feature_names`, :meth:`particle_filter` and :meth:`extra_info`
+    have no-op defaults. Make one available as ``ScenarioConfig.estimator`` /
+    ``RobotSpec.estimator`` with :func:`register_backend`.
     """
 
     robots: np.ndarray  # global indices of the robots this backend estimates

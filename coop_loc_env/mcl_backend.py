@@ -812,10 +812,13 @@ class _ParticleSampler:
     def __init__(self, backend: MCLBackend, summary: tuple) -> None:
         self.backend = backend
         self.summary = summary
+        self._sets: dict[int, ParticleSet] | None = None  # read once, then kept
 
     def __call__(self) -> dict[int, ParticleSet]:
-        if not self.backend.is_current(self.summary):
-            raise RuntimeError("these beliefs are of an earlier step: the particle sets they "
-                               "summarize are no longer available")
-        return self.backend.particle_sets()
+        if self._sets is None:
+            if not self.backend.is_current(self.summary):
+                raise RuntimeError("these beliefs are of an earlier step: the particle sets "
+                                   "they summarize are no longer available")
+            self._sets = self.backend.particle_sets()
+        return self._sets
 

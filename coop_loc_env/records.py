@@ -1,6 +1,7 @@
 """The values one env step passes along: physics outcome, sensor readings, team beliefs.
 
-A step is a chain of records, each made once and never changed afterwards:
+A step is a chain of records (named tuples: made once, never changed afterwards, and
+cheap to make on every step):
 :meth:`World.step <coop_loc_env.world.World.step>` returns a :class:`PhysicsOutcome`;
 :meth:`SensorSuite.read <coop_loc_env.sensors.SensorSuite.read>` turns it into
 :class:`Readings` (which say which sensors fired; the camera's part is computed
@@ -18,8 +19,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 
-@dataclass(frozen=True)
-class PhysicsOutcome:
+class PhysicsOutcome(NamedTuple):
     """What one physics step did to the team: the one record of contacts and tipping.
 
     ``poses (n, 3)``: true poses at the end of the step (a snapshot);
@@ -128,8 +128,7 @@ class SensorsFired(NamedTuple):
     detector: bool
 
 
-@dataclass(frozen=True)
-class Readings:
+class Readings(NamedTuple):
     """Everything the team's sensors produced during one env step.
 
     Arrays are indexed by robot; a ``*_mask`` says which robots got a reading and
@@ -193,41 +192,41 @@ class ParticleSet(NamedTuple):
     ess: float
 
 
-@dataclass(frozen=True)
-class Beliefs:
+class Beliefs(NamedTuple):
     """The beliefs of some robots after a step: what their estimators report.
 
     ``robots (k,)``: their global indices; ``mean (k, 3)``, ``cov (k, 3, 3)``: Gaussian
     summaries; ``features (k, f)``: the observation's belief block. ``samples``: for
     robots whose belief is a particle set, global index -> :class:`ParticleSet`
-    (made by ``sampler`` on first read, which must come before the estimators step again).
+    (made by ``sampler``, a callable that memoizes, on first read, which must come before
+    the estimators step again).
     """
 
     robots: np.ndarray
     mean: np.ndarray
     cov: np.ndarray
     features: np.ndarray
-    sampler: Callable[[], dict[int, ParticleSet]] | None = field(default=None, repr=False)
+    sampler: Callable[[], dict[int, ParticleSet]] | None = None
 
     @property
     def samples(self) -> dict[int, ParticleSet]:
         """Global robot index -> particle set of each particle-filter robot (may be empty;
         made on the first read, a snapshot from then on)."""
-        cached = self.__dict__.get("_samples")
-        if cached is None:
-            cached = {} if self.sampler is None else self.sampler()
-            self.__dict__["_samples"] = cached  # (memoized: the record's value is unchanged)
-        return dict(cached)
+        return {} if self.sampler is None else dict(self.sampler())
 
 
 class JoinedSampler:
-    """A sampler reporting what each of ``samplers`` reports (a picklable callable)."""
+    """A sampler reporting what each of ``samplers`` reports, once (a picklable callable;
+    samplers memoize what they return, so a record's samples stay one value)."""
 
     def __init__(self, samplers: list[Callable[[], dict[int, ParticleSet]]]) -> None:
         self.samplers = list(samplers)
+        self._out: dict[int, ParticleSet] | None = None
 
     def __call__(self) -> dict[int, ParticleSet]:
-        out: dict[int, ParticleSet] = {}
-        for sampler in self.samplers:
-            out.update(sampler())
-        return out
+        if self._out is None:
+            out: dict[int, ParticleSet] = {}
+            for sampler in self.samplers:
+                out.update(sampler())
+            self._out = out
+        return self._out
