@@ -13,8 +13,7 @@ whether) they are read, and the rest of the env does not depend on them.
 
 from __future__ import annotations
 
-import functools
-import weakref
+from collections import deque
 
 import numpy as np
 
@@ -49,9 +48,9 @@ class CameraPipeline:
         self._queued = 0  # frames queued this episode (the next frame's number)
         self._done = 0  # frames processed this episode
         self._last: CameraOutput | None = None  # the output of frame ``_done - 1``
-        # Frame number -> the step's lazy output, while a reader still holds it.
-        self._waiting: weakref.WeakValueDictionary[int, LazyCamera] = (
-            weakref.WeakValueDictionary())
+        # The lazy outputs of the queued frames, oldest first (each gets its value when
+        # its frame is processed, then is dropped here).
+        self._lazy: deque[LazyCamera] = deque()
 
     def reset(self, poses: np.ndarray, rng: np.random.Generator) -> None:
         """Forget every track; the camera's stream is seeded from one draw of ``rng``
@@ -61,7 +60,7 @@ class CameraPipeline:
             self._rng = np.random.default_rng(int(rng.integers(2**63)))
         self._pending = self._queued = self._done = 0
         self._last = None
-        self._waiting.clear()
+        self._lazy.clear()
 
     def add_step(self, poses: np.ndarray, camera_mask: np.ndarray) -> LazyCamera | None:
         """Queue this step's frame: ``poses`` are the true poses, ``camera_mask`` the
@@ -69,8 +68,8 @@ class CameraPipeline:
         (``None``: no frame, ``camera_mask`` all False)."""
         if not np.count_nonzero(camera_mask):
             return None
-        frame = LazyCamera(functools.partial(self._output_of, self._queued))
-        self._waiting[self._queued] = frame
+        frame = LazyCamera(self, self._queued)
+        self._lazy.append(frame)
         self._queued += 1
         k = self._pending
         if k == len(self._poses):
@@ -102,30 +101,19 @@ class CameraPipeline:
             records = self.depth.process(
                 [], mask, poses, self.ooi_centers, self._rng, sightings
             )
-            lists = [[(c.kind, c.id, c.bearing, c.range) for c in cs] for cs in records]
-            self._last = CameraOutput(lists, sightings, records)
-            waiting = self._waiting.pop(self._done, None)
-            if waiting is not None:
-                waiting.resolve(self._last)
+            self._last = CameraOutput(None, sightings, records)
+            self._lazy.popleft().resolve(self._last)
             self._done += 1
         rest = self._pending - count
         self._poses[:rest] = self._poses[count : self._pending]
         self._masks[:rest] = self._masks[count : self._pending]
         self._pending = rest
 
-    def _output_of(self, frame: int) -> CameraOutput:
-        """The output of frame number ``frame`` (processing the queue up to it)."""
+    def output_of(self, frame: int) -> CameraOutput:
+        """The output of this episode's frame number ``frame`` (processing the queue up
+        to it; an earlier frame's output went to its :class:`LazyCamera`)."""
         if frame >= self._done:
             self._process(frame + 1 - self._done)
         if frame == self._done - 1 and self._last is not None:
             return self._last
         raise RuntimeError(f"camera frame {frame} of this episode is no longer available")
-
-    def __getstate__(self) -> dict:
-        state = self.__dict__.copy()
-        state["_waiting"] = None  # weak references: readers re-read the last frame
-        return state
-
-    def __setstate__(self, state: dict) -> None:
-        self.__dict__.update(state)
-        self._waiting = weakref.WeakValueDictionary()

@@ -190,9 +190,10 @@ class CoopLocParallelEnv(ParallelEnv):
         range with its standard deviation.
         """
         self._check_agent_name(agent)
-        if self._last_readings is None:
-            return []
-        return self._last_readings.camera_records[self.agent_name_mapping[agent]]
+        readings = self._last_readings
+        if readings is None or readings.camera_frame is None:
+            return []  # no frame this step
+        return list(readings.camera_frame.get().records[self.agent_name_mapping[agent]])
 
     def mark_object(self, agent: str, x: float, y: float, radius: float = 0.0) -> int:
         """``agent`` reports an object of interest at world ``(x, y)`` to the team map.

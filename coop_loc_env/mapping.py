@@ -159,6 +159,7 @@ class TeamMapper:
                 :attr:`last_covered_cells` (zeros otherwise).
         """
         est_mean, est_cov = beliefs.mean, beliefs.cov
+        pitch = np.ascontiguousarray(pitch)  # (a column of the latched readings)
         whole = np.count_nonzero(active) == active.size
         ids = self._all if whole else self._active_ids(active)
         if true_poses is not None:
@@ -182,8 +183,6 @@ class TeamMapper:
         if not whole:
             distance, pitch = distance[ids], pitch[ids]
             est_mean, pos_var = est_mean[ids], pos_var[ids]
-        else:
-            pitch = np.ascontiguousarray(pitch)  # (a column of the latched readings)
         distance *= self._dt_sub
         # The env built these arrays itself (float, right shapes): skip update's checks.
         cells = self.map._update(ids, est_mean, pos_var, pitch, alt, nos, distance)

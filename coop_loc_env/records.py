@@ -73,48 +73,49 @@ class CameraSightings:
 
 
 class CameraOutput(NamedTuple):
-    """One camera frame's output: per robot ``(kind, id, bearing, range)`` lists, the
-    sightings as arrays, and per robot the depth-from-motion records (``None`` when no
-    depth from motion ran: a sensor suite used on its own)."""
+    """One camera frame's output: per robot ``(kind, id, bearing, range)`` lists (``None``:
+    made from the records when read), the sightings as arrays, and per robot the
+    depth-from-motion records (``None`` when no depth from motion ran: a sensor suite
+    used on its own)."""
 
-    lists: list[list[tuple[str, int, float, float]]]
+    lists: list[list[tuple[str, int, float, float]]] | None
     sightings: CameraSightings | None
     records: list[list[Any]] | None
 
 
 class LazyCamera:
-    """A camera frame's :class:`CameraOutput`, computed by ``compute`` on first read.
+    """A camera frame's :class:`CameraOutput`, computed on first read.
 
     The camera feeds no observation, reward or estimator, so a step only queues its
-    frame; whoever reads it pays for it. :meth:`resolve` lets the producer hand the
-    value in when it computes the frame anyway (frames are processed in order).
+    frame; whoever reads it pays for it. ``source.output_of(frame)`` computes it (the
+    source processes its frames in order and hands each its value, :meth:`resolve`);
+    with ``value`` the output is known already (``source`` unused).
     """
 
-    __slots__ = ("_compute", "_value", "__weakref__")
+    __slots__ = ("_source", "_frame", "_value")
 
-    def __init__(self, compute: Callable[[], CameraOutput] | None,
-                 value: CameraOutput | None = None) -> None:
-        self._compute = compute
+    def __init__(self, source: Any, frame: int = 0, value: CameraOutput | None = None) -> None:
+        self._source = source
+        self._frame = frame
         self._value = value
 
     def get(self) -> CameraOutput:
         """The frame's output (computed now if it was not yet)."""
         if self._value is None:
-            self._value = self._compute()
-            self._compute = None
+            self._value = self._source.output_of(self._frame)
+            self._source = None
         return self._value
 
     def resolve(self, value: CameraOutput) -> None:
-        """Set the output (by the producer, once it computed this frame)."""
-        if self._value is None:
-            self._value = value
-            self._compute = None
+        """Set the output (by the source, once it computed this frame)."""
+        self._value = value
+        self._source = None
 
     def __getstate__(self) -> tuple:
-        return (self._compute, self._value)
+        return (self._source, self._frame, self._value)
 
     def __setstate__(self, state: tuple) -> None:
-        self._compute, self._value = state
+        self._source, self._frame, self._value = state
 
 
 class SensorsFired(NamedTuple):
@@ -164,7 +165,10 @@ class Readings(NamedTuple):
         """Per robot: ``(kind, id, bearing, range)`` of what its camera saw (fresh lists)."""
         if self.camera_frame is None:
             return [[] for _ in range(len(self.camera_mask))]
-        return [list(row) for row in self.camera_frame.get().lists]
+        out = self.camera_frame.get()
+        if out.lists is None:
+            return [[(c.kind, c.id, c.bearing, c.range) for c in row] for row in out.records]
+        return [list(row) for row in out.lists]
 
     @property
     def camera_sightings(self) -> CameraSightings | None:

@@ -122,6 +122,12 @@ def _due(step: int, dt: float, rate: float) -> bool:
     return int((step + 1) * dt * rate + 1e-9) > int(step * dt * rate + 1e-9)
 
 
+FIRED_BLOCK = 1024  # env steps of sensor firing looked up per table (SensorSuite.fired)
+# Every SensorsFired value, indexed by its code (bit i: field i).
+_FIRED_PATTERNS = tuple(SensorsFired(*(bool(code >> bit & 1) for bit in range(6)))
+                        for code in range(64))
+
+
 class SensorSuite:
     """All sensors of a team; call :meth:`read` once per env step."""
 
@@ -145,6 +151,8 @@ class SensorSuite:
         self._idle: dict[str, np.ndarray] | None = None
         self._pairs: tuple | None = None
         self._any_camera = bool(self.has_camera.any())
+        self._fired_start = 0
+        self._fired_codes: list[int] = []  # SensorSuite.fired's table, from _fired_start
         # Whether camera_frame makes (kind, id, bearing, noisy range) lists; the env's
         # suite does not, as depth from motion replaces those ranges.
         self.camera_lists = camera_lists
@@ -208,17 +216,48 @@ class SensorSuite:
     def fired(self, step: int, n: int | None = None) -> SensorsFired:
         """Which sensors fire during env step ``step`` (0-based) by their rates; a sensor
         no robot carries does not fire (the detector also needs two of the ``n`` robots
-        read, the team by default)."""
+        read, the team by default).
+
+        Looked up in a table of :data:`FIRED_BLOCK` steps made at once with numpy (the
+        same float operations as :func:`_due`), as it is asked on every step.
+        """
+        if n is not None and n != self.cfg.n_robots:
+            return self._fired_at(step, n)
+        k = step - self._fired_start
+        codes = self._fired_codes
+        if not 0 <= k < len(codes):
+            self._fired_start = step - step % FIRED_BLOCK
+            self._fired_codes = codes = self._fired_table(self._fired_start)
+            k = step - self._fired_start
+        return _FIRED_PATTERNS[codes[k]]
+
+    def _fired_at(self, step: int, n: int) -> SensorsFired:
+        """:meth:`fired` of one step, for a read of ``n`` robots."""
         cfg, dt = self.cfg, self.cfg.dt
         return SensorsFired(
-            gps=_due(step, dt, cfg.gps_rate),
-            compass=_due(step, dt, cfg.compass_rate),
-            inclinometer=_due(step, dt, cfg.inclinometer_rate),
-            range=_due(step, dt, cfg.laser_rate) and bool(len(self._ray_robot)),
-            camera=_due(step, dt, cfg.camera_rate) and self._any_camera,
-            detector=_due(step, dt, cfg.detector_rate) and self._any_detector
-            and (cfg.n_robots if n is None else n) > 1,
+            _due(step, dt, cfg.gps_rate), _due(step, dt, cfg.compass_rate),
+            _due(step, dt, cfg.inclinometer_rate),
+            _due(step, dt, cfg.laser_rate) and bool(len(self._ray_robot)),
+            _due(step, dt, cfg.camera_rate) and self._any_camera,
+            _due(step, dt, cfg.detector_rate) and self._any_detector and n > 1,
         )
+
+    def _fired_table(self, start: int) -> list[int]:
+        """Codes (bit ``i``: field ``i`` of :class:`SensorsFired`) of steps ``start ..
+        start + FIRED_BLOCK - 1``."""
+        cfg = self.cfg
+        rates = (cfg.gps_rate, cfg.compass_rate, cfg.inclinometer_rate, cfg.laser_rate,
+                 cfg.camera_rate, cfg.detector_rate)
+        carried = (True, True, True, bool(len(self._ray_robot)), self._any_camera,
+                   self._any_detector and cfg.n_robots > 1)
+        steps = np.arange(start, start + FIRED_BLOCK, dtype=np.float64)
+        codes = np.zeros(FIRED_BLOCK, dtype=np.int64)
+        for bit, (rate, has) in enumerate(zip(rates, carried, strict=True)):
+            if has:  # int(x + 1e-9) of a positive x is its truncation, as in _due
+                due = np.trunc((steps + 1) * cfg.dt * rate + 1e-9) > np.trunc(
+                    steps * cfg.dt * rate + 1e-9)
+                codes |= due.astype(np.int64) << bit
+        return codes.tolist()
 
     def read(
         self,
@@ -296,7 +335,7 @@ class SensorSuite:
     ) -> LazyCamera:
         """This step's camera frame computed now, from ``rng`` (a suite used on its own)."""
         lists, sightings = self.camera_frame(poses, rng, camera_mask)
-        return LazyCamera(None, CameraOutput(lists, sightings, None))
+        return LazyCamera(None, value=CameraOutput(lists, sightings, None))
 
     def _detections(
         self, poses: np.ndarray, rng: np.random.Generator, active: np.ndarray,
