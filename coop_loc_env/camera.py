@@ -13,7 +13,7 @@ whether) they are read, and the rest of the env does not depend on them.
 
 from __future__ import annotations
 
-from collections import deque
+import weakref
 
 import numpy as np
 
@@ -48,9 +48,11 @@ class CameraPipeline:
         self._queued = 0  # frames queued this episode (the next frame's number)
         self._done = 0  # frames processed this episode
         self._last: CameraOutput | None = None  # the output of frame ``_done - 1``
-        # The lazy outputs of the queued frames, oldest first (each gets its value when
-        # its frame is processed, then is dropped here).
-        self._lazy: deque[LazyCamera] = deque()
+        # Frame number -> its lazy output while a reader still holds it (weak references:
+        # nothing piles up when nobody reads the camera); each gets its value when its
+        # frame is processed.
+        self._lazy: weakref.WeakValueDictionary[int, LazyCamera] = (
+            weakref.WeakValueDictionary())
 
     def reset(self, poses: np.ndarray, rng: np.random.Generator) -> None:
         """Forget every track; the camera's stream is seeded from one draw of ``rng``
@@ -69,7 +71,7 @@ class CameraPipeline:
         if not np.count_nonzero(camera_mask):
             return None
         frame = LazyCamera(self, self._queued)
-        self._lazy.append(frame)
+        self._lazy[self._queued] = frame
         self._queued += 1
         k = self._pending
         if k == len(self._poses):
@@ -102,7 +104,9 @@ class CameraPipeline:
                 [], mask, poses, self.ooi_centers, self._rng, sightings
             )
             self._last = CameraOutput(None, sightings, records)
-            self._lazy.popleft().resolve(self._last)
+            lazy = self._lazy.pop(self._done, None)
+            if lazy is not None:
+                lazy.resolve(self._last)
             self._done += 1
         rest = self._pending - count
         self._poses[:rest] = self._poses[count : self._pending]
@@ -117,3 +121,12 @@ class CameraPipeline:
         if frame == self._done - 1 and self._last is not None:
             return self._last
         raise RuntimeError(f"camera frame {frame} of this episode is no longer available")
+
+    def __getstate__(self) -> dict:
+        state = self.__dict__.copy()
+        state["_lazy"] = None  # weak references; a copy's readers re-read the last frame
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._lazy = weakref.WeakValueDictionary()

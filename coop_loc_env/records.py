@@ -92,7 +92,7 @@ class LazyCamera:
     with ``value`` the output is known already (``source`` unused).
     """
 
-    __slots__ = ("_source", "_frame", "_value")
+    __slots__ = ("_source", "_frame", "_value", "__weakref__")
 
     def __init__(self, source: Any, frame: int = 0, value: CameraOutput | None = None) -> None:
         self._source = source

@@ -6,7 +6,12 @@ rate (``*_rate`` in Hz, defaults from the outdoor paper's Table 1) and noise
 model, and is switched on per robot by its :class:`~coop_loc_env.config.RobotSpec`.
 A sensor with rate ``f`` fires on the env steps where ``floor(t * f)``
 changes; rates above ``1 / dt`` fire every step (odometry instead runs at its
-full rate through the physics substeps).
+full rate through the physics substeps). The records a read returns are in
+:mod:`coop_loc_env.records`.
+
+One file (past 600 lines) because every sensor model reads the suite's shared
+per-team tables (ray casters, sight shapes, idle arrays) inside one read, whose
+order of draws from the episode's random stream defines every episode.
 """
 
 from __future__ import annotations
