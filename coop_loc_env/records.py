@@ -1,7 +1,7 @@
 """The values one env step passes along: physics outcome, sensor readings, team beliefs.
 
-A step is a chain of records (named tuples: made once, never changed afterwards, and
-cheap to make on every step):
+A step is a chain of records (named tuples or a frozen dataclass: made once, never
+changed afterwards, and cheap to make on every step):
 :meth:`World.step <coop_loc_env.world.World.step>` returns a :class:`PhysicsOutcome`;
 :meth:`SensorSuite.read <coop_loc_env.sensors.SensorSuite.read>` turns it into
 :class:`Readings` (which say which sensors fired; the camera's part is computed
@@ -129,13 +129,14 @@ class SensorsFired(NamedTuple):
     detector: bool
 
 
-class Readings(NamedTuple):
+@dataclass(frozen=True, init=False)
+class Readings:
     """Everything the team's sensors produced during one env step.
 
     Arrays are indexed by robot; a ``*_mask`` says which robots got a reading and
     :attr:`fired` which sensors fired by their rates this step. The camera's output
     (:attr:`camera`, :attr:`camera_sightings`, :attr:`camera_records`) is computed on
-    first read.
+    first read. Frozen (``dataclasses.replace`` makes a changed copy).
     """
 
     odometry: np.ndarray  # (substeps, n, 2) measured (V, w)
@@ -159,6 +160,24 @@ class Readings(NamedTuple):
     # (n,) the bumper is pressed: the robot touches an obstacle, the world's boundary or
     # another robot at the end of the step (its wheels may then spin in place). None: unknown.
     bumper: np.ndarray | None = None
+
+    def __init__(
+        self, odometry: np.ndarray, gps_mask: np.ndarray, gps_xy: np.ndarray,
+        gps_var: np.ndarray, gps_altitude: np.ndarray, satellites: np.ndarray,
+        compass_mask: np.ndarray, compass: np.ndarray, inclinometer_mask: np.ndarray,
+        pitch: np.ndarray, roll: np.ndarray, range_mask: np.ndarray, ranges: np.ndarray,
+        camera_mask: np.ndarray, detections: Detections, fired: SensorsFired,
+        camera_frame: LazyCamera | None = None, bumper: np.ndarray | None = None,
+    ) -> None:
+        # Set once, into the instance's dict: the frozen dataclass's own __init__ sets
+        # each field through object.__setattr__, several microseconds per env step.
+        self.__dict__.update(
+            odometry=odometry, gps_mask=gps_mask, gps_xy=gps_xy, gps_var=gps_var,
+            gps_altitude=gps_altitude, satellites=satellites, compass_mask=compass_mask,
+            compass=compass, inclinometer_mask=inclinometer_mask, pitch=pitch, roll=roll,
+            range_mask=range_mask, ranges=ranges, camera_mask=camera_mask,
+            detections=detections, fired=fired, camera_frame=camera_frame, bumper=bumper,
+        )
 
     @property
     def camera(self) -> list[list[tuple[str, int, float, float]]]:
