@@ -7,6 +7,7 @@ from typing import Any
 
 from pettingzoo.utils.conversions import parallel_to_aec_wrapper
 
+from coop_loc_env.actions import check_action
 from coop_loc_env.env import CoopLocParallelEnv
 
 
@@ -33,5 +34,5 @@ class CoopLocAECEnv(parallel_to_aec_wrapper):
                     f"agent {agent!r} is done: its action must be None, got {action!r}"
                 )
         else:
-            self.env._check_action(agent, action)
+            check_action(agent, action)
         super().step(action)

@@ -65,8 +65,11 @@ class TeamBeliefs:
     def from_env(cls, env, active: np.ndarray | None = None) -> TeamBeliefs:
         """The beliefs of ``env``'s team: its shared estimates and its backends' particle
         filters; ``active`` defaults to the robots of ``env.agents``."""
-        groups = [(np.asarray(b.robots), list(b.filters)) for b in env.backends
-                  if getattr(b, "filters", None)]
+        groups = []
+        for backend in env.backends:
+            filters = [backend.particle_filter(i) for i in range(len(backend.robots))]
+            if filters and filters[0] is not None:
+                groups.append((np.asarray(backend.robots), filters))
         if active is None:
             active = np.zeros(env.config.n_robots, dtype=bool)
             active[[env.agent_name_mapping[a] for a in env.agents]] = True

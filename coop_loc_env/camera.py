@@ -13,10 +13,13 @@ whether) they are read, and the rest of the env does not depend on them.
 
 from __future__ import annotations
 
+import weakref
+
 import numpy as np
 
-from coop_loc_env.depth_from_motion import CameraRecord, DepthFromMotion
-from coop_loc_env.sensors import CameraSightings, Readings, SensorSuite
+from coop_loc_env.depth_from_motion import DepthFromMotion
+from coop_loc_env.records import CameraOutput, LazyCamera
+from coop_loc_env.sensors import SensorSuite
 
 MAX_PENDING_BYTES = 32 * 2**20  # queued frames beyond this are processed (bounds memory)
 
@@ -42,12 +45,14 @@ class CameraPipeline:
         self._poses = np.zeros((0, self.n, 3))
         self._masks = np.zeros((0, self.n), dtype=bool)
         self._pending = 0
-        self._last_step_framed = False
-        self._records: list[list[CameraRecord]] = self._no_records()
-        self._sightings: CameraSightings | None = None
-
-    def _no_records(self) -> list[list[CameraRecord]]:
-        return [[] for _ in range(self.n)]
+        self._queued = 0  # frames queued this episode (the next frame's number)
+        self._done = 0  # frames processed this episode
+        self._last: CameraOutput | None = None  # the output of frame ``_done - 1``
+        # Frame number -> its lazy output while a reader still holds it (weak references:
+        # nothing piles up when nobody reads the camera); each gets its value when its
+        # frame is processed.
+        self._lazy: weakref.WeakValueDictionary[int, LazyCamera] = (
+            weakref.WeakValueDictionary())
 
     def reset(self, poses: np.ndarray, rng: np.random.Generator) -> None:
         """Forget every track; the camera's stream is seeded from one draw of ``rng``
@@ -55,17 +60,19 @@ class CameraPipeline:
         self.depth.reset(poses)
         if self.sensors.has_camera.any():
             self._rng = np.random.default_rng(int(rng.integers(2**63)))
-        self._pending = 0
-        self._last_step_framed = False
-        self._records = self._no_records()
-        self._sightings = None
+        self._pending = self._queued = self._done = 0
+        self._last = None
+        self._lazy.clear()
 
-    def add_step(self, poses: np.ndarray, camera_mask: np.ndarray) -> None:
+    def add_step(self, poses: np.ndarray, camera_mask: np.ndarray) -> LazyCamera | None:
         """Queue this step's frame: ``poses`` are the true poses, ``camera_mask`` the
-        robots whose camera fired (no frame when it is all False)."""
-        self._last_step_framed = bool(np.count_nonzero(camera_mask))
-        if not self._last_step_framed:
-            return
+        robots whose camera fired. Returns the frame's output, computed when first read
+        (``None``: no frame, ``camera_mask`` all False)."""
+        if not np.count_nonzero(camera_mask):
+            return None
+        frame = LazyCamera(self, self._queued)
+        self._lazy[self._queued] = frame
+        self._queued += 1
         k = self._pending
         if k == len(self._poses):
             self._make_room()
@@ -73,6 +80,7 @@ class CameraPipeline:
         self._poses[k] = poses
         self._masks[k] = camera_mask
         self._pending = k + 1
+        return frame
 
     def _make_room(self) -> None:
         """Grow the queue (doubling), or process its older half once it holds
@@ -95,23 +103,30 @@ class CameraPipeline:
             records = self.depth.process(
                 [], mask, poses, self.ooi_centers, self._rng, sightings
             )
-            self._records, self._sightings = records, sightings
+            self._last = CameraOutput(None, sightings, records)
+            lazy = self._lazy.pop(self._done, None)
+            if lazy is not None:
+                lazy.resolve(self._last)
+            self._done += 1
         rest = self._pending - count
         self._poses[:rest] = self._poses[count : self._pending]
         self._masks[:rest] = self._masks[count : self._pending]
         self._pending = rest
 
-    def _flush(self) -> None:
-        if self._pending:
-            self._process(self._pending)
+    def output_of(self, frame: int) -> CameraOutput:
+        """The output of this episode's frame number ``frame`` (processing the queue up
+        to it; an earlier frame's output went to its :class:`LazyCamera`)."""
+        if frame >= self._done:
+            self._process(frame + 1 - self._done)
+        if frame == self._done - 1 and self._last is not None:
+            return self._last
+        raise RuntimeError(f"camera frame {frame} of this episode is no longer available")
 
-    def records(self) -> list[list[CameraRecord]]:
-        """Per robot, the records of the last step's frame (empty lists without one)."""
-        self._flush()
-        return self._records if self._last_step_framed else self._no_records()
+    def __getstate__(self) -> dict:
+        state = self.__dict__.copy()
+        state["_lazy"] = None  # weak references; a copy's readers re-read the last frame
+        return state
 
-    def fill(self, readings: Readings) -> None:
-        """Fill ``readings.camera`` and ``readings.camera_sightings`` (the last step's)."""
-        records = self.records()
-        readings.camera = [[(c.kind, c.id, c.bearing, c.range) for c in cs] for cs in records]
-        readings.camera_sightings = self._sightings if self._last_step_framed else None
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._lazy = weakref.WeakValueDictionary()

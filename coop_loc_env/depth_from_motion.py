@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from coop_loc_env.config import ScenarioConfig
-from coop_loc_env.sensors import CameraSightings
+from coop_loc_env.records import CameraSightings
 
 
 @dataclass(frozen=True)
@@ -118,43 +118,60 @@ class DepthFromMotion:
             return out
         # Index of the robots whose camera fired (a slice for the whole team).
         sel = slice(None) if len(rows) == n else fired.nonzero()[0]
-        # The sightings as (robot, target) pairs; only their tracks need any work.
-        n_ooi, n_targets = self.n_ooi, self.frames.shape[1]
-        if sightings is not None:
-            n_seen = len(sightings.bearing)
-        else:
-            keys = {
-                i * n_targets + (ident if kind == "ooi" else n_ooi + ident): bearing
-                for i in rows
-                for kind, ident, bearing, _rng in camera[i]
-            }
-            n_seen = len(keys)
-        baseline, frames, last_pose = self.baseline, self.frames, self.last_pose
-        if not n_seen:  # nothing in view: every track of these robots ends
-            frames[sel] = 0
-            baseline[sel] = 0.0
-            last_pose[sel] = poses[sel]
+        if sightings is None:
+            sightings = self._sightings_of(camera, rows, poses, ooi_centers)
+        if not len(sightings.bearing):  # nothing in view: every track of these robots ends
+            self.frames[sel] = 0
+            self.baseline[sel] = 0.0
+            self.last_pose[sel] = poses[sel]
             return out
-        if sightings is not None:  # already in key order, geometry at hand
-            pi, pt, bearings = sightings.observer, sightings.target, sightings.bearing
-            key = pi * n_targets
-            key += pt
-            here = poses[pi, :2]
-            move = here - last_pose[pi, :2]  # (k, 2)
-            los, dist = sightings.offset, sightings.dist  # dist > 1e-6
+        std, estimate, frames = self._track(sightings, poses, sel, rng)
+        n_ooi = self.n_ooi
+        for b, i, t, s, r, f in zip(
+            sightings.bearing, sightings.observer.tolist(), sightings.target.tolist(),
+            std.tolist(), estimate.tolist(), frames.tolist(), strict=True,
+        ):
+            kind, ident = ("ooi", t) if t < n_ooi else ("robot", t - n_ooi)
+            out[i].append(CameraRecord(kind, ident, float(b), max(r, 0.1), s, f))
+        return out
+
+    def _sightings_of(
+        self,
+        camera: list[list[tuple[str, int, float, float]]],
+        rows: list[int],
+        poses: np.ndarray,
+        ooi_centers: np.ndarray,
+    ) -> CameraSightings:
+        """The ``camera`` lists of robots ``rows`` as sightings in (robot, target) order,
+        with the lines of sight computed from the true ``poses``."""
+        n_ooi, n_targets = self.n_ooi, self.frames.shape[1]
+        keys = {
+            i * n_targets + (ident if kind == "ooi" else n_ooi + ident): bearing
+            for i in rows
+            for kind, ident, bearing, _rng in camera[i]
+        }
+        key = np.fromiter(sorted(keys), dtype=np.intp, count=len(keys))
+        pi, pt = np.divmod(key, n_targets)
+        if n_ooi:
+            targets = np.concatenate([np.asarray(ooi_centers).reshape(-1, 2), poses[:, :2]])
         else:
-            key = np.fromiter(sorted(keys), dtype=np.intp, count=len(keys))
-            bearings = [keys[k] for k in key.tolist()]
-            pi, pt = np.divmod(key, n_targets)
-            # Tracks that continue: accumulate the baseline since the previous frame.
-            here = poses[pi, :2]
-            move = here - last_pose[pi, :2]  # (k, 2)
-            if n_ooi:
-                targets = np.concatenate([np.asarray(ooi_centers).reshape(-1, 2), poses[:, :2]])
-            else:
-                targets = poses[:, :2]
-            los = targets[pt] - here
-            dist = np.maximum(np.hypot(los[:, 0], los[:, 1]), 1e-6)
+            targets = poses[:, :2]
+        los = targets[pt] - poses[pi, :2]
+        dist = np.maximum(np.hypot(los[:, 0], los[:, 1]), 1e-6)
+        return CameraSightings(pi, pt, [keys[k] for k in key.tolist()], los, dist)
+
+    def _track(
+        self, sightings: CameraSightings, poses: np.ndarray, sel: slice | np.ndarray,
+        rng: np.random.Generator,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Continue, start and end the tracks of the robots ``sel`` whose camera fired;
+        returns each sighting's range std, range estimate and frames tracked."""
+        frames, baseline, last_pose = self.frames, self.baseline, self.last_pose
+        pi, pt = sightings.observer, sightings.target
+        key = pi * frames.shape[1]
+        key += pt
+        move = poses[pi, :2] - last_pose[pi, :2]  # (k, 2)
+        los, dist = sightings.offset, sightings.dist  # dist > 1e-6
         ux, uy = los[:, 0] / dist, los[:, 1] / dist
         mx, my = move[:, 0], move[:, 1]
         along = self.cfg.camera_looming_gain * (mx * ux + my * uy)
@@ -175,11 +192,4 @@ class DepthFromMotion:
         last_pose[sel] = poses[sel]
         info = (base / (dist**2 * max(self.sigma_theta, 1e-12))) ** 2
         std = 1.0 / np.sqrt(1.0 / self.prior_var + info)
-        rng_est = dist + std * self.xi.reshape(-1)[key]
-        for b, i, t, s, r, f in zip(
-            bearings, pi.tolist(), pt.tolist(), std.tolist(), rng_est.tolist(),
-            (count + 1).tolist(), strict=True,
-        ):
-            kind, ident = ("ooi", t) if t < n_ooi else ("robot", t - n_ooi)
-            out[i].append(CameraRecord(kind, ident, float(b), max(r, 0.1), s, f))
-        return out
+        return std, dist + std * self.xi.reshape(-1)[key], count + 1

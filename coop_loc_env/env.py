@@ -11,6 +11,7 @@ from gymnasium import spaces
 from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
 
+from coop_loc_env.actions import ACTION_TOLERANCE, check_action
 from coop_loc_env.camera import CameraPipeline
 from coop_loc_env.config import ScenarioConfig
 from coop_loc_env.depth_from_motion import CameraRecord, DepthFromMotion
@@ -18,13 +19,12 @@ from coop_loc_env.estimation import GAUSSIAN_FEATURE_NAMES, make_backends
 from coop_loc_env.mapping import TeamMapper
 from coop_loc_env.obs_blocks import ObsInputs
 from coop_loc_env.observations import ObservationBuilder
+from coop_loc_env.records import Beliefs, JoinedSampler, Readings
 from coop_loc_env.rewards import RewardInputs, RewardTerms, sum_terms
 from coop_loc_env.scenarios import make_config, scenario_hooks
-from coop_loc_env.sensors import Readings, SensorSuite
+from coop_loc_env.sensors import SensorSuite
 from coop_loc_env.world import World
 from estimators.geometry import wrap_angle
-
-ACTION_TOLERANCE = 1e-6
 
 
 class CoopLocParallelEnv(ParallelEnv):
@@ -97,9 +97,8 @@ class CoopLocParallelEnv(ParallelEnv):
         self.agent_name_mapping = {a: i for i, a in enumerate(self.possible_agents)}
         self.world = World(cfg)
         self._speed_limits = np.stack([self.world.max_speed, self.world.max_turn_rate], axis=1)
-        self.sensors = SensorSuite(cfg, self.world)
-        self.sensors.camera_lists = False  # depth from motion reads the camera_sightings
-        self.sensors.defer_camera = True  # the camera pipeline runs when its records are read
+        # Depth from motion reads the camera's sightings, not its noisy-range lists.
+        self.sensors = SensorSuite(cfg, self.world, camera_lists=False)
         self.backends = make_backends(cfg, self.world)
         self.mapper = TeamMapper(cfg, self.world)
         self.reward_terms = RewardTerms(cfg)
@@ -148,22 +147,32 @@ class CoopLocParallelEnv(ParallelEnv):
         return self._np_random
 
     @property
+    def beliefs(self) -> Beliefs:
+        """The team's beliefs after the last step or reset (:class:`~coop_loc_env.records.
+        Beliefs`: every robot's mean, covariance, belief features and, for particle
+        filters, its particle set); shared arrays: copy before changing them."""
+        return self._beliefs
+
+    @property
     def estimated_poses(self) -> np.ndarray:
-        """Current belief means of all robots ``(n, 3)``."""
-        return self._est_mean.copy()
+        """Current belief means of all robots ``(n, 3)`` (a copy)."""
+        return self._beliefs.mean.copy()
 
     @property
     def estimated_covariances(self) -> np.ndarray:
-        """Current belief covariances of all robots ``(n, 3, 3)``."""
-        return self._est_cov.copy()
+        """Current belief covariances of all robots ``(n, 3, 3)`` (a copy)."""
+        return self._beliefs.cov.copy()
 
     @property
     def last_readings(self) -> Readings | None:
-        """The sensor readings of the last step (``None`` right after :meth:`reset`)."""
-        if self._last_readings is not None and not self._camera_filled:
-            self.camera.fill(self._last_readings)  # the camera runs when first read
-            self._camera_filled = True
+        """The sensor readings of the last step (``None`` right after :meth:`reset`); the
+        camera's part is computed when first read."""
         return self._last_readings
+
+    @property
+    def step_count(self) -> int:
+        """Steps taken in this episode."""
+        return self._step_count
 
     @property
     def terrain_map(self):
@@ -178,7 +187,10 @@ class CoopLocParallelEnv(ParallelEnv):
         range with its standard deviation.
         """
         self._check_agent_name(agent)
-        return list(self.camera.records()[self.agent_name_mapping[agent]])
+        readings = self._last_readings
+        if readings is None or readings.camera_frame is None:
+            return []  # no frame this step
+        return list(readings.camera_frame.get().records[self.agent_name_mapping[agent]])
 
     def mark_object(self, agent: str, x: float, y: float, radius: float = 0.0) -> int:
         """``agent`` reports an object of interest at world ``(x, y)`` to the team map.
@@ -195,10 +207,10 @@ class CoopLocParallelEnv(ParallelEnv):
         self._active = np.ones(n, dtype=bool)
         self._tipped = np.zeros(n, dtype=bool)
         self._last_action = np.zeros((n, 2))
-        self._est_mean = np.zeros((n, 3))
-        self._est_cov = np.repeat(np.eye(3)[None], n, axis=0)
+        self._beliefs = Beliefs(np.arange(n), np.zeros((n, 3)),
+                                np.repeat(np.eye(3)[None], n, axis=0),
+                                np.zeros((n, self.observations.belief_size)))
         self._last_readings: Readings | None = None
-        self._camera_filled = False
         self._new_cells = np.zeros(n, dtype=np.int64)
         self._covered_cells = np.zeros(n, dtype=np.int64)
 
@@ -216,9 +228,9 @@ class CoopLocParallelEnv(ParallelEnv):
             backend.reset(self.world.poses, rng)
         self.camera.reset(self.world.poses, rng)
         self.observations.reset()
-        self._gather_beliefs()
-        self.reward_terms.reset(RewardInputs.at_start(self._est_cov, self._active, self))
-        self.mapper.reset(self.world.poses, self._est_mean, self._est_cov)
+        self._beliefs = self._gather_beliefs()
+        self.reward_terms.reset(RewardInputs.at_start(self._beliefs.cov, self._active, self))
+        self.mapper.reset(self.world.poses, self._beliefs.mean, self._beliefs.cov)
         self.agents = list(self.possible_agents)
         zeros = np.zeros(self.config.n_robots)
         infos = self._infos(zeros, np.zeros(self.config.n_robots, dtype=int))[0]
@@ -242,32 +254,31 @@ class CoopLocParallelEnv(ParallelEnv):
         # (n, 2): commanded V and w. Only live agents act, and every live agent is active:
         # the rows of tipped-over robots are zeros, so they stand still.
         cmd = act * self._speed_limits
-        contacts = self.world.step(cmd[:, 0], cmd[:, 1], self._active, rng, idle_zeroed=True)
-        poses = self.world.poses
-        # The wheel encoders see the command at every substep.
-        readings = self.sensors.read(self._step_count, poses, cmd, rng, self._active)
-        self.camera.add_step(poses, readings.camera_mask)
+        physics = self.world.step(cmd[:, 0], cmd[:, 1], self._active, rng, idle_zeroed=True)
+        # The wheel encoders see the command at every substep; the camera's frame is
+        # queued (computed when read).
+        readings = self.sensors.read(self._step_count, physics.poses, cmd, rng, self._active,
+                                     touching=physics.touching, camera=self.camera.add_step)
         self._last_readings = readings
-        self._camera_filled = False
         for backend in self.backends:
             backend.step(readings, self._active)
-        self._gather_beliefs()
-        self._new_cells = self.mapper.step(
-            readings, self._est_mean, self._est_cov, self._active, true_poses=poses
-        )
+        self._beliefs = beliefs = self._gather_beliefs()
+        self.observations.ingest(readings, self.sensors.range_max)
+        self._new_cells = self.mapper.step(readings, beliefs, self._active,
+                                           self.observations.latched_pitch,
+                                           true_poses=physics.poses)
         self._covered_cells = self.mapper.last_covered_cells
-        self.observations.ingest(readings, self.sensors.range_max, self._step_count)
         self._last_action = act
         self._step_count += 1
 
-        newly_tipped = self.world.terrain.is_steep(poses[:, :2], self._active)
-        self._tipped |= newly_tipped
+        self._tipped |= physics.tipped
         if cfg.tip_over_terminates:
-            self._active &= ~newly_tipped
+            self._active &= ~physics.tipped
         truncate = self._step_count >= cfg.max_cycles
 
         infos, rewards = self._infos(
-            newly_tipped.astype(float), contacts, live, in_contact=self.world.in_contact
+            physics.tipped.astype(float), physics.new_contacts, live,
+            in_contact=physics.in_contact,
         )
         if truncate or np.count_nonzero(self._active) < self._active.size:
             active = self._active.tolist()
@@ -309,7 +320,7 @@ class CoopLocParallelEnv(ParallelEnv):
         values = list(actions.values())
         if any(type(v) is not np.ndarray or v.dtype.kind not in "fiu" for v in values):
             for agent, action in actions.items():  # lists, or arrays of strings, bools...
-                self._check_action(agent, action)
+                check_action(agent, action)
         try:
             stacked = np.asarray(values, dtype=float)
         except (TypeError, ValueError):
@@ -320,7 +331,7 @@ class CoopLocParallelEnv(ParallelEnv):
             peak <= 1.0 + ACTION_TOLERANCE
         ):
             for agent, action in actions.items():  # find and name the bad one
-                self._check_action(agent, action)
+                check_action(agent, action)
         if rows is None:
             out = stacked
         else:
@@ -339,67 +350,28 @@ class CoopLocParallelEnv(ParallelEnv):
             self._rows = [self.agent_name_mapping[a] for a in agents]
         return self._rows
 
-    @staticmethod
-    def _check_action(agent: str, action: Any) -> None:
-        """Raise a ``ValueError`` naming ``agent`` if ``action`` is malformed.
-
-        An action is a numpy array of integers or floats, or a list or tuple of
-        two Python or numpy numbers; strings, booleans and complex numbers are refused.
-        """
-        if isinstance(action, np.ndarray):
-            if action.dtype.kind not in "fiu":
-                raise ValueError(
-                    f"action of {agent!r} must hold real numbers, got dtype {action.dtype}: "
-                    f"{action!r}"
-                )
-        elif isinstance(action, (list, tuple)):
-            for x in action:
-                if isinstance(x, (bool, np.bool_)) or not isinstance(
-                    x, (int, float, np.integer, np.floating)
-                ):
-                    raise ValueError(
-                        f"action of {agent!r} must hold two real numbers, got {x!r} in {action!r}"
-                    )
-        elif isinstance(action, (bool, np.bool_)) or not isinstance(
-            action, (int, float, np.number)
-        ):
-            raise ValueError(
-                f"action of {agent!r} is not numeric (an array or a list of two numbers): "
-                f"{type(action).__name__} {action!r}"
-            )
-        try:
-            a = np.asarray(action, dtype=float)
-        except (TypeError, ValueError) as err:
-            raise ValueError(f"action of {agent!r} is not numeric: {action!r}") from err
-        if a.shape != (2,):
-            raise ValueError(
-                f"action of {agent!r} must have shape (2,), got shape {a.shape}: {action!r}"
-            )
-        if not np.all(np.isfinite(a)):
-            raise ValueError(f"action of {agent!r} contains NaN or inf: {action!r}")
-        if np.any(np.abs(a) > 1.0 + ACTION_TOLERANCE):
-            raise ValueError(f"action of {agent!r} is outside [-1, 1]: {action!r}")
-
     # ------------------------------------------------------------------ beliefs, obs, infos
-    def _gather_beliefs(self) -> None:
+    def _gather_beliefs(self) -> Beliefs:
+        """The team's beliefs: each backend's, in robot order (features zero-padded)."""
         if self._one_backend:  # one estimator for the whole team, robots in order
-            self._est_mean[:] = self.backends[0].mean()
-            self._est_cov[:] = self.backends[0].cov()
-            return
+            return self.backends[0].beliefs()  # (ObservationBuilder pads its features)
+        n = self.config.n_robots
+        mean, cov = np.zeros((n, 3)), np.repeat(np.eye(3)[None], n, axis=0)
+        features = np.zeros((n, self.observations.belief_size))
+        samplers = []
         for backend in self.backends:
-            self._est_mean[backend.robots] = backend.mean()
-            self._est_cov[backend.robots] = backend.cov()
+            part = backend.beliefs()
+            mean[part.robots], cov[part.robots] = part.mean, part.cov
+            features[part.robots, : part.features.shape[1]] = part.features
+            if part.sampler is not None:
+                samplers.append(part.sampler)
+        return Beliefs(np.arange(n), mean, cov, features,
+                       JoinedSampler(samplers) if samplers else None)
 
     def _observe_all(self, agents: list[str]) -> dict[str, np.ndarray]:
-        if self._one_backend:
-            belief = self.backends[0].features()  # ObservationBuilder pads it
-        else:
-            belief = np.zeros((self.config.n_robots, self.observations.belief_size))
-            for backend in self.backends:
-                feats = backend.features()
-                belief[backend.robots, : feats.shape[1]] = feats
+        beliefs = self._beliefs
         obs = self.observations.observe_all(ObsInputs(
-            belief, self._last_action, self.world.poses, self._est_mean, self._est_cov,
+            beliefs.features, self._last_action, self.world.poses, beliefs.mean, beliefs.cov,
             self._active, self))
         if len(agents) == len(obs):  # every agent (a live list keeps their order): row views
             return dict(zip(agents, obs, strict=True))
@@ -415,8 +387,8 @@ class CoopLocParallelEnv(ParallelEnv):
         """Infos and rewards of ``agents`` (all possible agents by default), in that order."""
         cfg = self.config
         poses = self.world.poses.copy()  # each agent's info holds rows of fresh copies
-        est = self._est_mean.copy()
-        cov = self._est_cov.copy()
+        est = self._beliefs.mean.copy()
+        cov = self._beliefs.cov.copy()
         diff = est - poses
         err_xy = np.hypot(diff[:, 0], diff[:, 1])
         err_th = np.abs(wrap_angle(diff[:, 2]))

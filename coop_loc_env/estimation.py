@@ -1,9 +1,10 @@
 """Glue between the sensors and the estimators: one backend per estimator type.
 
 A backend owns the robots of the team that run its estimator, consumes a
-step's :class:`~coop_loc_env.sensors.Readings`, and exposes Gaussian beliefs
-(``mean``, ``cov``) plus a fixed-size feature vector per robot for the
-observation. Backends never see the true poses except at :meth:`reset`, where
+step's :class:`~coop_loc_env.records.Readings`, and reports its robots' beliefs
+as a :class:`~coop_loc_env.records.Beliefs` record (Gaussian ``mean`` and ``cov``,
+a fixed-size feature vector per robot for the observation and, for particle
+filters, the particle sets). Backends never see the true poses except at :meth:`reset`, where
 the initial belief is drawn around them (``init_pos_std``,
 ``init_heading_std``), as on a robot that was told roughly where it starts.
 """
@@ -11,6 +12,7 @@ the initial belief is drawn around them (``init_pos_std``,
 from __future__ import annotations
 
 import functools
+from typing import Any
 
 import numpy as np
 
@@ -21,6 +23,7 @@ from coop_loc_env.backends import (  # the registry, re-exported where backends 
     register_backend,  # noqa: F401
 )
 from coop_loc_env.config import ScenarioConfig
+from coop_loc_env.records import Beliefs
 from coop_loc_env.sensors import Readings
 from coop_loc_env.world import World
 from estimators.ekf import PoseEKF
@@ -32,10 +35,12 @@ class EstimatorBackend:
     A backend owns the robots in :attr:`robots` (global indices) and is built as
     ``cls(cfg, robots, world)``. Subclasses implement :meth:`reset`, :meth:`step`,
     :meth:`mean`, :meth:`cov` and :meth:`features` and set :attr:`feature_size`;
-    :attr:`feature_names` and :meth:`extra_info` have no-op defaults. Make one
-    available as ``ScenarioConfig.estimator`` / ``RobotSpec.estimator`` with
-    :func:`~coop_loc_env.backends.register_backend`; the ``extras`` keys it reads
-    are its class attribute ``options`` (:class:`~coop_loc_env.extras.BackendOptions`).
+    :meth:`beliefs` (what the env reads after a step) is built from those three by
+    default; :attr:`feature_names`, :meth:`particle_filter` and :meth:`extra_info`
+    have no-op defaults. Make one available as ``ScenarioConfig.estimator`` /
+    ``RobotSpec.estimator`` with :func:`~coop_loc_env.backends.register_backend`; the
+    ``extras`` keys it reads are its class attribute ``options``
+    (:class:`~coop_loc_env.extras.BackendOptions`).
     """
 
     robots: np.ndarray  # global indices of the robots this backend estimates
@@ -63,6 +68,17 @@ class EstimatorBackend:
     def features(self) -> np.ndarray:
         """Belief features of this backend's robots, ``(k, feature_size)``."""
         raise NotImplementedError
+
+    def beliefs(self) -> Beliefs:
+        """This backend's robots' beliefs after the last step (or reset), as values: copies
+        that later steps leave unchanged."""
+        return Beliefs(self.robots, np.array(self.mean(), dtype=float),
+                       np.array(self.cov(), dtype=float), self.features())
+
+    def particle_filter(self, i: int) -> Any:
+        """The particle filter of local robot ``i`` (the ``i``-th of :attr:`robots`), or
+        ``None`` when its belief is no particle set (the default)."""
+        return None
 
     def extra_info(self, true_poses: np.ndarray) -> dict[int, dict]:
         """Extra info entries per global robot index (may use the truth: logging only);

@@ -5,7 +5,8 @@ paper's DGPS/inclinometer elevation fusion and confidence-merged team map) and
 feeds it what each robot knows, once per env step:
 
 * its *estimated* pose and covariance (localization error corrupts the map);
-* the last inclinometer pitch it read (latched between 1 Hz readings);
+* the last inclinometer pitch it read (latched between 1 Hz readings; the
+  observation builder keeps the latch, the map reads it);
 * the signed distance it drove since the previous step, from its odometry;
 * its DGPS altitude and satellite count on steps with a fix (NaN / 0 otherwise).
 
@@ -37,7 +38,7 @@ import numpy as np
 
 from coop_loc_env._step_kernels import cover_footprints
 from coop_loc_env.config import ScenarioConfig
-from coop_loc_env.sensors import Readings
+from coop_loc_env.records import Beliefs, Readings
 from coop_loc_env.world import World
 from estimators.terrain_fusion import REF_NOS
 from estimators.terrain_map import TerrainMap
@@ -85,7 +86,6 @@ class TeamMapper:
         self._sq_error = 0.0  # running sum of squared map errors over mapped cells
         self._covered = 0  # mapped drivable cells
         self.map.merge_listener = self._on_merge
-        self._pitch = np.zeros(n)
         self._all = np.arange(n)
         self._all.flags.writeable = False
         self._ids_cache: dict[bytes, np.ndarray] = {}
@@ -112,7 +112,6 @@ class TeamMapper:
         self.map.reset(initial_elevation=z0, initial_var=INITIAL_ELEVATION_VAR)
         self._sq_error = 0.0
         self._covered = 0
-        self._pitch[:] = 0.0
         n = self.cfg.n_robots
         zeros = np.zeros(n)
         self.map.update(  # with self._all, which the map then knows as checked
@@ -142,25 +141,25 @@ class TeamMapper:
     def step(
         self,
         readings: Readings,
-        est_mean: np.ndarray,
-        est_cov: np.ndarray,
+        beliefs: Beliefs,
         active: np.ndarray,
+        pitch: np.ndarray,
         true_poses: np.ndarray | None = None,
     ) -> np.ndarray:
         """Register one elevation sample per active robot; returns newly mapped cells ``(n,)``.
 
         Args:
-            readings: this step's sensor readings (odometry, inclinometer, DGPS).
-            est_mean: estimated poses ``(n, 3)`` after this step's update.
-            est_cov: pose covariances ``(n, 3, 3)``.
+            readings: this step's sensor readings (odometry, DGPS).
+            beliefs: the team's beliefs after this step's update (estimated poses
+                ``mean (n, 3)`` and covariances ``cov (n, 3, 3)``).
             active: robots still in the episode (others are not sampled).
+            pitch: each robot's last inclinometer pitch ``(n,)`` (latched between readings).
             true_poses: the robots' true poses ``(n, 3)``; when given, the cells
                 the active robots truly covered first are left in
                 :attr:`last_covered_cells` (zeros otherwise).
         """
-        m = readings.inclinometer_mask
-        if np.count_nonzero(m):
-            self._pitch[m] = readings.pitch[m]
+        est_mean, est_cov = beliefs.mean, beliefs.cov
+        pitch = np.ascontiguousarray(pitch)  # (a column of the latched readings)
         whole = np.count_nonzero(active) == active.size
         ids = self._all if whole else self._active_ids(active)
         if true_poses is not None:
@@ -181,7 +180,6 @@ class TeamMapper:
             alt, nos = self._no_fix(ids.size)
         distance = np.add.reduce(readings.odometry[:, :, 0], 0)
         pos_var = est_cov[:, 0, 0] + est_cov[:, 1, 1]
-        pitch = self._pitch
         if not whole:
             distance, pitch = distance[ids], pitch[ids]
             est_mean, pos_var = est_mean[ids], pos_var[ids]

@@ -76,6 +76,7 @@ import numpy as np
 from coop_loc_env.config import ScenarioConfig
 from coop_loc_env.estimation import EstimatorBackend, noisy_start
 from coop_loc_env.mcl_options import check_extra
+from coop_loc_env.records import Beliefs, ParticleSet
 from coop_loc_env.sensors import Readings, beam_angles
 from coop_loc_env.world import World
 from estimators.mcl.batch import (
@@ -769,6 +770,25 @@ class MCLBackend(EstimatorBackend):
         """Belief embeddings ``(k, 48)`` (layout: :attr:`feature_names`)."""
         return self._summaries()[2].astype(float)
 
+    def beliefs(self) -> Beliefs:
+        """Means, covariances and features, and each robot's particle set (on first read)."""
+        summary = self._summaries()
+        return Beliefs(self.robots, summary[0].copy(), summary[1].copy(),
+                       summary[2].astype(float), _ParticleSampler(self, summary))
+
+    def particle_sets(self) -> dict[int, ParticleSet]:
+        """Global robot index -> its filter's particles, weights and ESS, now."""
+        return {g: ParticleSet(pf.particles, pf.weights, pf.ess)
+                for g, pf in zip(self._robot_ids, self.filters, strict=True)}
+
+    def is_current(self, summary: tuple) -> bool:
+        """Whether ``summary`` (of :meth:`beliefs`) is of the filters' present state."""
+        return self._summary is summary
+
+    def particle_filter(self, i: int) -> ParticleFilter:
+        """The particle filter of local robot ``i``."""
+        return self.filters[i]
+
     def extra_info(self, true_poses: np.ndarray) -> dict[int, dict]:
         """``particle_spread`` (weighted mean particle distance from the truth, m),
         ``n_particles``, ``detections_used`` (belief transfers received) and
@@ -782,4 +802,22 @@ class MCLBackend(EstimatorBackend):
                                          self.transfers_applied.tolist(),
                                          self.detection_conflicts.tolist(), strict=True)
         }
+
+
+class _ParticleSampler:
+    """The particle sets behind one :meth:`MCLBackend.beliefs` record, read on demand
+    while the filters have not stepped since (a picklable callable)."""
+
+    def __init__(self, backend: MCLBackend, summary: tuple) -> None:
+        self.backend = backend
+        self.summary = summary
+        self._sets: dict[int, ParticleSet] | None = None  # read once, then kept
+
+    def __call__(self) -> dict[int, ParticleSet]:
+        if self._sets is None:
+            if not self.backend.is_current(self.summary):
+                raise RuntimeError("these beliefs are of an earlier step: the particle sets "
+                                   "they summarize are no longer available")
+            self._sets = self.backend.particle_sets()
+        return self._sets
 

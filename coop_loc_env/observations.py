@@ -64,7 +64,7 @@ from coop_loc_env.obs_blocks import (
     make_block,
     register_obs_block,
 )
-from coop_loc_env.sensors import Readings, _due
+from coop_loc_env.records import Readings
 
 __all__ = ["OBS_LIMIT", "ObservationBuilder", "teammate_features"]
 
@@ -145,14 +145,19 @@ class ObservationBuilder:
         for block in self.blocks:
             block.reset()
 
-    def ingest(self, readings: Readings, max_range: np.ndarray, step: int) -> None:
-        """Latch the sensor features of env step ``step`` (0-based, as the sensors read it).
+    @property
+    def latched_pitch(self) -> np.ndarray:
+        """Each robot's last inclinometer pitch ``(n,)`` (a view; 0 before any reading)."""
+        return self.incl[:, 0]
+
+    def ingest(self, readings: Readings, max_range: np.ndarray) -> None:
+        """Latch the sensor features of one env step.
 
         The GPS features are refreshed on every step the DGPS receivers report,
         also when none of them sees a satellite (the fix is then lost).
         """
         cfg = self.cfg
-        if _due(step, cfg.dt, cfg.gps_rate):  # DGPS
+        if readings.fired.gps:  # DGPS
             self.gps[:, 0] = readings.gps_mask
             self.gps[:, 1] = readings.satellites / 12.0
         m = readings.inclinometer_mask

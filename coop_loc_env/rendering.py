@@ -12,12 +12,29 @@ needed when rendering (``pip install -e ".[render]"`` from the repository).
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Any, Protocol
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from coop_loc_env.env import CoopLocParallelEnv
+from coop_loc_env.records import Beliefs, Readings
+
+
+class RenderSource(Protocol):
+    """What the renderer reads of an env: its public state only."""
+
+    config: Any
+    world: Any
+    sensors: Any
+    metadata: dict
+
+    @property
+    def beliefs(self) -> Beliefs: ...
+
+    @property
+    def last_readings(self) -> Readings | None: ...
+
+    @property
+    def step_count(self) -> int: ...
 
 ROBOT_COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown",
                 "tab:pink", "tab:olive", "tab:cyan", "tab:gray")
@@ -64,18 +81,10 @@ def particle_subsample(
     return particles[np.minimum(idx, n - 1), :2]
 
 
-def particle_sets(env: CoopLocParallelEnv) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+def particle_sets(env: RenderSource) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     """Robot index -> ``(N, 3)`` particles and ``(N,)`` weights of every particle-filter
-    belief (read through each filter's public ``belief()``)."""
-    out = {}
-    for backend in env.backends:
-        filters = getattr(backend, "filters", None)
-        if not filters:
-            continue
-        for robot, pf in zip(backend.robots, filters, strict=True):
-            belief = pf.belief()
-            out[int(robot)] = (belief.particles, belief.weights)
-    return out
+    belief (the team beliefs' particle sets)."""
+    return {int(robot): (ps.states, ps.weights) for robot, ps in env.beliefs.samples.items()}
 
 
 def covariance_ellipse(mean: np.ndarray, cov: np.ndarray, n_sigma: float = 2.0, points: int = 36):
@@ -90,7 +99,7 @@ def covariance_ellipse(mean: np.ndarray, cov: np.ndarray, n_sigma: float = 2.0, 
 class Renderer:
     """Draws an env's current state into an RGB array (and a window for ``human``)."""
 
-    def __init__(self, env: CoopLocParallelEnv, size_px: int = 600) -> None:
+    def __init__(self, env: RenderSource, size_px: int = 600) -> None:
         self.env = env
         figure_cls, canvas_cls, self.patches, self.line_collection, line = _import_matplotlib()
         dpi = 100
@@ -145,10 +154,10 @@ class Renderer:
                 ax.plot(*zip(o.a, o.b, strict=True), color=color, lw=2)
             else:
                 ax.add_patch(self.patches.Polygon(o.vertices, color=color))
-        readings = env._last_readings
+        readings = env.last_readings
         poses = world.poses
-        est = env._est_mean
-        cov = env._est_cov
+        beliefs = env.beliefs
+        est, cov = beliefs.mean, beliefs.cov
         if readings is not None and readings.range_mask.any():
             segs = []
             for i in np.nonzero(readings.range_mask)[0]:
@@ -181,7 +190,7 @@ class Renderer:
         ax.set_aspect("equal")
         ax.set_axis_off()
         self.title.set_text(f"{cfg.name}, estimator {self.estimator_label}, "
-                            f"t = {env._step_count * cfg.dt:.1f} s")
+                            f"t = {env.step_count * cfg.dt:.1f} s")
         self.canvas.draw()
         buf = np.asarray(self.canvas.buffer_rgba())
         return np.ascontiguousarray(buf[..., :3])

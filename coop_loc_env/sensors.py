@@ -6,89 +6,34 @@ rate (``*_rate`` in Hz, defaults from the outdoor paper's Table 1) and noise
 model, and is switched on per robot by its :class:`~coop_loc_env.config.RobotSpec`.
 A sensor with rate ``f`` fires on the env steps where ``floor(t * f)``
 changes; rates above ``1 / dt`` fire every step (odometry instead runs at its
-full rate through the physics substeps).
+full rate through the physics substeps). The records a read returns are in
+:mod:`coop_loc_env.records`.
+
+One file (past 600 lines) because every sensor model reads the suite's shared
+per-team tables (ray casters, sight shapes, idle arrays) inside one read, whose
+order of draws from the episode's random stream defines every episode.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
 from coop_loc_env._step_kernels import noisy_ranges_into
 from coop_loc_env.config import ScenarioConfig
 from coop_loc_env.raycast import CHANNEL, FanCaster, circles_block, ray_segments
+from coop_loc_env.records import (
+    CameraOutput,
+    CameraSightings,
+    Detections,
+    LazyCamera,
+    Readings,
+    SensorsFired,
+)
 from coop_loc_env.world import World
 from estimators.geometry import wrap_angle
-
-
-@dataclass(frozen=True)
-class Detections:
-    """Robot-detector output for one step: ``k`` sightings of ``target`` by ``observer``.
-
-    ``z`` holds (range, bearing, orientation) of the target in the observer's
-    frame and ``cov`` the 3x3 noise the observer believes; ``genuine`` is
-    privileged (False for false positives) and never given to estimators.
-    """
-
-    observer: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
-    target: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
-    z: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
-    cov: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))
-    genuine: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
-
-    def __len__(self) -> int:
-        return len(self.observer)
-
-
-@dataclass(frozen=True)
-class CameraSightings:
-    """The visible (observer, target) pairs of one camera frame, in (observer, target) order.
-
-    Targets index the objects of interest first, then the robots. ``offset`` is
-    the true target position minus the observer's, ``dist`` its length (> 0)
-    and ``bearing`` the pixel-quantized bearings as Python floats.
-    """
-
-    observer: np.ndarray  # (k,) ints
-    target: np.ndarray  # (k,) ints
-    bearing: Sequence[float]
-    offset: np.ndarray  # (k, 2)
-    dist: np.ndarray  # (k,)
-
-
-@dataclass
-class Readings:
-    """Everything the team's sensors produced during one env step.
-
-    Arrays are indexed by robot; a ``*_mask`` says which robots got a reading.
-    """
-
-    odometry: np.ndarray  # (substeps, n, 2) measured (V, w)
-    gps_mask: np.ndarray  # (n,) a fix arrived
-    gps_xy: np.ndarray  # (n, 2)
-    gps_var: np.ndarray  # (n,) per-axis variance the receiver reports
-    gps_altitude: np.ndarray  # (n,)
-    satellites: np.ndarray  # (n,) satellites in view (on every GPS step)
-    compass_mask: np.ndarray
-    compass: np.ndarray  # (n,)
-    inclinometer_mask: np.ndarray
-    pitch: np.ndarray  # (n,)
-    roll: np.ndarray  # (n,)
-    range_mask: np.ndarray  # (n,) a scan arrived
-    ranges: np.ndarray  # (n, max_beams), max range where nothing returned; NaN pads
-    camera_mask: np.ndarray
-    camera: list[list[tuple[str, int, float, float]]]  # per robot: (kind, id, bearing, range)
-    detections: Detections
-    # The camera's sightings as arrays, in (robot, target) order: observer, target index
-    # (objects of interest first, then robots), quantized bearing (a list), line-of-sight
-    # offsets (k, 2) and true distances (k,). None when the camera took no frame.
-    camera_sightings: CameraSightings | None = None
-    # (n,) the bumper is pressed: the robot touches an obstacle, the world's boundary or
-    # another robot at the end of the step (its wheels may then spin in place). None: unknown.
-    bumper: np.ndarray | None = None
 
 
 def _no_detections() -> Detections:
@@ -182,10 +127,16 @@ def _due(step: int, dt: float, rate: float) -> bool:
     return int((step + 1) * dt * rate + 1e-9) > int(step * dt * rate + 1e-9)
 
 
+FIRED_BLOCK = 1024  # env steps of sensor firing looked up per table (SensorSuite.fired)
+# Every SensorsFired value, indexed by its code (bit i: field i).
+_FIRED_PATTERNS = tuple(SensorsFired(*(bool(code >> bit & 1) for bit in range(6)))
+                        for code in range(64))
+
+
 class SensorSuite:
     """All sensors of a team; call :meth:`read` once per env step."""
 
-    def __init__(self, cfg: ScenarioConfig, world: World) -> None:
+    def __init__(self, cfg: ScenarioConfig, world: World, camera_lists: bool = True) -> None:
         self.cfg = cfg
         self.world = world
         n = cfg.n_robots
@@ -205,12 +156,11 @@ class SensorSuite:
         self._idle: dict[str, np.ndarray] | None = None
         self._pairs: tuple | None = None
         self._any_camera = bool(self.has_camera.any())
-        # Whether read() fills Readings.camera with (kind, id, bearing, noisy range) lists;
-        # the env turns it off, as depth from motion replaces those ranges.
-        self.camera_lists = True
-        # Whether read() leaves the camera's frame to the caller (it still sets
-        # camera_mask); the env does, and runs camera_frame when the camera is read.
-        self.defer_camera = False
+        self._fired_start = 0
+        self._fired_codes: list[int] = []  # SensorSuite.fired's table, from _fired_start
+        # Whether camera_frame makes (kind, id, bearing, noisy range) lists; the env's
+        # suite does not, as depth from motion replaces those ranges.
+        self.camera_lists = camera_lists
         self._odo_std = np.array([cfg.odom_v_std, cfg.odom_w_std])
         self._any_detector = bool(self.has_detector.any())
         self._not_self: np.ndarray | None = None
@@ -268,6 +218,52 @@ class SensorSuite:
         self._grid_scan = bool(grid and uniform)
 
     # ------------------------------------------------------------------ read
+    def fired(self, step: int, n: int | None = None) -> SensorsFired:
+        """Which sensors fire during env step ``step`` (0-based) by their rates; a sensor
+        no robot carries does not fire (the detector also needs two of the ``n`` robots
+        read, the team by default).
+
+        Looked up in a table of :data:`FIRED_BLOCK` steps made at once with numpy (the
+        same float operations as :func:`_due`), as it is asked on every step.
+        """
+        if n is not None and n != self.cfg.n_robots:
+            return self._fired_at(step, n)
+        k = step - self._fired_start
+        codes = self._fired_codes
+        if not 0 <= k < len(codes):
+            self._fired_start = step - step % FIRED_BLOCK
+            self._fired_codes = codes = self._fired_table(self._fired_start)
+            k = step - self._fired_start
+        return _FIRED_PATTERNS[codes[k]]
+
+    def _fired_at(self, step: int, n: int) -> SensorsFired:
+        """:meth:`fired` of one step, for a read of ``n`` robots."""
+        cfg, dt = self.cfg, self.cfg.dt
+        return SensorsFired(
+            _due(step, dt, cfg.gps_rate), _due(step, dt, cfg.compass_rate),
+            _due(step, dt, cfg.inclinometer_rate),
+            _due(step, dt, cfg.laser_rate) and bool(len(self._ray_robot)),
+            _due(step, dt, cfg.camera_rate) and self._any_camera,
+            _due(step, dt, cfg.detector_rate) and self._any_detector and n > 1,
+        )
+
+    def _fired_table(self, start: int) -> list[int]:
+        """Codes (bit ``i``: field ``i`` of :class:`SensorsFired`) of steps ``start ..
+        start + FIRED_BLOCK - 1``."""
+        cfg = self.cfg
+        rates = (cfg.gps_rate, cfg.compass_rate, cfg.inclinometer_rate, cfg.laser_rate,
+                 cfg.camera_rate, cfg.detector_rate)
+        carried = (True, True, True, bool(len(self._ray_robot)), self._any_camera,
+                   self._any_detector and cfg.n_robots > 1)
+        steps = np.arange(start, start + FIRED_BLOCK, dtype=np.float64)
+        codes = np.zeros(FIRED_BLOCK, dtype=np.int64)
+        for bit, (rate, has) in enumerate(zip(rates, carried, strict=True)):
+            if has:  # int(x + 1e-9) of a positive x is its truncation, as in _due
+                due = np.trunc((steps + 1) * cfg.dt * rate + 1e-9) > np.trunc(
+                    steps * cfg.dt * rate + 1e-9)
+                codes |= due.astype(np.int64) << bit
+        return codes.tolist()
+
     def read(
         self,
         step: int,
@@ -275,6 +271,8 @@ class SensorSuite:
         odom_cmd: np.ndarray,
         rng: np.random.Generator,
         active: np.ndarray,
+        touching: np.ndarray | None = None,
+        camera: Callable[[np.ndarray, np.ndarray], LazyCamera | None] | None = None,
     ) -> Readings:
         """Read every sensor due at env step ``step``.
 
@@ -285,77 +283,80 @@ class SensorSuite:
                 when it is the same at every substep.
             rng: the episode's noise generator.
             active: robots still in the episode.
+            touching: which robots touch something at the end of the step (the physics'
+                :attr:`~coop_loc_env.records.PhysicsOutcome.touching`): the bumpers read
+                it; ``None``: the bumpers are unknown.
+            camera: hands the camera frame elsewhere: called every step as
+                ``camera(poses, camera_mask)`` (the mask all False without a frame), it
+                returns the frame's lazily computed output. ``None``: the frame is
+                computed here from ``rng``.
         """
         cfg = self.cfg
         n = len(poses)
-        dt = cfg.dt
+        fired = self.fired(step, n)
         odo = rng.standard_normal((cfg.odometry_substeps, n, 2))
         odo *= self._odo_std
         odo += odom_cmd
         idle = self._idle_readings(n)
-        gps_mask, gps_xy, gps_var, gps_alt, sats = (
-            idle["gps_mask"], idle["gps_xy"], idle["gps_var"], idle["gps_alt"], idle["sats"]
-        )
-        if _due(step, dt, cfg.gps_rate):
+        if fired.gps:
             gps_mask, gps_xy, gps_var, gps_alt, sats = self._gps(poses, rng, active)
+        else:
+            gps_mask, gps_xy, gps_var, gps_alt, sats = (
+                idle["gps_mask"], idle["gps_xy"], idle["gps_var"], idle["gps_alt"], idle["sats"]
+            )
         compass_mask, compass = idle["mask"], idle["zeros"]
-        if _due(step, dt, cfg.compass_rate):
+        if fired.compass:
             compass_mask = self.has_compass & active
             compass = wrap_angle(poses[:, 2] + cfg.compass_std * rng.standard_normal(n))
         incl_mask, pitch, roll = idle["mask"], idle["zeros"], idle["zeros"]
-        if _due(step, dt, cfg.inclinometer_rate):
+        if fired.inclinometer:
             incl_mask = self.has_incl & active
             p, r = self.world.terrain.pitch_roll(poses)
             pitch = p + cfg.inclinometer_std * rng.standard_normal(n)
             roll = r + cfg.inclinometer_std * rng.standard_normal(n)
         range_mask, ranges = idle["mask"], idle["ranges"]
-        if _due(step, dt, cfg.laser_rate) and len(self._ray_robot):
+        if fired.range:
             range_mask = self.has_range & active
             ranges = self._scan(poses, rng, active)
-        camera_mask = idle["mask"]
-        camera: list[list[tuple[str, int, float, float]]] = []  # deferred: the caller fills it
-        sightings = None
-        if not self.defer_camera:
-            camera = [[] for _ in range(n)]
-        if _due(step, dt, cfg.camera_rate) and self._any_camera:
-            camera_mask = self.has_camera & active
-            if not self.defer_camera:
-                camera, sightings = self.camera_frame(poses, rng, camera_mask)
+        camera_mask = self.has_camera & active if fired.camera else idle["mask"]
+        if camera is not None:
+            frame = camera(poses, camera_mask)
+        else:
+            frame = self._own_frame(poses, rng, camera_mask) if fired.camera else None
         detections = _NO_DETECTIONS
-        if _due(step, dt, cfg.detector_rate) and self._any_detector and n > 1:
-            detections = self._detect(poses, rng, active)
-            if cfg.detection_model == "scan_min":
-                detections = scan_minimum_detections(
-                    detections, ranges, range_mask, self.beam_angles, cfg.robot_radius,
-                    cfg.detector_range,
-                )
-            if not cfg.detection_orientation and len(detections):
-                detections = without_orientation(detections)
+        if fired.detector:
+            detections = self._detections(poses, rng, active, ranges, range_mask)
         return Readings(
-            odometry=odo,
-            gps_mask=gps_mask,
-            gps_xy=gps_xy,
-            gps_var=gps_var,
-            gps_altitude=gps_alt,
-            satellites=sats,
-            compass_mask=compass_mask,
-            compass=compass,
-            inclinometer_mask=incl_mask,
-            pitch=pitch,
-            roll=roll,
-            range_mask=range_mask,
-            ranges=ranges,
-            camera_mask=camera_mask,
-            camera=camera,
-            detections=detections,
-            camera_sightings=sightings,
-            bumper=self._bumper(active),
+            odometry=odo, gps_mask=gps_mask, gps_xy=gps_xy, gps_var=gps_var,
+            gps_altitude=gps_alt, satellites=sats, compass_mask=compass_mask,
+            compass=compass, inclinometer_mask=incl_mask, pitch=pitch, roll=roll,
+            range_mask=range_mask, ranges=ranges, camera_mask=camera_mask,
+            detections=detections, fired=fired, camera_frame=frame,
+            bumper=None if touching is None else touching & active,
         )
 
-    def _bumper(self, active: np.ndarray) -> np.ndarray:
-        """Which active robots touch something now: a contact switch around the body, read
-        from the physics' contacts at the end of the step (noise-free, as a switch is)."""
-        return self.world.touching & active
+    def _own_frame(
+        self, poses: np.ndarray, rng: np.random.Generator, camera_mask: np.ndarray
+    ) -> LazyCamera:
+        """This step's camera frame computed now, from ``rng`` (a suite used on its own)."""
+        lists, sightings = self.camera_frame(poses, rng, camera_mask)
+        return LazyCamera(None, value=CameraOutput(lists, sightings, None))
+
+    def _detections(
+        self, poses: np.ndarray, rng: np.random.Generator, active: np.ndarray,
+        ranges: np.ndarray, range_mask: np.ndarray,
+    ) -> Detections:
+        """The robot detector's sightings, in the configured detection model."""
+        cfg = self.cfg
+        detections = self._detect(poses, rng, active)
+        if cfg.detection_model == "scan_min":
+            detections = scan_minimum_detections(
+                detections, ranges, range_mask, self.beam_angles, cfg.robot_radius,
+                cfg.detector_range,
+            )
+        if not cfg.detection_orientation and len(detections):
+            detections = without_orientation(detections)
+        return detections
 
     def _idle_readings(self, n: int) -> dict[str, np.ndarray]:
         """Read-only arrays standing for sensors that did not fire this step (shared)."""

@@ -13,11 +13,14 @@ physics steps as keep a robot's travel per physics step within 0.4 of its radius
 another robot never sinks past their middle and out the other side; speeds that
 would need more than :data:`MAX_PHYSICS_STEPS` physics steps per odometry
 substep are refused when the world is built.
+
+What pymunk keeps in C and does not expose (solver bias velocities, arbiters, batch
+argument structs) is read in :mod:`coop_loc_env.chipmunk_raw`, the one module that
+touches Chipmunk's memory.
 """
 
 from __future__ import annotations
 
-import functools
 import math
 
 import numpy as np
@@ -25,8 +28,17 @@ import pymunk
 import pymunk.batch
 
 from coop_loc_env._step_kernels import settle_poses, substep_commands, substep_velocities
+from coop_loc_env.chipmunk_raw import (
+    POSE_FIELDS,
+    VELOCITIES,
+    BatchCalls,
+    ContactReader,
+    bias_of,
+    set_bias,
+)
 from coop_loc_env.config import START_GAP, Obstacle, ScenarioConfig
 from coop_loc_env.raycast import RayScene
+from coop_loc_env.records import PhysicsOutcome
 from coop_loc_env.terrain import HeightField
 
 ROBOT_COLLISION_TYPE = 1
@@ -39,8 +51,6 @@ MAX_TRAVEL_PER_RADIUS = 0.4
 #: Most physics steps per odometry substep (faster robots are refused).
 MAX_PHYSICS_STEPS = 16
 _WALL_RADIUS = 0.05
-_VELOCITIES = pymunk.batch.BodyFields.VELOCITY | pymunk.batch.BodyFields.ANGULAR_VELOCITY
-_POSE_FIELDS = pymunk.batch.BodyFields.POSITION | pymunk.batch.BodyFields.ANGLE
 
 
 def _count_contact(arbiter: pymunk.Arbiter, space: pymunk.Space, data: dict) -> None:
@@ -216,8 +226,6 @@ class World:
         self.max_turn_rate = np.array([s.max_turn_rate for s in specs])
         self.physics_steps = physics_steps_for(cfg, float(self.max_speed.max()))
         self.poses = np.zeros((n, 3))
-        self.in_contact = np.zeros(n, dtype=bool)
-        self.touching = np.zeros(n, dtype=bool)  # touching a shape at the end of the last step
         self.space: pymunk.Space | None = None
         self.bodies: list[pymunk.Body] = []
         self.contacts = {"counts": np.zeros(n, dtype=int)}
@@ -254,8 +262,6 @@ class World:
                 shape = pymunk.Poly(static, list(o.vertices))
             space.add(shape)
         self.contacts["counts"][:] = 0
-        self.in_contact[:] = False
-        self.touching[:] = False
         space.on_collision(ROBOT_COLLISION_TYPE, None, begin=_count_contact, data=self.contacts)
         self.poses = self._start_poses(rng)
         self.bodies = []
@@ -275,44 +281,8 @@ class World:
         self._index_shapes()
 
     def _index_shapes(self) -> None:
-        """Robot index of each robot shape's C pointer (rebuilt after unpickling)."""
-        self._shape_robot: dict[int, int] = {}
-        self._arbiter_reader = None
-        try:
-            from pymunk._chipmunk import ffi, lib
-        except ImportError:
-            return
-        if not hasattr(self.space, "_get_arbiters"):
-            return
-        for i, body in enumerate(self.bodies):
-            for shape in body.shapes:
-                self._shape_robot[int(ffi.cast("uintptr_t", shape._shape))] = i
-        self._arbiter_reader = (ffi, lib)
-
-    def _touching(self) -> np.ndarray:
-        """Robots touching a shape after the last physics step ``(n,)``."""
-        touching = np.zeros(len(self.bodies), dtype=bool)
-        if self._arbiter_reader is None:  # this pymunk hides its contacts: ask each body
-            for i, body in enumerate(self.bodies):
-                found: list = []
-                body.each_arbiter(lambda arb, out=found: out.append(arb))
-                touching[i] = any(arb.contact_point_set.points for arb in found)
-            return touching
-        ffi, lib = self._arbiter_reader
-        space = self.space
-        arbiters = space._get_arbiters()
-        if not arbiters:
-            return touching
-        stamp = lib.cpSpaceGetTimestamp(space._space)
-        robot = self._shape_robot
-        for arb in arbiters:
-            if arb.stamp != stamp or arb.count == 0:  # not touching in the last step
-                continue
-            for shape in (arb.a, arb.b):
-                i = robot.get(int(ffi.cast("uintptr_t", shape)))
-                if i is not None:
-                    touching[i] = True
-        return touching
+        """The contact reader of the robots' shapes (rebuilt after unpickling)."""
+        self._contact_reader = ContactReader.make(self.space, self.bodies)
 
     def _make_batch_buffers(self) -> None:
         """Buffers for pymunk's batch API (rebuilt after unpickling: they hold C pointers).
@@ -322,7 +292,7 @@ class World:
         all-zero row that stops the robots.
         """
         probe = pymunk.batch.Buffer()
-        pymunk.batch.get_space_bodies(self.space, _POSE_FIELDS, probe)
+        pymunk.batch.get_space_bodies(self.space, POSE_FIELDS, probe)
         n_bodies = len(probe.float_buf()) // (3 * 8)
         self._velocity_buffer = np.zeros((self.cfg.odometry_substeps + 1, n_bodies, 3))
         self._velocity_rows = []
@@ -330,16 +300,16 @@ class World:
             self._velocity_rows.append(pymunk.batch.Buffer())
             self._velocity_rows[-1].set_float_buf(row)
         self._state_batch = pymunk.batch.Buffer()
-        self._batch = _BatchCalls.make(self.space, self._velocity_rows, self._state_batch)
+        self._batch = BatchCalls.make(self.space, self._velocity_rows, self._state_batch)
 
     def __getstate__(self) -> dict:
         state = self.__dict__.copy()
         for key in ("_velocity_buffer", "_velocity_rows", "_state_batch", "_batch",
-                    "_shape_robot", "_arbiter_reader"):
+                    "_contact_reader"):
             state.pop(key, None)
         # pymunk pickles the bodies and the contacts, but not the bias velocities its
         # solver left on the bodies to push them out of overlaps on the next substep.
-        state["_bias_velocities"] = [_bias_of(body) for body in self.bodies]
+        state["_bias_velocities"] = [bias_of(body) for body in self.bodies]
         return state
 
     def __setstate__(self, state: dict) -> None:
@@ -347,7 +317,7 @@ class World:
         self.__dict__.update(state)
         if bias is not None:
             for body, values in zip(self.bodies, bias, strict=True):
-                _set_bias(body, values)
+                set_bias(body, values)
         if self.space is not None:
             self._make_batch_buffers()
             self._index_shapes()
@@ -386,7 +356,7 @@ class World:
         active: np.ndarray,
         rng: np.random.Generator,
         idle_zeroed: bool = False,
-    ) -> np.ndarray:
+    ) -> PhysicsOutcome:
         """Advance one env step (``odometry_substeps`` substeps of ``physics_steps`` each).
 
         Args:
@@ -396,9 +366,9 @@ class World:
             idle_zeroed: the caller already zeroed the commands of inactive robots.
 
         Returns:
-            Number of new contacts per robot during the step, ``(n,)``. Which robots
-            touched something during the step (a new contact, or one held at its
-            end) is left in :attr:`in_contact`.
+            The step's :class:`~coop_loc_env.records.PhysicsOutcome`: the new poses
+            (also in :attr:`poses`), new contacts, contacts at the end and during the
+            step, and the active robots now on ground too steep (tipped over).
         """
         cfg = self.cfg
         n_sub = cfg.odometry_substeps
@@ -422,6 +392,19 @@ class World:
         np.cos(heading[:-1], out=vel[..., 0])
         np.sin(heading[:-1], out=vel[..., 1])
         substep_velocities(vel, vk, wk)
+        state = self._advance(n_sub, n_phys, dt, dt_phys)
+        touching = self._contact_reader.touching()
+        new = np.empty(n, dtype=counts.dtype)
+        in_contact = np.empty(n, dtype=bool)
+        # Poses (headings wrapped, the unwrapped ones kept), new contacts and in_contact.
+        settle_poses(state, self.poses, self._angles, counts, before, touching, new, in_contact)
+        poses = self.poses.copy()
+        tipped = self.terrain.is_steep(poses[:, :2], active)
+        return PhysicsOutcome(poses, new, touching, in_contact, tipped)
+
+    def _advance(self, n_sub: int, n_phys: int, dt: float, dt_phys: float) -> np.ndarray:
+        """Run the physics substeps with the velocities already in the buffer and stop the
+        robots; returns pymunk's ``(bodies, 3)`` positions and angles."""
         space, batch = self.space, self._batch
         if batch is not None:
             if n_phys == 1:
@@ -439,170 +422,11 @@ class World:
             set_bodies = pymunk.batch.set_space_bodies
             for row in self._velocity_rows[:-1]:
                 for _ in range(n_phys):
-                    set_bodies(space, _VELOCITIES, row)
+                    set_bodies(space, VELOCITIES, row)
                     space.step(dt_phys)
-            set_bodies(space, _VELOCITIES, self._velocity_rows[-1])  # stop the robots
+            set_bodies(space, VELOCITIES, self._velocity_rows[-1])  # stop the robots
             self._state_batch.clear()
-            pymunk.batch.get_space_bodies(space, _POSE_FIELDS, self._state_batch)
+            pymunk.batch.get_space_bodies(space, POSE_FIELDS, self._state_batch)
             state = np.frombuffer(self._state_batch.float_buf(), dtype=np.float64)
             state = state.reshape(-1, 3)
-        self.touching = self._touching()
-        new = np.empty(n, dtype=counts.dtype)
-        self.in_contact = np.empty(n, dtype=bool)
-        # Poses (headings wrapped, the unwrapped ones kept), new contacts and in_contact.
-        settle_poses(state, self.poses, self._angles, counts, before, self.touching, new,
-                     self.in_contact)
-        return new
-
-
-# Chipmunk's cpBody, read as doubles: position at 8-9, velocity 10-11, angle 14, turn rate
-# 15, then (after force, torque, transform and user data) the bias velocity at 24-26.
-_BODY_BIAS_SLOTS = (24, 25, 26)
-
-
-@functools.cache
-def _bias_layout_ok() -> bool:
-    """Whether this pymunk's cpBody has the layout :data:`_BODY_BIAS_SLOTS` assumes."""
-    try:
-        from pymunk._chipmunk import ffi
-    except ImportError:
-        return False
-    body = pymunk.Body(1.5, 2.5)
-    body.position, body.velocity = (11.0, 12.0), (13.0, 14.0)
-    body.angle, body.angular_velocity = 15.0, 16.0
-    try:
-        raw = ffi.cast("double *", body._body)
-        known = [raw[i] for i in (2, 4, 8, 9, 10, 11, 14, 15)]
-    except (AttributeError, TypeError):
-        return False
-    return known == [1.5, 2.5, 11.0, 12.0, 13.0, 14.0, 15.0, 16.0] and all(
-        raw[i] == 0.0 for i in _BODY_BIAS_SLOTS
-    )
-
-
-def _bias_of(body: pymunk.Body) -> tuple[float, ...] | None:
-    """The bias velocity ``(vx, vy, w)`` the solver left on ``body`` for its next position
-    update (pymunk keeps it in C and does not pickle it); ``None`` if unreadable."""
-    if not _bias_layout_ok():
-        return None
-    from pymunk._chipmunk import ffi
-
-    raw = ffi.cast("double *", body._body)
-    return tuple(raw[i] for i in _BODY_BIAS_SLOTS)
-
-
-def _set_bias(body: pymunk.Body, values: tuple[float, ...] | None) -> None:
-    if values is None or not _bias_layout_ok():
-        return
-    from pymunk._chipmunk import ffi
-
-    raw = ffi.cast("double *", body._body)
-    for i, value in zip(_BODY_BIAS_SLOTS, values, strict=True):
-        raw[i] = value
-
-
-_SPACE_STEP_STATE = ("_locked", "_bodies_to_check", "_removed_shapes", "_add_later",
-                     "_remove_later", "_post_step_callbacks", "_remove")
-
-
-def _finish_step(space: pymunk.Space) -> None:
-    """The end of ``pymunk.Space.step``: what callbacks queued during the C step."""
-    space.add(*space._add_later)
-    space._add_later.clear()
-    removed = set()
-    while space._remove_later:
-        to_remove, _ = space._remove_later.popitem()
-        if to_remove not in removed:
-            removed.add(to_remove)
-            space._remove(to_remove)
-    for key in space._post_step_callbacks:
-        space._post_step_callbacks[key](space)
-    space._post_step_callbacks.clear()
-
-
-class _BatchCalls:
-    """``pymunk.batch.set_space_bodies`` / ``get_space_bodies`` with their C argument
-    structs built once.
-
-    The public functions allocate and fill a ``pmBatchedData`` struct on every
-    call, and the world makes seven calls per step; here each is the same single
-    C call (``cpSpaceEachBody`` with pymunk's batch iterator). :meth:`step` is
-    ``Space.step`` without its Python bookkeeping when there is none to do: the
-    C step under pymunk's lock, then pymunk's handling of deferred additions,
-    removals and post-step callbacks only when a callback queued some.
-    :meth:`make` returns ``None`` where this pymunk lacks these internals.
-    """
-
-    def __init__(
-        self, space: pymunk.Space, rows: list[pymunk.batch.Buffer], state: pymunk.batch.Buffer
-    ) -> None:
-        from pymunk._chipmunk import ffi, lib
-
-        for name in _SPACE_STEP_STATE:  # what :meth:`step` reads of pymunk's Space
-            getattr(space, name)
-        self._lib, self._ffi = lib, ffi
-        self._space_ptr = space._space
-        self._set_fn = ffi.addressof(lib, "pmSpaceBodySetIteratorFuncBatched")
-        self._get_fn = ffi.addressof(lib, "pmSpaceBodyGetIteratorFuncBatched")
-        self._rows = rows  # keeps the buffers (and the numpy rows they point to) alive
-        self._set_data = [self._struct(_VELOCITIES, row) for row in rows]
-        self._state_arr = state._float_arr
-        self._get_data = self._struct(_POSE_FIELDS, state)
-        self._view: np.ndarray | None = None
-        self._view_key: tuple = (None, -1)
-
-    def _struct(self, fields: pymunk.batch.BodyFields, buffer: pymunk.batch.Buffer):
-        data = self._ffi.new("pmBatchedData *")
-        data.fields = fields.value
-        data.floatArray = buffer._float_arr
-        data.intArray = buffer._int_arr
-        return data
-
-    @classmethod
-    def make(
-        cls, space: pymunk.Space, rows: list[pymunk.batch.Buffer], state: pymunk.batch.Buffer
-    ) -> _BatchCalls | None:
-        """The prepared calls, or ``None`` when this pymunk lacks the expected internals."""
-        try:
-            return cls(space, rows, state)
-        except (AttributeError, ImportError, TypeError):
-            return None
-
-    def set_velocities(self, k: int) -> None:
-        """``set_space_bodies(space, VELOCITY | ANGULAR_VELOCITY, rows[k])``."""
-        data = self._set_data[k]
-        arr = data.floatArray
-        num = arr.num
-        arr.num = 0  # pymunk's iterator reads from the start
-        self._lib.cpSpaceEachBody(self._space_ptr, self._set_fn, data)
-        arr.num = num
-
-    def step(self, space: pymunk.Space, dt: float) -> None:
-        """``space.step(dt)``: the C step under pymunk's lock, then pymunk's own handling
-        of whatever callbacks queued (additions, removals, post-step callbacks), if any."""
-        if space._bodies_to_check:  # pymunk checks new bodies' masses first
-            space.step(dt)
-            return
-        space._locked = True
-        try:
-            self._lib.cpSpaceStep(self._space_ptr, dt)
-            space._removed_shapes.clear()
-        finally:
-            space._locked = False
-        if space._add_later or space._remove_later or space._post_step_callbacks:
-            _finish_step(space)
-
-    def poses(self) -> np.ndarray:
-        """``(bodies, 3)`` positions and angles (``get_space_bodies`` into the state buffer).
-
-        The array views pymunk's memory and is overwritten by the next call.
-        """
-        arr = self._state_arr
-        arr.num = 0  # as Buffer.clear(): overwrite from the start
-        self._lib.cpSpaceEachBody(self._space_ptr, self._get_fn, self._get_data)
-        key = (arr.arr, arr.num)
-        if key[0] != self._view_key[0] or key[1] != self._view_key[1]:
-            buf = self._ffi.buffer(arr.arr, self._ffi.sizeof("cpFloat") * arr.num)
-            self._view = np.frombuffer(buf, dtype=np.float64).reshape(-1, 3)
-            self._view_key = key
-        return self._view
+        return state

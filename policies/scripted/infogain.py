@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from coop_loc_env.mcl_backend import MCLBackend
 from estimators.geometry import wrap_angle
 from policies.scripted.common import Steering, gps_flags
 from policies.scripted.infogain_mcl import MCLInfoGainPlanner
@@ -258,10 +257,12 @@ class InfoGainPolicy:
 
 
 def _mcl_robots(env) -> dict[int, tuple[int, int]]:
-    """The robots whose beliefs are particle sets: ``{robot: (backend index, local index)}``."""
+    """The robots whose beliefs are particle sets (the team beliefs' ``samples``):
+    ``{robot: (backend index, local index)}``."""
+    particle = env.beliefs.samples
     out = {}
     for b, backend in enumerate(env.backends):
-        if isinstance(backend, MCLBackend):
-            for local, g in enumerate(backend.robots):
-                out[int(g)] = (b, local)
+        for local, g in enumerate(backend.robots.tolist()):
+            if g in particle:
+                out[g] = (b, local)
     return out

@@ -510,7 +510,7 @@ class MCLInfoGainPlanner:
         b, local = self.robots[i]
         backend = self.env.backends[b]
         table, lut, angles, max_range = backend.beam_model(local)
-        c = backend.filters[local].config
+        c = backend.particle_filter(local).config
         if self.plan_sigma > c.beam_sigma:
             lut = beam_lut(max_range, self.plan_sigma, c.beam_z_hit, c.beam_z_short,
                            c.beam_z_max, c.beam_z_rand, c.beam_lambda_short,
@@ -533,9 +533,9 @@ class MCLInfoGainPlanner:
     def hypotheses(self, i: int) -> tuple[np.ndarray, np.ndarray]:
         """Robot ``i``'s pose hypotheses and weights (those inside walls left out)."""
         b, local = self.robots[i]
-        pf = self.env.backends[b].filters[local]
-        poses, weights = belief_hypotheses(pf.particles, pf.weights, self.n_hypotheses,
-                                           self.cell, self.heading_bins)
+        particles = self.env.beliefs.samples[i]
+        poses, weights = belief_hypotheses(particles.states, particles.weights,
+                                           self.n_hypotheses, self.cell, self.heading_bins)
         table = self.env.backends[b].beam_model(local)[0]
         free = table.free((poses[:, 0] - table.origin[0]).astype(np.float32),
                           (poses[:, 1] - table.origin[1]).astype(np.float32))

@@ -43,14 +43,14 @@ CASES: dict[str, tuple[str, dict, int, int]] = {
 def subsystem_state(env) -> dict[str, np.ndarray]:
     """This step's statistics of every subsystem, as fixed-shape float arrays.
 
-    The only place of the golden rollouts that reads the env's internals (when a
-    refactor moves them, adapt this function and nothing else):
+    The only place of the golden rollouts that reads the env's state (when a
+    refactor moves it, adapt this function and nothing else):
 
     * camera: ``env.camera_readings`` (public);
     * terrain map: ``env.terrain_map`` (public) and its ``robot_elevation()``;
-    * MCL: ``env.backends[k].filters[i]`` (``particles``, ``weights``, ``ess``);
-    * MLE: ``env.backends[k].mle.relative_poses()``;
-    * EKF: ``env.estimated_covariances`` (public) and ``env.backends[k].ekf``.
+    * MCL: ``env.beliefs.samples`` (public: each robot's particles, weights, ESS);
+    * MLE: ``env.backends[k].mle.relative_poses()`` (the backend's pose graph);
+    * EKF: ``env.estimated_covariances`` (public).
 
     Returns ``camera (n, 5)``: records, sums of range, range std, bearing and
     frames tracked; ``map (9,)``: mapped cells, sums of elevation, its square,
@@ -81,15 +81,14 @@ def subsystem_state(env) -> dict[str, np.ndarray]:
     ])
     mcl = np.full((n, 7), np.nan)
     mle = np.full((n, n, 3), np.nan)
+    for g, particles in env.beliefs.samples.items():
+        p, w = np.asarray(particles.states, dtype=float), np.asarray(particles.weights)
+        mean = w @ p[:, :2]
+        std = np.sqrt(np.maximum(w @ (p[:, :2] - mean) ** 2, 0.0))
+        heading = np.arctan2(w @ np.sin(p[:, 2]), w @ np.cos(p[:, 2]))
+        mcl[g] = [mean[0], mean[1], heading, std[0], std[1], particles.ess, len(w)]
     for backend in env.backends:
         robots = np.asarray(backend.robots)
-        if hasattr(backend, "filters"):
-            for g, pf in zip(robots.tolist(), backend.filters, strict=True):
-                p, w = np.asarray(pf.particles, dtype=float), np.asarray(pf.weights)
-                mean = w @ p[:, :2]
-                std = np.sqrt(np.maximum(w @ (p[:, :2] - mean) ** 2, 0.0))
-                heading = np.arctan2(w @ np.sin(p[:, 2]), w @ np.cos(p[:, 2]))
-                mcl[g] = [mean[0], mean[1], heading, std[0], std[1], pf.ess, pf.n_particles]
         if hasattr(backend, "mle"):
             mle[np.ix_(robots, robots)] = backend.mle.relative_poses()
     return {"camera": camera, "map": terrain, "mcl": mcl, "mle": mle,
