@@ -15,8 +15,8 @@ import scipy.sparse as sp
 from estimators.geometry import wrap_angle
 from estimators.pose_graph.se2 import (
     DEFAULT_MIN_RANGE,
-    _check_pose,
     between_residual,
+    check_pose,
     observation_residual,
     sqrt_information,
 )
@@ -174,7 +174,7 @@ class PoseGraph:
         self, pose: np.ndarray, robot: int = -1, time: float = np.nan, fixed: bool = False
     ) -> int:
         """Add a pose estimate (initial guess ``pose``); returns its node id."""
-        pose = _check_pose(pose, "pose")
+        pose = check_pose(pose, "pose")
         pose[2] = wrap_angle(pose[2])
         self._version += 1
         return self._nodes.append(pose=pose, robot=robot, time=time, fixed=fixed, active=True)
@@ -215,7 +215,7 @@ class PoseGraph:
         i, j = self._check_node(i), self._check_node(j)
         if i == j:
             raise ValueError(f"a motion factor needs two distinct nodes, got i = j = {i}")
-        delta = _check_pose(delta, "delta")
+        delta = check_pose(delta, "delta")
         w = sqrt_information(cov, "cov")
         c, s = np.cos(delta[2]), np.sin(delta[2])
         rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])  # e = rot^T (.)
@@ -264,9 +264,9 @@ class PoseGraph:
         w[np.ix_(range(k), idx)] = w_sub
         off = np.zeros((2, 3))
         if offset_a is not None:
-            off[0] = _check_pose(offset_a, "offset_a")
+            off[0] = check_pose(offset_a, "offset_a")
         if offset_b is not None:
-            off[1] = _check_pose(offset_b, "offset_b")
+            off[1] = check_pose(offset_b, "offset_b")
         self._obs.append(ij=(a, b), mu=mu, W=w, off=off, dim=k)
         self._version += 1
 
@@ -290,7 +290,7 @@ class PoseGraph:
         std = np.asarray(std, dtype=float).reshape(-1)
         if std.shape != (3,) or not np.all(np.isfinite(std)) or np.any(std <= 0):
             raise ValueError(f"std must be 3 positive numbers, got {std!r}")
-        self.add_prior([node], _check_pose(pose, "pose"), np.diag(1.0 / std))
+        self.add_prior([node], check_pose(pose, "pose"), np.diag(1.0 / std))
 
     def factor_tables(self) -> dict[str, tuple[np.ndarray, ...]]:
         """Copies of the factor arrays: ``"between"``: ``(ij, mu, W)`` and ``"observation"``:

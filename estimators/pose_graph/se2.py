@@ -20,7 +20,7 @@ DEFAULT_MIN_RANGE = 1e-6
 """Floor on the range used in observation derivatives (metres)."""
 
 
-def _check_pose(pose: np.ndarray, name: str) -> np.ndarray:
+def check_pose(pose: np.ndarray, name: str) -> np.ndarray:
     pose = np.array(pose, dtype=float)  # a copy: callers' arrays are never modified
     if pose.shape != (3,) or not np.all(np.isfinite(pose)):
         raise ValueError(f"{name} must be 3 finite numbers (x, y, heading), got {pose!r}")
