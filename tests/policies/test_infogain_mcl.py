@@ -10,8 +10,8 @@ from estimators.mcl.beam_table import beam_lut, range_table
 from estimators.mcl.occupancy import OccupancyGrid
 from policies.learning.loader import make_policy
 from policies.scripted import InfoGainPolicy
-from policies.scripted.infogain_mcl import (
-    MCLInfoGainPlanner,
+from policies.scripted.infogain_mcl import MCLInfoGainPlanner
+from policies.scripted.infogain_scoring import (
     Primitive,
     PrimitiveScorer,
     ScanModel,
