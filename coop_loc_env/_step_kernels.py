@@ -2,8 +2,8 @@
 
 Each kernel fuses a chain of elementwise numpy operations into one pass, with
 the same IEEE operations in the same order (no fast-math: no reassociation,
-no fused multiply-adds), so results are bit-identical to the numpy code they
-replace. Trigonometry and matrix products stay in numpy (their vectorized
+no fused multiply-adds), so results are bit-identical to the same chain in
+numpy. Trigonometry and matrix products stay in numpy (their vectorized
 implementations round differently from a scalar loop's). Private helpers of
 :mod:`coop_loc_env.raycast`, :mod:`coop_loc_env.world`,
 :mod:`coop_loc_env.estimation`, :mod:`coop_loc_env.terrain`,

@@ -79,6 +79,81 @@ def _measurement_stream(
     return allm[np.argsort(allm[:, 0], kind="stable")]
 
 
+def _check_replay_args(
+    estimator: str, duration: float, grid_step: float, start_offset: float
+) -> None:
+    """Raise ``ValueError`` naming the first bad argument of :func:`replay`."""
+    if estimator not in ESTIMATORS:
+        raise ValueError(f"unknown estimator {estimator!r}; choose one of {ESTIMATORS}")
+    if not duration > 0:
+        raise ValueError(f"duration must be > 0, got {duration!r}")
+    if not grid_step > 0:
+        raise ValueError(f"grid_step must be > 0, got {grid_step!r}")
+    if not start_offset >= 0:
+        raise ValueError(f"start_offset must be >= 0, got {start_offset!r}")
+
+
+def _truth_on_grid(
+    dataset: MrclamDataset, t0: float, t_end: float, grid: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Ground truth ``(R, T, 3)`` on ``grid``, its validity ``(R, T)`` and the poses at ``t0``.
+
+    Raises ``ValueError`` when a robot has no ground truth at ``t0`` or the window has none.
+    """
+    ids = dataset.robot_ids
+    truth = np.zeros((len(ids), len(grid), 3))
+    valid = np.zeros((len(ids), len(grid)), dtype=bool)
+    init = np.zeros((len(ids), 3))
+    for i, rid in enumerate(ids):
+        truth[i], valid[i] = interpolate_groundtruth(dataset.robots[rid].groundtruth, grid)
+        p0, ok = interpolate_groundtruth(dataset.robots[rid].groundtruth, np.array([t0]))
+        if not ok[0]:
+            raise ValueError(f"robot {rid} has no ground truth at the start time {t0:.3f} s")
+        init[i] = p0[0]
+    if not valid.any():
+        raise ValueError(f"no ground truth in the evaluation window [{t0:.3f}, {t_end:.3f}] s")
+    return truth, valid, init
+
+
+def _team_ekf(
+    dataset: MrclamDataset, params: NoiseParameters, estimator: str, init: np.ndarray, t0: float
+) -> TeamEKF:
+    """The team EKF started at ``init`` (cooperative for ``ekf_team`` only)."""
+    cov0 = np.diag([params.initial_std_xy**2] * 2 + [params.initial_std_heading**2])
+    return TeamEKF(
+        _build_tracks(dataset, params),
+        init,
+        cov0,
+        t0,
+        gate_prob=params.gate_prob,
+        cooperative=estimator == "ekf_team",
+        sensor_offset=[
+            [params.for_robot(r)["sensor_x_m"], params.for_robot(r)["sensor_y_m"]]
+            for r in dataset.robot_ids
+        ],
+    )
+
+
+def _estimator_stream(
+    dataset: MrclamDataset,
+    params: NoiseParameters,
+    estimator: str,
+    t0: float,
+    t_end: float,
+    use_landmarks: bool,
+) -> np.ndarray:
+    """The measurements ``estimator`` uses in ``[t0, t_end]``: none for dead reckoning,
+    landmarks only for ``ekf``, robot-to-robot only without ``use_landmarks``."""
+    if estimator == "dead_reckoning":
+        return np.zeros((0, 5))
+    stream = _measurement_stream(dataset, params, t0, t_end)
+    if not use_landmarks:
+        stream = stream[~np.isin(stream[:, 2], list(dataset.landmarks))]
+    if estimator == "ekf":
+        stream = stream[np.isin(stream[:, 2], list(dataset.landmarks))]
+    return stream
+
+
 def replay(
     dataset: MrclamDataset,
     estimator: str,
@@ -101,51 +176,14 @@ def replay(
     of the run done. Raises ``ValueError`` for an unknown estimator or a
     non-positive duration, and when the window has no ground truth.
     """
-    if estimator not in ESTIMATORS:
-        raise ValueError(f"unknown estimator {estimator!r}; choose one of {ESTIMATORS}")
-    if not duration > 0:
-        raise ValueError(f"duration must be > 0, got {duration!r}")
-    if not grid_step > 0:
-        raise ValueError(f"grid_step must be > 0, got {grid_step!r}")
-    if not start_offset >= 0:
-        raise ValueError(f"start_offset must be >= 0, got {start_offset!r}")
+    _check_replay_args(estimator, duration, grid_step, start_offset)
     wall = time.perf_counter()
-    ids = dataset.robot_ids
     t0 = dataset.latest_odometry_start() + start_offset
     t_end = t0 + duration
     grid = t0 + grid_step * np.arange(1, int(np.floor(duration / grid_step + 1e-9)) + 1)
-    truth = np.zeros((len(ids), len(grid), 3))
-    valid = np.zeros((len(ids), len(grid)), dtype=bool)
-    init = np.zeros((len(ids), 3))
-    for i, rid in enumerate(ids):
-        truth[i], valid[i] = interpolate_groundtruth(dataset.robots[rid].groundtruth, grid)
-        p0, ok = interpolate_groundtruth(dataset.robots[rid].groundtruth, np.array([t0]))
-        if not ok[0]:
-            raise ValueError(f"robot {rid} has no ground truth at the start time {t0:.3f} s")
-        init[i] = p0[0]
-    if not valid.any():
-        raise ValueError(f"no ground truth in the evaluation window [{t0:.3f}, {t_end:.3f}] s")
-
-    cov0 = np.diag([params.initial_std_xy**2] * 2 + [params.initial_std_heading**2])
-    ekf = TeamEKF(
-        _build_tracks(dataset, params),
-        init,
-        cov0,
-        t0,
-        gate_prob=params.gate_prob,
-        cooperative=estimator == "ekf_team",
-        sensor_offset=[
-            [params.for_robot(r)["sensor_x_m"], params.for_robot(r)["sensor_y_m"]] for r in ids
-        ],
-    )
-    if estimator == "dead_reckoning":
-        stream = np.zeros((0, 5))
-    else:
-        stream = _measurement_stream(dataset, params, t0, t_end)
-        if not use_landmarks:
-            stream = stream[~np.isin(stream[:, 2], list(dataset.landmarks))]
-        if estimator == "ekf":
-            stream = stream[np.isin(stream[:, 2], list(dataset.landmarks))]
+    truth, valid, init = _truth_on_grid(dataset, t0, t_end, grid)
+    ekf = _team_ekf(dataset, params, estimator, init, t0)
+    stream = _estimator_stream(dataset, params, estimator, t0, t_end, use_landmarks)
     if estimator == "mle":
         est, cov, accepted, rejected = _replay_mle(
             dataset, params, ekf.tracks, init, t0, grid, stream, progress
@@ -159,7 +197,7 @@ def replay(
     runtime = time.perf_counter() - wall
     return ReplayResult(
         estimator=estimator,
-        robot_ids=list(ids),
+        robot_ids=list(dataset.robot_ids),
         times=grid,
         estimate=est,
         cov=cov,

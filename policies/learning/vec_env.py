@@ -13,8 +13,7 @@ acts for all agents (they are interchangeable; the observation holds the
 agent's own features, never its index).
 
 Episode ends are reported the way SB3 expects (unlike SuperSuit's
-``pettingzoo_env_to_vec_env_v1``, which merges terminated and truncated,
-PettingZoo issue #1126):
+``pettingzoo_env_to_vec_env_v1``, which merges terminated and truncated):
 
 * when an agent's episode ends, its slot returns ``done=True`` with
   ``info["terminal_observation"]`` (the env's last observation of that agent)

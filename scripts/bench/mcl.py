@@ -76,6 +76,37 @@ def _naive_update(state: np.ndarray, field2d: np.ndarray, grid: OccupancyGrid, r
     return state[rng.choice(n, size=n, p=w)]
 
 
+_INIT_COV = np.diag([0.3, 0.3, 0.1]) ** 2  # initial spread around the benchmark's pose
+
+
+def _started_filter(grid: OccupancyGrid, rng: np.random.Generator, cfg: MCLConfig,
+                    pose: np.ndarray) -> ParticleFilter:
+    """A filter of ``cfg`` on ``grid`` with its particles spread around ``pose``."""
+    pf = ParticleFilter(grid, rng, cfg)
+    pf.init_gaussian(pose, _INIT_COV)
+    return pf
+
+
+def _full_update(pf: ParticleFilter, sign: list[float], ranges: np.ndarray, angles: np.ndarray,
+                 max_range: float) -> Callable[[], None]:
+    """One predict + likelihood-field update + resample of ``pf``; ``sign`` (shared by all
+    the timed filters) flips each call to drive back and forth, so particles stay near
+    the scan's pose."""
+    def full() -> None:
+        sign[0] = -sign[0]
+        pf.predict_odometry(0.3 * sign[0], 0.1, 0.1)
+        pf.update_likelihood_field(ranges, angles, max_range)
+        pf.resample()
+    return full
+
+
+def _naive_field(grid: OccupancyGrid, cfg: MCLConfig, max_range: float) -> np.ndarray:
+    """The likelihood-field log-likelihoods as a 2D float64 array (for the numpy update)."""
+    dist = np.minimum(grid.distance_field(), cfg.lf_max_dist)
+    return np.log(cfg.lf_z_hit * np.exp(-0.5 * (dist / cfg.lf_sigma) ** 2)
+                  / (cfg.lf_sigma * np.sqrt(2 * np.pi)) + cfg.lf_z_rand / max_range)
+
+
 def bench_mcl(
     n_particles: int = 1000, n_beams: int = 30, number: int = 200, repeat: int = 7, seed: int = 0
 ) -> dict[str, float]:
@@ -98,9 +129,8 @@ def bench_mcl(
     grid = bench_map()
     rng = np.random.default_rng(seed)
     cfg = MCLConfig(n_particles=n_particles, augmented=False, random_fraction=0.0)
-    pf = ParticleFilter(grid, rng, cfg)
     pose = np.array([2.0, 2.0, 0.3])
-    pf.init_gaussian(pose, np.diag([0.3, 0.3, 0.1]) ** 2)
+    pf = _started_filter(grid, rng, cfg, pose)
     angles = np.linspace(-np.pi, np.pi, n_beams, endpoint=False)
     max_range = 10.0
     ranges = grid.simulate_scan(pose, angles, max_range)
@@ -109,52 +139,23 @@ def bench_mcl(
     idx = rng.integers(0, lf.offset, size=n_particles * n_beams)
 
     sign = [1.0]
-
-    def full() -> None:
-        sign[0] = -sign[0]  # drive back and forth so particles stay near the scan's pose
-        pf.predict_odometry(0.3 * sign[0], 0.1, 0.1)
-        pf.update_likelihood_field(ranges, angles, max_range)
-        pf.resample()
+    full = _full_update(pf, sign, ranges, angles, max_range)
 
     def predict() -> None:
         sign[0] = -sign[0]
         pf.predict_odometry(0.3 * sign[0], 0.1, 0.1)
 
-    def laser() -> None:
-        pf.update_likelihood_field(ranges, angles, max_range)
-
-    def resample() -> None:
-        pf.resample()
-
-    def take() -> None:
-        np.take(field, idx)
-
     full()  # warm the caches (field construction)
     kcfg = MCLConfig(n_particles=n_particles, augmented=False, random_fraction=0.0,
                      adaptive=True, n_min=min(100, n_particles), n_max=n_particles)
-    kpf = ParticleFilter(grid, np.random.default_rng(seed), kcfg)
-    kpf.init_gaussian(pose, np.diag([0.3, 0.3, 0.1]) ** 2)
-    dpf = ParticleFilter(grid, np.random.default_rng(seed), MCLConfig(n_particles=n_particles))
-    dpf.init_gaussian(pose, np.diag([0.3, 0.3, 0.1]) ** 2)
-
-    def full_kld() -> None:
-        sign[0] = -sign[0]
-        kpf.predict_odometry(0.3 * sign[0], 0.1, 0.1)
-        kpf.update_likelihood_field(ranges, angles, max_range)
-        kpf.resample()
-
-    def full_default() -> None:
-        sign[0] = -sign[0]
-        dpf.predict_odometry(0.3 * sign[0], 0.1, 0.1)
-        dpf.update_likelihood_field(ranges, angles, max_range)
-        dpf.resample()
-
+    kpf = _started_filter(grid, np.random.default_rng(seed), kcfg, pose)
+    dpf = _started_filter(grid, np.random.default_rng(seed), MCLConfig(n_particles=n_particles),
+                          pose)
+    full_kld = _full_update(kpf, sign, ranges, angles, max_range)
+    full_default = _full_update(dpf, sign, ranges, angles, max_range)
     full_kld()
     full_default()
-    cfg_lf = pf.config
-    dist = np.minimum(grid.distance_field(), cfg_lf.lf_max_dist)
-    field2d = np.log(cfg_lf.lf_z_hit * np.exp(-0.5 * (dist / cfg_lf.lf_sigma) ** 2)
-                     / (cfg_lf.lf_sigma * np.sqrt(2 * np.pi)) + cfg_lf.lf_z_rand / max_range)
+    field2d = _naive_field(grid, pf.config, max_range)
     naive_state = [pf.particles.copy()]
     naive_rng = np.random.default_rng(seed)
 
@@ -162,8 +163,10 @@ def bench_mcl(
         naive_state[0] = _naive_update(naive_state[0], field2d, grid, ranges, angles, naive_rng)
 
     times = _interleaved_us(
-        {"mcl_update_us": full, "take_us": take, "mcl_predict_us": predict,
-         "mcl_laser_us": laser, "mcl_resample_us": resample, "mcl_kld_update_us": full_kld,
+        {"mcl_update_us": full, "take_us": lambda: np.take(field, idx),
+         "mcl_predict_us": predict,
+         "mcl_laser_us": lambda: pf.update_likelihood_field(ranges, angles, max_range),
+         "mcl_resample_us": pf.resample, "mcl_kld_update_us": full_kld,
          "mcl_default_update_us": full_default, "naive_update_us": naive},
         number, repeat,
     )
