@@ -6,7 +6,7 @@ no fused multiply-adds), so results are bit-identical to the same chain in
 numpy. Trigonometry and matrix products stay in numpy (their vectorized
 implementations round differently from a scalar loop's). Private helpers of
 :mod:`coop_loc_env.raycast`, :mod:`coop_loc_env.world`,
-:mod:`coop_loc_env.estimation`, :mod:`coop_loc_env.terrain`,
+:mod:`coop_loc_env.backends`, :mod:`coop_loc_env.terrain`,
 :mod:`coop_loc_env.mapping`, :mod:`coop_loc_env.sensors` and
 :mod:`coop_loc_env.observations`.
 """
@@ -143,7 +143,7 @@ def gaussian_rows(
     log_var: np.ndarray, scale: np.ndarray, shift: np.ndarray, low: np.ndarray,
     high: np.ndarray, out: np.ndarray,
 ) -> None:  # pragma: no cover (compiled)
-    """Rows of :func:`coop_loc_env.estimation.gaussian_features` into ``out`` ``(k, 10)``.
+    """Rows of :func:`coop_loc_env.backends.base.gaussian_features` into ``out`` ``(k, 10)``.
 
     ``flat`` ``(k, 9)``: the row-major covariances; ``log_var`` ``(k, 3)``: log10 of
     their variances floored at 1e-12; ``cos_h``, ``sin_h`` of the headings. Each

@@ -247,7 +247,7 @@ def map_block(setup: ObsSetup) -> BeliefMapBlock:
 
 def robot_grids(cfg, world) -> list:
     """Each robot's known occupancy grid: the layout as its own range sensor sees it."""
-    from coop_loc_env.mcl_backend import known_map, map_resolution
+    from coop_loc_env.backends.mcl import known_map, map_resolution
 
     res = map_resolution(cfg)
     kinds = [cfg.robot_spec(i).range_sensor for i in range(cfg.n_robots)]

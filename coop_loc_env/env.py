@@ -12,10 +12,10 @@ from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
 
 from coop_loc_env.actions import ACTION_TOLERANCE, check_action
+from coop_loc_env.backends.base import GAUSSIAN_FEATURE_NAMES, make_backends
 from coop_loc_env.camera import CameraPipeline
 from coop_loc_env.config import ScenarioConfig
 from coop_loc_env.depth_from_motion import CameraRecord, DepthFromMotion
-from coop_loc_env.estimation import GAUSSIAN_FEATURE_NAMES, make_backends
 from coop_loc_env.mapping import TeamMapper
 from coop_loc_env.obs_blocks import ObsInputs
 from coop_loc_env.observations import ObservationBuilder

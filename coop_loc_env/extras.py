@@ -2,8 +2,8 @@
 
 ``extras`` carries estimator options that only one backend reads. Each backend
 declares its own keys in a :class:`BackendOptions` (the MCL backend's ``mcl_*``
-in :mod:`coop_loc_env.mcl_options`, the MLE backend's ``mle_*`` in
-:mod:`coop_loc_env.mle_options`, a user's backend as its ``options`` class
+in :mod:`coop_loc_env.backends.mcl_options`, the MLE backend's ``mle_*`` in
+:mod:`coop_loc_env.backends.mle_options`, a user's backend as its ``options`` class
 attribute or through ``register_backend(..., options=...)``); the registry
 (:mod:`coop_loc_env.backends`) checks ``extras`` against every registered
 backend's options, so that a misspelt key or a value out of range is a

@@ -6,10 +6,10 @@ Layout of an agent's observation (float32, every entry clipped to [-10, 10]):
 block                  size                        content
 =====================  ==========================  ===========================================
 belief                 ``belief_size``             the estimator backend's features, zero-padded
-                                                   (EKF: ``estimation.gaussian_features``; MLE:
+                                                   (EKF: ``backends.base.gaussian_features``; MLE:
                                                    the same 10 plus the estimated relative poses
                                                    of the K nearest teammates, 6 per slot, see
-                                                   ``coop_loc_env.mle_backend``; MCL: 48
+                                                   ``coop_loc_env.backends.mle``; MCL: 48
                                                    values, the same 10 first, then particle
                                                    statistics and histograms, layout in
                                                    ``mcl.filter.belief_feature_names``)

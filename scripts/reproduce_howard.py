@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from coop_loc_env import make_config
-from coop_loc_env.mle_backend import ANCHORING
+from coop_loc_env.backends.mle import ANCHORING
 from coop_loc_env.profiles import PROFILES, with_profile
 from policies.experiments.howard import plot_howard, run_circuit, run_dispersal
 from policies.experiments.report import write_json

@@ -6,7 +6,7 @@ orientation of teammates in view, 180 degree field of view, walls block it)
 with ``detection_model="howard"``: range noise proportional to range (5 %),
 constant bearing and orientation noise. No GPS, compass, inclinometer or
 camera; the laser range finder is kept for obstacle avoidance. The team runs
-the centralized MLE (``estimator="mle"``, :mod:`coop_loc_env.mle_backend`).
+the centralized MLE (``estimator="mle"``, :mod:`coop_loc_env.backends.mle`).
 
 Odometry runs at 10 Hz (one physics substep per env step) with small additive
 encoder noise (``odom_v_std = 0.01`` m/s, ``odom_w_std = 0.02`` rad/s) and a

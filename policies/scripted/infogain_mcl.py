@@ -21,7 +21,7 @@ whose expected posterior entropy over poses is least. Here, every
    counts as a collision.
 3. **Predicted scans.** Every ``scan_every`` seconds along the way each
    hypothesis's scan is predicted from the robot's range table (the filter's
-   own tables: :meth:`coop_loc_env.mcl_backend.MCLBackend.beam_model`).
+   own tables: :meth:`coop_loc_env.backends.mcl.MCLBackend.beam_model`).
 4. **Expected entropy.** For each hypothesis ``h`` taken as the truth, its
    predicted (noise-free) scans are scored against every hypothesis ``h'``
    with the filter's tempered beam model (its range noise widened to

@@ -175,7 +175,7 @@ def table_memory_mb() -> dict[str, float]:
     """MB of the MCL lookup tables (range tables, beam-likelihood tables and likelihood
     fields) each shipped scenario builds, with ``estimator="mcl"`` for every scenario
     (the shipped MCL scenarios as they are), after a few steps; then their total."""
-    from coop_loc_env.mcl_backend import MCLBackend
+    from coop_loc_env.backends.mcl import MCLBackend
     from coop_loc_env.scenarios import list_scenarios
 
     out: dict[str, float] = {}
@@ -211,7 +211,7 @@ def table_accuracy(n: int = 20000) -> dict[str, float]:
     """Percentiles (m) of the range-table error against exact ray casts
     (:func:`estimators.mcl.beam_table.table_error`, ``n`` random free poses) for the beam-model
     maps of the shipped MCL scenarios."""
-    from coop_loc_env.mcl_backend import MCLBackend
+    from coop_loc_env.backends.mcl import MCLBackend
     from estimators.mcl.beam_table import table_error
 
     out: dict[str, float] = {}

@@ -128,7 +128,7 @@ def bench_batch(n_robots: int = 20, n_times: int = 30, repeats: int = 3, seed: i
 def howard_circuit_graph(duration_s: float = 175.0, seed: int = 0) -> PoseGraph:
     """The whole pose graph of the paper-profile ``circuit`` run (every factor, no window)."""
     import coop_loc_env
-    from coop_loc_env.mle_backend import MLEBackend
+    from coop_loc_env.backends.mle import MLEBackend
     from coop_loc_env.profiles import with_profile
     from policies.scripted.circuit import CircuitPolicy
 

@@ -8,10 +8,12 @@ import numpy as np
 import pytest
 
 import coop_loc_env
-from coop_loc_env import estimation
-from coop_loc_env.estimation import EKFBackend, EstimatorBackend, backend_class, register_backend
-from coop_loc_env.mcl_backend import MCLBackend
-from coop_loc_env.mle_backend import MLEBackend
+from coop_loc_env import backends
+from coop_loc_env.backends import backend_class, register_backend
+from coop_loc_env.backends.base import EstimatorBackend
+from coop_loc_env.backends.ekf import EKFBackend
+from coop_loc_env.backends.mcl import MCLBackend
+from coop_loc_env.backends.mle import MLEBackend
 
 
 def test_builtin_backends_resolve_by_name_and_share_the_base_class():
@@ -30,7 +32,7 @@ def test_base_class_defaults_are_no_ops():
 
 def test_a_registered_backend_is_built_and_its_extra_info_reaches_the_infos(monkeypatch):
     # A new name (removed again afterwards): the config accepts every registered estimator.
-    monkeypatch.setitem(estimation.BACKENDS, "tagged_ekf", EKFBackend)
+    monkeypatch.setitem(backends.BACKENDS, "tagged_ekf", EKFBackend)
 
     @register_backend("tagged_ekf")
     class TaggedEKF(EKFBackend):

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import coop_loc_env
-from coop_loc_env.estimation import CONTACT_CORRELATION_STEPS, contact_variance
+from coop_loc_env.backends.base import CONTACT_CORRELATION_STEPS, contact_variance
 from estimators.ekf import GateMonitor, PoseEKF, chi2_threshold, relative_measurement
 from estimators.team_ekf import MotionNoise, OdometryTrack, TeamEKF
 

@@ -8,7 +8,12 @@ import pytest
 
 import coop_loc_env
 from coop_loc_env.backends import BACKEND_OPTIONS, BACKENDS, register_backend
-from coop_loc_env.estimation import EstimatorBackend, gaussian_features, noisy_start, team_odometry
+from coop_loc_env.backends.base import (
+    EstimatorBackend,
+    gaussian_features,
+    noisy_start,
+    team_odometry,
+)
 from coop_loc_env.extras import BackendOptions, is_number, option
 from coop_loc_env.obs_blocks import OBS_BLOCKS, ObsBlock, register_obs_block
 from coop_loc_env.rewards import REWARD_TERMS, RewardTerm, register_reward_term

@@ -10,8 +10,8 @@ import pytest
 from pettingzoo.test import parallel_api_test, parallel_seed_test
 
 import coop_loc_env
+from coop_loc_env.backends.mcl import MCLBackend, beam_angles, known_map
 from coop_loc_env.config import RobotSpec
-from coop_loc_env.mcl_backend import MCLBackend, beam_angles, known_map
 from coop_loc_env.sensors import SensorSuite
 from estimators.mcl.filter import belief_feature_names
 

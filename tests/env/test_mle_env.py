@@ -12,8 +12,8 @@ from pettingzoo.test.seed_test import data_equivalence
 
 import coop_loc_env
 from coop_loc_env import RobotSpec
-from coop_loc_env.estimation import gaussian_features
-from coop_loc_env.mle_backend import (
+from coop_loc_env.backends.base import gaussian_features
+from coop_loc_env.backends.mle import (
     MLEBackend,
     relative_error_infos,
     relative_feature_names,

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 import coop_loc_env
-from coop_loc_env import mcl_backend
-from coop_loc_env.mcl_backend import MCLBackend
+from coop_loc_env.backends import mcl as mcl_backend
+from coop_loc_env.backends.mcl import MCLBackend
 from coop_loc_env.profiles import PAPER_OVERRIDES, PROFILES, with_profile
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from coop_loc_env import _step_kernels as k
-from coop_loc_env.estimation import gaussian_features
+from coop_loc_env.backends.base import gaussian_features
 from coop_loc_env.sensors import _noisy_ranges
 from estimators.ekf import _propagate
 

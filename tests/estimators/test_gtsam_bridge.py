@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import coop_loc_env
-from coop_loc_env.mle_backend import MLEBackend
+from coop_loc_env.backends.mle import MLEBackend
 from coop_loc_env.profiles import with_profile
 from estimators.geometry import wrap_angle
 from estimators.gtsam_bridge import dead_reckoning, gtsam_solve, to_gtsam

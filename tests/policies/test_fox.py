@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import coop_loc_env
-from coop_loc_env.mcl_backend import known_map
+from coop_loc_env.backends.mcl import known_map
 from coop_loc_env.sensors import Detections
 from estimators.geometry import relative_pose, wrap_angle
 from policies.experiments.fox import (

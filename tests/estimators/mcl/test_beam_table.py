@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import coop_loc_env
-from coop_loc_env.mcl_backend import known_map, map_resolution
+from coop_loc_env.backends.mcl import known_map, map_resolution
 from estimators.mcl.batch import (
     belief_summaries,
     compose_odometry_batch,

@@ -1,4 +1,4 @@
-"""The ``extras`` options of the pose-graph MLE backend (:mod:`coop_loc_env.mle_backend`)."""
+"""The ``extras`` options of the pose-graph MLE backend (:mod:`coop_loc_env.backends.mle`)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The ``extras`` options of the MCL backend (:mod:`coop_loc_env.mcl_backend`)."""
+"""The ``extras`` options of the MCL backend (:mod:`coop_loc_env.backends.mcl`)."""
 
 from __future__ import annotations
 

@@ -21,9 +21,9 @@ BUILTIN_ESTIMATORS = ("ekf", "mcl", "mle")
 
 #: Estimator name -> backend class, or ``"module:Class"`` imported on first use.
 BACKENDS: dict[str, type | str] = {
-    "ekf": "coop_loc_env.estimation:EKFBackend",
-    "mcl": "coop_loc_env.mcl_backend:MCLBackend",
-    "mle": "coop_loc_env.mle_backend:MLEBackend",
+    "ekf": "coop_loc_env.backends.ekf:EKFBackend",
+    "mcl": "coop_loc_env.backends.mcl:MCLBackend",
+    "mle": "coop_loc_env.backends.mle:MLEBackend",
 }
 
 #: Estimator name -> its :class:`~coop_loc_env.extras.BackendOptions` (or a
@@ -31,8 +31,8 @@ BACKENDS: dict[str, type | str] = {
 #: without an entry here declares them as its class attribute ``options``.
 BACKEND_OPTIONS: dict[str, BackendOptions | str] = {
     "ekf": NO_OPTIONS,
-    "mcl": "coop_loc_env.mcl_options:MCL_OPTIONS",
-    "mle": "coop_loc_env.mle_options:MLE_OPTIONS",
+    "mcl": "coop_loc_env.backends.mcl_options:MCL_OPTIONS",
+    "mle": "coop_loc_env.backends.mle_options:MLE_OPTIONS",
 }
 
 
@@ -45,12 +45,12 @@ def register_backend(name: str, cls: type | str | None = None,
                      options: BackendOptions | str | None = None) -> Any:
     """Make a backend class available as estimator ``name``.
 
-    ``cls`` is an :class:`~coop_loc_env.estimation.EstimatorBackend` subclass or a
+    ``cls`` is an :class:`~coop_loc_env.backends.base.EstimatorBackend` subclass or a
     ``"module:Class"`` path imported when a team first uses ``name``. Its ``extras``
     keys are ``options`` if given, else the class attribute ``options`` (none by
     default). Without ``cls``, a class decorator::
 
-        from coop_loc_env.estimation import EKFBackend
+        from coop_loc_env.backends.ekf import EKFBackend
         from coop_loc_env.extras import BackendOptions, is_number, option
 
         @register_backend("slow_ekf")

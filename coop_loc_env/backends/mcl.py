@@ -73,9 +73,9 @@ from dataclasses import replace
 
 import numpy as np
 
+from coop_loc_env.backends.base import EstimatorBackend, noisy_start
+from coop_loc_env.backends.mcl_options import check_extra
 from coop_loc_env.config import ScenarioConfig
-from coop_loc_env.estimation import EstimatorBackend, noisy_start
-from coop_loc_env.mcl_options import check_extra
 from coop_loc_env.records import Beliefs, ParticleSet
 from coop_loc_env.sensors import Readings, beam_angles
 from coop_loc_env.world import World

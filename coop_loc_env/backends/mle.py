@@ -34,7 +34,7 @@ the whole graph (``backend.mle.history``) whatever the window, e.g. to re-solve
 it offline or hand it to another solver.
 
 **Features** (``feature_names``): the Gaussian belief of the robot's latest pose
-(:func:`~coop_loc_env.estimation.gaussian_features`, 10 entries), then its
+(:func:`~coop_loc_env.backends.base.gaussian_features`, 10 entries), then its
 estimated relative poses to its ``K`` nearest teammates by *estimated* distance
 (``K = cfg.extras.get("mle_relative_slots", 3)``), nearest first, 6 entries per
 slot: present (0/1), range / ``detector_range``, cos/sin bearing, cos/sin
@@ -52,15 +52,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from coop_loc_env.config import ScenarioConfig
-from coop_loc_env.estimation import (
+from coop_loc_env.backends.base import (
     GAUSSIAN_FEATURE_NAMES,
     EstimatorBackend,
     gaussian_features,
     noisy_start,
     team_odometry,
 )
-from coop_loc_env.mle_options import check_extra
+from coop_loc_env.backends.mle_options import check_extra
+from coop_loc_env.config import ScenarioConfig
 from coop_loc_env.sensors import Readings
 from coop_loc_env.world import World
 from estimators.mle_online import UNKNOWN_POSE_STD, TeamMLE
