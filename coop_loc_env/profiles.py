@@ -59,6 +59,8 @@ _FOX = {
         "mcl_detection_reset": 0.0,
         # Eq. 10/13 alone: no consistency check of the detections against both beliefs
         "mcl_detection_check": False,
+        # nor of a lone robot's belief against the map's symmetric copies of its pose
+        "mcl_symmetry_check": False,
         # resample at every step (sampling importance resampling, as the paper's MCL)
         # so that a few uniform particles (random_fraction) enter after every step;
         # a constant fraction, not augmented MCL's adaptive injection
