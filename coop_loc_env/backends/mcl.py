@@ -1,5 +1,9 @@
 """Monte Carlo localization backend (Fox, Burgard, Kruppa, Thrun): ``estimator="mcl"``.
 
+One class in one file on purpose (about 900 lines): every pass of a step (resampling,
+motion, weighting, detections and their conflicts, symmetric copies) reads the same
+per-robot filters, evidence ring and conflict records of :class:`MCLBackend`.
+
 Each MCL robot keeps its own particle set (:class:`estimators.mcl.filter.ParticleFilter`)
 in a known map built from the scenario's layout. Per env step and robot:
 
@@ -31,6 +35,16 @@ in a known map built from the scenario's layout. Per env step and robot:
    ``detection_conflicts``), and once a second conflict confirms it, each
    robot's own recent scans decide whom to trust, or both keep a minority
    hypothesis where the other claims they are (:meth:`MCLBackend._widen`).
+6. symmetric copies (``extras["mcl_symmetry_check"]``, on by default; beam models
+   only): the turns under which a map looks the same are found once per grid
+   (:mod:`estimators.mcl.map_symmetry`); a robot whose main mode holds most of its
+   weight keeps ``KEEP_MASS`` on every turned copy of it that its remembered scans,
+   weighed along its odometry, and the detections it received from teammates that
+   know which copy they are on, do not reject (:meth:`MCLBackend.keep_copies`). A
+   filter with a bounded particle budget otherwise keeps whichever copies happened
+   to hold particles when the scans stopped being ambiguous along whole corridors,
+   and reports one of them sharply before the robot has seen what breaks the
+   symmetry.
 
 Maps: one :class:`~estimators.mcl.occupancy.OccupancyGrid` per range-sensor type,
 rasterized from ``world.layout.obstacles`` honouring each obstacle's
