@@ -156,7 +156,8 @@ SYMMETRY_OVERLAP = 0.75  # share of a map's walls a turn must map onto walls to 
 KEEP_MASS = 0.005  # weight each symmetric copy of a robot's pose its scans cannot reject keeps
 KEEP_CHECK_MASS = 0.8  # a robot whose main mode holds this much weight is checked ...
 KEEP_CHECK_EVERY = 4  # ... every this many steps, once it has this much history:
-KEEP_MIN_HISTORY_S = 5.0
+KEEP_MIN_HISTORY_S = 1.0
+KEEP_WINDOW_S = 30.0  # s of history the check weighs (a longer backtrack drifts into walls)
 _GRID_CACHE: OrderedDict[tuple, OccupancyGrid] = OrderedDict()
 _GRID_CACHE_SIZE = 16
 
@@ -533,10 +534,10 @@ class MCLBackend(EstimatorBackend):
         evidence does not reject by ``WEAK_NATS``; certifies the robot when it rejects every
         copy by ``EVIDENCE_NATS``.
 
-        The evidence: the robot's remembered scans weighed along its odometry back from its
-        main mode's pose (a few headings around it, ``EVIDENCE_TURNS``) and from each copy
-        of those poses (the same trajectories turned, so the two differ only where the map
-        does), plus the detection transfers it received from certified observers
+        The evidence: the robot's scans of the last ``KEEP_WINDOW_S`` weighed along its
+        odometry back from its main mode's pose (a few headings around it,
+        ``EVIDENCE_TURNS``) and from each copy of those poses (the same trajectories turned,
+        so the two differ only where the map does), plus the detection transfers it received from certified observers
         (:meth:`_detection_loglik`: an observer that knows which copy it is on tells the
         target's too; one that does not is blind to the team's being turned as a whole).
         """
@@ -546,8 +547,9 @@ class MCLBackend(EstimatorBackend):
         pf = self.filters[i]
         table, lut, angles, _ = self.beam_model(i)
         deltas, scans = self._history(i, len(angles))
-        paths = backtrack(np.concatenate([cands, *copies]), deltas)
-        ll = scan_loglik_along(table, lut, pf.state_origin, angles, paths, scans,
+        h = max(1, int(round(KEEP_WINDOW_S / self.cfg.dt)))
+        paths = backtrack(np.concatenate([cands, *copies]), deltas[-h:])
+        ll = scan_loglik_along(table, lut, pf.state_origin, angles, paths, scans[-h:],
                                pf.config.occupied_loglik)
         ll = (ll + self._detection_loglik(i, paths)).reshape(1 + len(syms), -1)
         gaps = ll[0].max() - ll[1:].max(axis=1)

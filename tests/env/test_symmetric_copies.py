@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 import coop_loc_env
+from estimators.mcl.detection_consistency import main_mode
 from estimators.mcl.map_symmetry import MapSymmetry, map_symmetries, symmetric_copies
 from estimators.mcl.occupancy import OccupancyGrid
 
@@ -76,14 +77,20 @@ def test_bad_overlap_is_refused(bad):
 def test_a_lone_robot_on_an_indistinguishable_copy_is_not_confident():
     env, backend = _collapsed_on_the_copy()
     pf = backend.filters[0]
-    _stand_still(env, 10)  # 5 s: the history the check needs
-    for _ in range(8):
+    _stand_still(env, 2)  # 1 s: the history the check needs
+    kept = 0
+    for _ in range(16):
         info = _stand_still(env, 1)
         cov = np.asarray(info["pose_cov"])
-        near_truth = np.hypot(*(pf.particles[:, :2] - TRUE[:2]).T) < 1.0
-        assert info["position_error"] > 3.0  # still mostly on the wrong copy ...
-        assert math.sqrt(cov[0, 0] + cov[1, 1]) > 1.0  # ... but not confident about it
-        assert pf.weights[near_truth].sum() >= 0.004  # and the true copy is kept
+        assert info["position_error"] > 3.0  # still mostly on a wrong copy ...
+        assert math.sqrt(cov[0, 0] + cov[1, 1]) > 1.0  # ... but never confident about it
+        parts, w = pf.particles, pf.weights
+        _, mode = main_mode(parts[:, :2], w, 2.0)
+        if w[mode].sum() >= 0.8:  # while one copy dominates, the true one is kept
+            near_truth = np.hypot(*(parts[:, :2] - TRUE[:2]).T) < 1.0
+            assert w[near_truth].sum() >= 0.004
+            kept += 1
+    assert kept >= 4
 
 
 def test_without_the_check_the_copy_stays_confident():
