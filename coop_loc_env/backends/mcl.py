@@ -536,10 +536,11 @@ class MCLBackend(EstimatorBackend):
 
         The evidence: the robot's scans of the last ``KEEP_WINDOW_S`` weighed along its
         odometry back from its main mode's pose (a few headings around it,
-        ``EVIDENCE_TURNS``) and from each copy of those poses (the same trajectories turned,
-        so the two differ only where the map does), plus the detection transfers it
-        received from certified observers (:meth:`_detection_loglik`: an observer that knows which copy it is on tells the
-        target's too; one that does not is blind to the team's being turned as a whole).
+        ``EVIDENCE_TURNS``) and from each copy of those poses (the same trajectories
+        turned, so the two differ only where the map does), plus the detection transfers
+        it received from certified observers (:meth:`_detection_loglik`: an observer that
+        knows which copy it is on tells the target's too; one that does not is blind to
+        the team's being turned as a whole).
         """
         own = pose_estimate(cloud, weights, radius)
         cands = own + np.column_stack([np.zeros((len(EVIDENCE_TURNS), 2)), EVIDENCE_TURNS])
