@@ -24,6 +24,8 @@ HALF_TURN = np.array([20.0 - TRUE[0], 20.0 - TRUE[1], TRUE[2] - math.pi])
 
 
 def _collapsed_on_the_copy(**extras):
+    # the scenario's own extras (its MCL tuning), with the given ones on top
+    extras = {**coop_loc_env.make_config("active_hallway").extras, **extras}
     env = coop_loc_env.parallel_env("active_hallway", n_robots=1, cooperative_updates=False,
                                     start_poses=(tuple(TRUE),), extras=extras)
     env.reset(seed=0)
