@@ -16,7 +16,8 @@ alone, and the ablation tables in ``docs/`` show what each addition buys:
   simulation runs drew it (from the robots' positions and the map's visibility,
   1 Hz, the learned mean errors 48.3 cm and 2.2 degrees, range and bearing only,
   no false positives), a few uniform random particles after every estimation
-  step, no sensor resetting, no consistency check of the detections.
+  step, no sensor resetting, no consistency check of the detections, no keeping of
+  a lone robot's symmetric map copies.
 
 :func:`with_profile` merges a profile's overrides under the user's (``extras``
 dicts are merged key by key, the user's winning).
@@ -59,6 +60,8 @@ _FOX = {
         "mcl_detection_reset": 0.0,
         # Eq. 10/13 alone: no consistency check of the detections against both beliefs
         "mcl_detection_check": False,
+        # nor of a lone robot's belief against the map's symmetric copies of its pose
+        "mcl_symmetry_check": False,
         # resample at every step (sampling importance resampling, as the paper's MCL)
         # so that a few uniform particles (random_fraction) enter after every step;
         # a constant fraction, not augmented MCL's adaptive injection

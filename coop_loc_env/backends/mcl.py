@@ -1,5 +1,9 @@
 """Monte Carlo localization backend (Fox, Burgard, Kruppa, Thrun): ``estimator="mcl"``.
 
+One class in one file on purpose (about 900 lines): every pass of a step (resampling,
+motion, weighting, detections and their conflicts, symmetric copies) reads the same
+per-robot filters, evidence ring and conflict records of :class:`MCLBackend`.
+
 Each MCL robot keeps its own particle set (:class:`estimators.mcl.filter.ParticleFilter`)
 in a known map built from the scenario's layout. Per env step and robot:
 
@@ -31,6 +35,16 @@ in a known map built from the scenario's layout. Per env step and robot:
    ``detection_conflicts``), and once a second conflict confirms it, each
    robot's own recent scans decide whom to trust, or both keep a minority
    hypothesis where the other claims they are (:meth:`MCLBackend._widen`).
+6. symmetric copies (``extras["mcl_symmetry_check"]``, on by default; beam models
+   only): the turns under which a map looks the same are found once per grid
+   (:mod:`estimators.mcl.map_symmetry`); a robot whose main mode holds most of its
+   weight keeps ``KEEP_MASS`` on every turned copy of it that its remembered scans,
+   weighed along its odometry, and the detections it received from teammates that
+   know which copy they are on, do not reject (:meth:`MCLBackend.keep_copies`). A
+   filter with a bounded particle budget otherwise keeps whichever copies happened
+   to hold particles when the scans stopped being ambiguous along whole corridors,
+   and reports one of them sharply before the robot has seen what breaks the
+   symmetry.
 
 Maps: one :class:`~estimators.mcl.occupancy.OccupancyGrid` per range-sensor type,
 rasterized from ``world.layout.obstacles`` honouring each obstacle's
@@ -113,6 +127,7 @@ from estimators.mcl.filter import (
     belief_feature_names,
     low_variance_indices,
 )
+from estimators.mcl.map_symmetry import map_symmetries, symmetric_copies
 from estimators.mcl.occupancy import OccupancyGrid
 from estimators.mcl.sampling import resample_team
 from estimators.mcl.team import ParticleTeam
@@ -137,6 +152,12 @@ EVIDENCE_SHIFTS = (-0.3, 0.0, 0.3)  # m: and positions along x and y
 _EVIDENCE_GRID = np.array([(dx, dy, dth) for dth in EVIDENCE_TURNS for dx in EVIDENCE_SHIFTS
                            for dy in EVIDENCE_SHIFTS])
 ADOPT_MASS = 0.9  # weight a robot whose scans cannot tell gives a claim its teammate's back
+SYMMETRY_OVERLAP = 0.75  # share of a map's walls a turn must map onto walls to be a symmetry
+KEEP_MASS = 0.005  # weight each symmetric copy of a robot's pose its scans cannot reject keeps
+KEEP_CHECK_MASS = 0.8  # a robot whose main mode holds this much weight is checked ...
+KEEP_CHECK_EVERY = 4  # ... every this many steps, once it has this much history:
+KEEP_MIN_HISTORY_S = 1.0
+KEEP_WINDOW_S = 30.0  # s of history the check weighs (a longer backtrack drifts into walls)
 _GRID_CACHE: OrderedDict[tuple, OccupancyGrid] = OrderedDict()
 _GRID_CACHE_SIZE = 16
 
@@ -192,6 +213,15 @@ def detection_check(cfg: ScenarioConfig) -> bool:
     the ``paper`` profile runs it)."""
     f = cfg.extras.get("mcl_detection_check", True)
     check_extra("mcl_detection_check", f)
+    return f
+
+
+def symmetry_check(cfg: ScenarioConfig) -> bool:
+    """``extras["mcl_symmetry_check"]``: keep the map's symmetric copies of a robot's main
+    mode alive while its own scans cannot reject them (True, the default; False is Fox et
+    al.'s filter alone, as the ``paper`` profile runs it; see :meth:`MCLBackend.keep_copies`)."""
+    f = cfg.extras.get("mcl_symmetry_check", True)
+    check_extra("mcl_symmetry_check", f)
     return f
 
 
@@ -318,6 +348,11 @@ class MCLBackend(EstimatorBackend):
             )
         )
         self.check = self.transfer.config.consistency
+        # the turns under which each sensor type's map looks the same (beam models only:
+        # the scans are weighed again along the odometry with the beam tables)
+        self.symmetries = {t: map_symmetries(g, SYMMETRY_OVERLAP) for t, g in self._grids.items()
+                           if symmetry_check(cfg) and (t == "sonar" or self._laser_beam)}
+        self._keeps_history = self.check is not None or any(self.symmetries.values())
         self.reset_fraction = detection_reset_fraction(cfg)
         self.resample_every_step = cfg.extras.get("mcl_random_every_step", False)
         check_extra("mcl_random_every_step", self.resample_every_step)
@@ -328,6 +363,7 @@ class MCLBackend(EstimatorBackend):
         self.rng = np.random.default_rng(0)
         self.transfers_applied = np.zeros(len(self.robots), dtype=int)
         self.detection_conflicts = np.zeros(len(self.robots), dtype=int)
+        self._certified = np.zeros(len(self.robots), dtype=bool)
         self._t = 0
         self._conflicts: dict[int, list] = {}
         self._summary: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
@@ -364,10 +400,13 @@ class MCLBackend(EstimatorBackend):
         self.transfer.reset()
         self.transfers_applied[:] = 0
         self.detection_conflicts[:] = 0
+        self._certified[:] = False
+        self._plausible: list[list | None] = [None] * k
+        self._transfers_in: list[list[tuple]] = [[] for _ in range(k)]
         self._t = 0
         self._conflicts = {}
         self._summary = None
-        if self.check is not None:
+        if self._keeps_history:
             h = max(1, int(round(EVIDENCE_WINDOW_S / cfg.dt)))
             width = max((len(a) for a in self._angles.values()), default=0)
             self._hist_delta = np.zeros((h, k, 3))
@@ -406,7 +445,7 @@ class MCLBackend(EstimatorBackend):
             odo = readings.odometry[:, self.robots[live]]  # (substeps, robots, 2)
             deltas = compose_odometry_batch(odo[..., 0].T, odo[..., 1].T, dt_sub)
             predict_batch(team, deltas)
-            if self.check is not None:
+            if self._keeps_history:
                 self._record(live, deltas, readings)
         stats["range_updates"] = self._measurement_updates(live, readings)
         det = readings.detections
@@ -431,12 +470,92 @@ class MCLBackend(EstimatorBackend):
                 if res.applied:
                     stats["detections_applied"] += 1
                     self.transfers_applied[ib] += 1
+                    if self.symmetries and self._certified[ia]:
+                        # an observer that knows which copy it is on tells the target's too
+                        self._transfers_in[ib].append((self._t, res.tree,
+                                                       rec.orientation is not None))
                 else:
                     stats["detections_ignored"] += 1
                     if res.reason == "conflict":
                         self.detection_conflicts[[ia, ib]] += 1
+                        self._certified[[ia, ib]] = False
+                        self._plausible[ia] = self._plausible[ib] = None
                         self._widen(ib, rec, observer, target)
+        if self.symmetries:
+            self.keep_copies(live)
         return stats
+
+    def keep_copies(self, live: list[int]) -> None:
+        """Keep the map's symmetric copies of each live robot's main mode alive while the
+        robot's own scans cannot reject them (:mod:`estimators.mcl.map_symmetry`).
+
+        A robot whose main mode holds ``KEEP_CHECK_MASS`` of its weight is checked every
+        ``KEEP_CHECK_EVERY`` steps (:meth:`_plausible_copies`); every copy the check found
+        plausible keeps ``KEEP_MASS`` of the weight at every step until the next check (the
+        main mode's cloud turned there, in place of the least likely particles:
+        :func:`~estimators.mcl.detection_consistency.widen`), so the reported belief is not
+        confident while the map cannot be told apart, and the copy takes over if the main
+        mode was the wrong one when the robot reaches a feature that breaks the symmetry.
+        A robot whose evidence rejects every copy by ``EVIDENCE_NATS`` is certified and not
+        checked again until its main mode loses that weight or a detection conflicts with it.
+        """
+        if self._hist_n * self.cfg.dt < KEEP_MIN_HISTORY_S:
+            return
+        radius = (self.check or ConsistencyConfig()).mode_radius
+        for i in live:
+            syms = self.symmetries.get(self._kinds[i])
+            if not syms:
+                continue
+            pf = self.filters[i]
+            parts, w = pf.particles, pf.weights
+            _, mode = main_mode(parts[:, :2], w, radius)
+            if float(w[mode].sum()) < KEEP_CHECK_MASS:
+                self._certified[i] = False
+                self._plausible[i] = None
+                continue
+            if self._certified[i]:
+                continue
+            cloud = parts[mode]
+            if self._plausible[i] is None or self._t % KEEP_CHECK_EVERY == 0:
+                self._plausible[i] = self._plausible_copies(i, cloud, w[mode], syms, radius)
+            placed = False
+            for sym in self._plausible[i]:
+                turned = symmetric_copies(cloud, sym)
+                turned = turned[pf.grid.is_free(turned[:, :2])]
+                if len(turned):
+                    parts, w, k = widen(parts, w, turned, KEEP_MASS, radius, self.rng)
+                    placed = placed or k > 0
+            if placed:
+                pf.set_particles(parts, w)
+
+    def _plausible_copies(self, i: int, cloud: np.ndarray, weights: np.ndarray,
+                          syms: tuple, radius: float) -> list:
+        """The symmetries whose copy of robot ``i``'s main mode (particles ``cloud``) its
+        evidence does not reject by ``WEAK_NATS``; certifies the robot when it rejects every
+        copy by ``EVIDENCE_NATS``.
+
+        The evidence: the robot's scans of the last ``KEEP_WINDOW_S`` weighed along its
+        odometry back from its main mode's pose (a few headings around it,
+        ``EVIDENCE_TURNS``) and from each copy of those poses (the same trajectories
+        turned, so the two differ only where the map does), plus the detection transfers
+        it received from certified observers (:meth:`_detection_loglik`: an observer that
+        knows which copy it is on tells the target's too; one that does not is blind to
+        the team's being turned as a whole).
+        """
+        own = pose_estimate(cloud, weights, radius)
+        cands = own + np.column_stack([np.zeros((len(EVIDENCE_TURNS), 2)), EVIDENCE_TURNS])
+        copies = [symmetric_copies(cands, s) for s in syms]
+        pf = self.filters[i]
+        table, lut, angles, _ = self.beam_model(i)
+        deltas, scans = self._history(i, len(angles))
+        h = max(1, int(round(KEEP_WINDOW_S / self.cfg.dt)))
+        paths = backtrack(np.concatenate([cands, *copies]), deltas[-h:])
+        ll = scan_loglik_along(table, lut, pf.state_origin, angles, paths, scans[-h:],
+                               pf.config.occupied_loglik)
+        ll = (ll + self._detection_loglik(i, paths)).reshape(1 + len(syms), -1)
+        gaps = ll[0].max() - ll[1:].max(axis=1)
+        self._certified[i] = bool((gaps >= EVIDENCE_NATS).all())
+        return [s for s, gap in zip(syms, gaps.tolist(), strict=True) if gap < WEAK_NATS]
 
     def _record(self, live: list[int], deltas: np.ndarray, readings: Readings) -> None:
         """Remember each live robot's odometry motion and beam-model scan of this step (the
@@ -506,8 +625,8 @@ class MCLBackend(EstimatorBackend):
         Otherwise nothing changes. A single conflict may be a
         false positive, so this waits for a second (:meth:`_confirmed_conflict`).
         """
-        obs_ok = observer.position_std() < RESET_STD
-        tgt_ok = target.position_std() < RESET_STD
+        obs_ok = self.claim_std(self._local[rec.observer]) < RESET_STD
+        tgt_ok = self.claim_std(ib) < RESET_STD
         if not (obs_ok or tgt_ok) or not self._confirmed_conflict(ib, rec, observer, target,
                                                                   True):
             return
@@ -558,6 +677,38 @@ class MCLBackend(EstimatorBackend):
             if placed:
                 pf.set_particles(parts, weights)
 
+    def claim_std(self, i: int) -> float:
+        """Position spread (m) of robot ``i``'s belief as a claim about where it is: its
+        main mode's while it keeps symmetric copies of it (:meth:`keep_copies`; the copies
+        say the map cannot tell, not that the robot is lost), else the whole set's
+        (:meth:`ParticleFilter.position_std`)."""
+        pf = self.filters[i]
+        if not self._plausible[i]:
+            return pf.position_std()
+        radius = (self.check or ConsistencyConfig()).mode_radius
+        parts, w = pf.particles, pf.weights
+        _, mode = main_mode(parts[:, :2], w, radius)
+        wm = w[mode] / w[mode].sum()
+        d = parts[mode, :2] - wm @ parts[mode, :2]
+        return math.sqrt(0.5 * float(wm @ (d * d).sum(axis=1)))
+
+    def _detection_loglik(self, i: int, paths: np.ndarray) -> np.ndarray:
+        """Log of the factors the detection transfers robot ``i`` received within its
+        remembered history would have given poses along ``paths`` ``(P, K, 3)`` (each
+        transfer read at the step it came; older transfers are forgotten)."""
+        out = np.zeros(len(paths))
+        k = paths.shape[1]
+        kept = []
+        for t, tree, heading in self._transfers_in[i]:
+            row = k - 1 - (self._t - t)
+            if row < 0:
+                continue
+            kept.append((t, tree, heading))
+            poses = paths[:, row] if heading else paths[:, row, :2]
+            out += np.log(np.maximum(self.transfer.mixture_factors(tree, poses), 1e-300))
+        self._transfers_in[i] = kept
+        return out
+
     def _detection_reset(
         self, ib: int, rec: RobotDetection, observer: ParticleFilter, target: ParticleFilter
     ) -> None:
@@ -582,11 +733,11 @@ class MCLBackend(EstimatorBackend):
         ``confident_mass`` of its weight (a confident target that disagrees is a
         conflict, handled by :meth:`_widen`, never re-seeded).
         """
-        obs_std = observer.position_std()
+        obs_std = self.claim_std(self._local[rec.observer])
         if obs_std > RESET_STD:
             return
         if self.check is not None:
-            if target.position_std() <= obs_std:
+            if self.claim_std(ib) <= obs_std:
                 return
             _, mode = main_mode(target.particles[:, :2], target.weights, self.check.mode_radius)
             if target.weights[mode].sum() >= self.check.confident_mass:

@@ -52,6 +52,7 @@ MCL_OPTIONS = BackendOptions(
         "mcl_detection_exponent": option(lambda v: is_number(v) and 0.0 < v <= 1.0,
                                          "in (0, 1]"),
         "mcl_detection_check": flag(),
+        "mcl_symmetry_check": flag(),
         "mcl_global_init_factor": option(lambda v: is_int(v) and v >= 1, "an int >= 1"),
         "mcl_random_every_step": flag(),
     },

@@ -212,7 +212,9 @@ class TransferResult:
     the detection was spurious (``None`` when not applied); ``bayes_factor``
     the detection's consistency with both beliefs
     (:func:`estimators.mcl.detection_consistency.tree_bayes_factor`; ``None`` when
-    no tree was grown).
+    no tree was grown); ``tree`` the density of the target's pose the target was
+    multiplied by (:meth:`DetectionTransfer.mixture_factors` of it gives the factor
+    at any pose; ``None`` when not applied).
     """
 
     applied: bool
@@ -220,6 +222,7 @@ class TransferResult:
     false_positive_posterior: float | None = None
     symmetric_applied: bool = False
     bayes_factor: float | None = None
+    tree: DensityTree | None = None
 
 
 def _draw_particles(pf: ParticleFilter, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -353,13 +356,24 @@ class DetectionTransfer:
         parts = pf.particles if use_heading else pf.particles[:, :2]
         pdf = tree.pdf(parts)
         uniform = 1.0 / tree.volume
-        factors = (1.0 - p_fp) * pdf + p_fp * uniform
+        factors = self._mixture(pdf, uniform)
         expected_tree = float(np.dot(pf.weights, pdf))
         denom = (1.0 - p_fp) * expected_tree + p_fp * uniform
         posterior_fp = p_fp * uniform / denom if denom > 0 else 1.0
+        return pdf, factors, float(posterior_fp)
+
+    def _mixture(self, pdf: np.ndarray, uniform: float) -> np.ndarray:
+        p_fp = self.config.false_positive_prob
+        factors = (1.0 - p_fp) * pdf + p_fp * uniform
         if self.config.exponent != 1.0:
             factors = factors ** self.config.exponent
-        return pdf, factors, float(posterior_fp)
+        return factors
+
+    def mixture_factors(self, tree: DensityTree, poses: np.ndarray) -> np.ndarray:
+        """The factor a transfer with ``tree`` multiplies a particle at each of ``poses``
+        by: ``((1 - p_fp) tree_pdf + p_fp / V) ** exponent`` (``poses`` ``(N, 2)`` or, for a
+        tree over headings too, ``(N, 3)``)."""
+        return self._mixture(tree.pdf(np.asarray(poses, dtype=float)), 1.0 / tree.volume)
 
     def _reweight(self, pf: ParticleFilter, tree: DensityTree, use_heading: bool) -> float:
         """Multiply ``pf``'s weights by the mixture factors; return the false-positive posterior."""
@@ -412,7 +426,7 @@ class DetectionTransfer:
                 self._reweight(observer_pf, tree_m, True)
                 self.lockout.record(det.target, det.observer, target_pf.odometer)
                 sym = True
-        return TransferResult(True, "applied", posterior_fp, sym, bayes)
+        return TransferResult(True, "applied", posterior_fp, sym, bayes, tree)
 
     def apply_all(
         self,
