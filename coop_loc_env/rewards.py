@@ -124,8 +124,15 @@ class Localization(RewardTerm):
 class Coverage(RewardTerm):
     """The weighted number of drivable cells first covered at the true pose."""
 
+    def __init__(self, cfg: Any, weight: float) -> None:
+        super().__init__(cfg, weight)
+        self.w_cov = cfg.reward_coverage_weight
+        self.zeros = [0.0] * self.n  # the term with weight 0 (cells count from 0 up)
+
     def compute(self, x: RewardInputs) -> list[float]:
-        w_cov = self.cfg.reward_coverage_weight
+        w_cov = self.w_cov
+        if not w_cov:
+            return self.zeros
         return [w_cov * float(c) for c in x.covered_cells.tolist()]
 
 
@@ -226,6 +233,7 @@ class RewardTerms:
             self.terms.append(cls(cfg, float(cfg.reward_weights.get(name, cls.default_weight))))
         self.names = [term.name for term in self.terms]
         self._stateful = [t for t in self.terms if type(t).advance is not RewardTerm.advance]
+        self._computes = [(term.name, term.compute) for term in self.terms]
 
     def reset(self, x: RewardInputs) -> None:
         """Start of an episode: every term's :meth:`RewardTerm.reset`."""
@@ -234,7 +242,7 @@ class RewardTerms:
 
     def compute(self, x: RewardInputs) -> dict[str, list[float]]:
         """``{term name: one weighted float per robot}`` in the reward's order."""
-        return {name: term.compute(x) for name, term in zip(self.names, self.terms, strict=True)}
+        return {name: compute(x) for name, compute in self._computes}
 
     def advance(self, x: RewardInputs) -> None:
         """The step's last reward phase: the terms with a reference move it on."""
