@@ -13,8 +13,6 @@ whether) they are read, and the rest of the env does not depend on them.
 
 from __future__ import annotations
 
-import weakref
-
 import numpy as np
 
 from coop_loc_env.depth_from_motion import DepthFromMotion
@@ -48,11 +46,9 @@ class CameraPipeline:
         self._queued = 0  # frames queued this episode (the next frame's number)
         self._done = 0  # frames processed this episode
         self._last: CameraOutput | None = None  # the output of frame ``_done - 1``
-        # Frame number -> its lazy output while a reader still holds it (weak references:
-        # nothing piles up when nobody reads the camera); each gets its value when its
-        # frame is processed.
-        self._lazy: weakref.WeakValueDictionary[int, LazyCamera] = (
-            weakref.WeakValueDictionary())
+        # The lazy outputs of the queued frames, in frame order: each gets its value when
+        # its frame is processed and leaves the list (so it holds no more than the queue).
+        self._waiting: list[LazyCamera] = []
 
     def reset(self, poses: np.ndarray, rng: np.random.Generator) -> None:
         """Forget every track; the camera's stream is seeded from one draw of ``rng``
@@ -62,7 +58,7 @@ class CameraPipeline:
             self._rng = np.random.default_rng(int(rng.integers(2**63)))
         self._pending = self._queued = self._done = 0
         self._last = None
-        self._lazy.clear()
+        self._waiting.clear()
 
     def add_step(self, poses: np.ndarray, camera_mask: np.ndarray) -> LazyCamera | None:
         """Queue this step's frame: ``poses`` are the true poses, ``camera_mask`` the
@@ -71,7 +67,7 @@ class CameraPipeline:
         if not np.count_nonzero(camera_mask):
             return None
         frame = LazyCamera(self, self._queued)
-        self._lazy[self._queued] = frame
+        self._waiting.append(frame)
         self._queued += 1
         k = self._pending
         if k == len(self._poses):
@@ -98,16 +94,16 @@ class CameraPipeline:
 
     def _process(self, count: int) -> None:
         """Run the camera model and depth from motion over the ``count`` oldest frames."""
-        for poses, mask in zip(self._poses[:count], self._masks[:count], strict=True):
+        for poses, mask, lazy in zip(self._poses[:count], self._masks[:count],
+                                     self._waiting[:count], strict=True):
             _, sightings = self.sensors.camera_frame(poses, self._rng, mask)
             records = self.depth.process(
                 [], mask, poses, self.ooi_centers, self._rng, sightings
             )
             self._last = CameraOutput(None, sightings, records)
-            lazy = self._lazy.pop(self._done, None)
-            if lazy is not None:
-                lazy.resolve(self._last)
+            lazy.resolve(self._last)
             self._done += 1
+        del self._waiting[:count]
         rest = self._pending - count
         self._poses[:rest] = self._poses[count : self._pending]
         self._masks[:rest] = self._masks[count : self._pending]
@@ -121,12 +117,3 @@ class CameraPipeline:
         if frame == self._done - 1 and self._last is not None:
             return self._last
         raise RuntimeError(f"camera frame {frame} of this episode is no longer available")
-
-    def __getstate__(self) -> dict:
-        state = self.__dict__.copy()
-        state["_lazy"] = None  # weak references; a copy's readers re-read the last frame
-        return state
-
-    def __setstate__(self, state: dict) -> None:
-        self.__dict__.update(state)
-        self._lazy = weakref.WeakValueDictionary()
