@@ -214,13 +214,19 @@ def run_hallway_experiment(
     (mean spread vs time per condition, for the plot).
     """
     runs = _run_conditions("symmetric_hallway", seeds, duration_s, progress, **overrides)
+    result = _time_figures(runs)
+    result["curves"] = _curves(runs)
+    return result
+
+
+def _time_figures(runs: dict[str, list[dict[str, Any]]]) -> dict[str, Any]:
+    """Each condition's time figures, the reduction with detections and its interval."""
     result: dict[str, Any] = {}
     for cond in CONDITIONS:
         result[cond], _, _ = _condition_figures(runs[cond])
     alone = result["without_detections"]["mean_s"]
     result["reduction_pct"] = 100.0 * (1.0 - result["with_detections"]["mean_s"] / alone)
     _seed_statistics(result, runs)
-    result["curves"] = _curves(runs)
     return result
 
 
@@ -255,12 +261,7 @@ def run_hexagon_experiment(
     lone robot knows; the final and held figures do not.
     """
     runs = _run_conditions("hexagon", seeds, duration_s, progress, **overrides)
-    result: dict[str, Any] = {}
-    for cond in CONDITIONS:
-        result[cond], _, _ = _condition_figures(runs[cond])
-    alone = result["without_detections"]["mean_s"]
-    result["reduction_pct"] = 100.0 * (1.0 - result["with_detections"]["mean_s"] / alone)
-    _seed_statistics(result, runs)
+    result = _time_figures(runs)
     by_sensor: dict[str, dict[str, Any]] = {}
     curves: dict[str, Any] = {}
     for sensor in ("sonar", "laser"):
