@@ -466,7 +466,8 @@ class MCLBackend(EstimatorBackend):
                     rec = replace(rec, orientation=None, orientation_std=None)
                 if self.reset_fraction > 0:
                     self._detection_reset(ib, rec, observer, target)
-                res = self.transfer.apply(rec, observer, target, self.rng)
+                res = self.transfer.apply(rec, observer, target, self.rng,
+                                          check=not self._picks_kept_copy(ia, ib, rec))
                 if res.applied:
                     stats["detections_applied"] += 1
                     self.transfers_applied[ib] += 1
@@ -478,12 +479,46 @@ class MCLBackend(EstimatorBackend):
                     stats["detections_ignored"] += 1
                     if res.reason == "conflict":
                         self.detection_conflicts[[ia, ib]] += 1
-                        self._certified[[ia, ib]] = False
-                        self._plausible[ia] = self._plausible[ib] = None
+                        self._decertify_after_conflict(ia, ib)
                         self._widen(ib, rec, observer, target)
         if self.symmetries:
             self.keep_copies(live)
         return stats
+
+    def _picks_kept_copy(self, ia: int, ib: int, rec: RobotDetection) -> bool:
+        """Whether a certified observer ``ia`` puts an uncertified target ``ib`` on one of the
+        symmetric copies of its main mode that it keeps (:meth:`keep_copies`), within
+        ``CONFLICT_M``.
+
+        The target's scans cannot reject that copy, and the observer's reject every copy of
+        its own pose, so the detection tells the target which copy it is on: its weight
+        moving from the main mode to the copy is the kept copy taking over, not a conflict
+        (the consistency check would refuse it, the main mode looking confident).
+        """
+        plausible = self._plausible[ib]
+        if not (plausible and self._certified[ia]) or self._certified[ib]:
+            return False
+        radius = (self.check or ConsistencyConfig()).mode_radius
+        observer, target = self.filters[ia], self.filters[ib]
+        o = pose_estimate(observer.particles, observer.weights, radius)
+        implied = o[:2] + rec.range * np.array([math.cos(o[2] + rec.bearing),
+                                                math.sin(o[2] + rec.bearing)])
+        own = pose_estimate(target.particles, target.weights, radius)
+        copies = np.array([symmetric_copies(own, s)[:2] for s in plausible])
+        return bool((np.hypot(*(copies - implied).T) <= CONFLICT_M).any())
+
+    def _decertify_after_conflict(self, ia: int, ib: int) -> None:
+        """After a conflict between robots ``ia`` and ``ib``, check again the ones whose
+        certification it puts in doubt. A certified robot's own evidence rejected every
+        symmetric copy of its pose; a teammate that is not certified cannot tell its own
+        copies apart, so its disagreement says nothing about which copy the certified one is
+        on, and the certified one stays certified (and trusted in :meth:`_widen`). Two
+        certified robots that disagree are both checked again."""
+        both = bool(self._certified[ia] and self._certified[ib])
+        for i in (ia, ib):
+            if both or not self._certified[i]:
+                self._certified[i] = False
+                self._plausible[i] = None
 
     def keep_copies(self, live: list[int]) -> None:
         """Keep the map's symmetric copies of each live robot's main mode alive while the
@@ -660,6 +695,11 @@ class MCLBackend(EstimatorBackend):
         claims = {i: c for i, c in clouds.items() if len(c)}
         if not claims:
             return
+        for i in evidence:
+            if self._certified[i]:
+                # its evidence rejected every symmetric copy of its pose when it was
+                # certified, possibly before the window :meth:`_evidence` weighs
+                evidence[i] = max(evidence[i], EVIDENCE_NATS)
         e_t, e_o = evidence.get(ib), evidence.get(ia)
         both = e_t is not None and e_o is not None
         if both and e_t < WEAK_NATS and e_o >= EVIDENCE_NATS:
