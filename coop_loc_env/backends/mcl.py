@@ -479,7 +479,8 @@ class MCLBackend(EstimatorBackend):
                     stats["detections_ignored"] += 1
                     if res.reason == "conflict":
                         self.detection_conflicts[[ia, ib]] += 1
-                        self._decertify_after_conflict(ia, ib)
+                        self._certified[[ia, ib]] = False
+                        self._plausible[ia] = self._plausible[ib] = None
                         self._widen(ib, rec, observer, target)
         if self.symmetries:
             self.keep_copies(live)
@@ -506,19 +507,6 @@ class MCLBackend(EstimatorBackend):
         own = pose_estimate(target.particles, target.weights, radius)
         copies = np.array([symmetric_copies(own, s)[:2] for s in plausible])
         return bool((np.hypot(*(copies - implied).T) <= CONFLICT_M).any())
-
-    def _decertify_after_conflict(self, ia: int, ib: int) -> None:
-        """After a conflict between robots ``ia`` and ``ib``, check again the ones whose
-        certification it puts in doubt. A certified robot's own evidence rejected every
-        symmetric copy of its pose; a teammate that is not certified cannot tell its own
-        copies apart, so its disagreement says nothing about which copy the certified one is
-        on, and the certified one stays certified (and trusted in :meth:`_widen`). Two
-        certified robots that disagree are both checked again."""
-        both = bool(self._certified[ia] and self._certified[ib])
-        for i in (ia, ib):
-            if both or not self._certified[i]:
-                self._certified[i] = False
-                self._plausible[i] = None
 
     def keep_copies(self, live: list[int]) -> None:
         """Keep the map's symmetric copies of each live robot's main mode alive while the
@@ -695,11 +683,6 @@ class MCLBackend(EstimatorBackend):
         claims = {i: c for i, c in clouds.items() if len(c)}
         if not claims:
             return
-        for i in evidence:
-            if self._certified[i]:
-                # its evidence rejected every symmetric copy of its pose when it was
-                # certified, possibly before the window :meth:`_evidence` weighs
-                evidence[i] = max(evidence[i], EVIDENCE_NATS)
         e_t, e_o = evidence.get(ib), evidence.get(ia)
         both = e_t is not None and e_o is not None
         if both and e_t < WEAK_NATS and e_o >= EVIDENCE_NATS:
