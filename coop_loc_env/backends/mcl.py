@@ -44,7 +44,8 @@ in a known map built from the scenario's layout. Per env step and robot:
    filter with a bounded particle budget otherwise keeps whichever copies happened
    to hold particles when the scans stopped being ambiguous along whole corridors,
    and reports one of them sharply before the robot has seen what breaks the
-   symmetry.
+   symmetry. A detection by such a teammate that puts the robot on one of its kept
+   copies is applied without the consistency check (:meth:`MCLBackend._picks_kept_copy`).
 
 Maps: one :class:`~estimators.mcl.occupancy.OccupancyGrid` per range-sensor type,
 rasterized from ``world.layout.obstacles`` honouring each obstacle's
@@ -518,7 +519,8 @@ class MCLBackend(EstimatorBackend):
         main mode's cloud turned there, in place of the least likely particles:
         :func:`~estimators.mcl.detection_consistency.widen`), so the reported belief is not
         confident while the map cannot be told apart, and the copy takes over if the main
-        mode was the wrong one when the robot reaches a feature that breaks the symmetry.
+        mode was the wrong one when the robot reaches a feature that breaks the symmetry
+        or a certified teammate detects it on the copy (:meth:`_picks_kept_copy`).
         A robot whose evidence rejects every copy by ``EVIDENCE_NATS`` is certified and not
         checked again until its main mode loses that weight or a detection conflicts with it.
         """
