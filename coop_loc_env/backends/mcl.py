@@ -44,7 +44,8 @@ in a known map built from the scenario's layout. Per env step and robot:
    filter with a bounded particle budget otherwise keeps whichever copies happened
    to hold particles when the scans stopped being ambiguous along whole corridors,
    and reports one of them sharply before the robot has seen what breaks the
-   symmetry.
+   symmetry. A detection by such a teammate that puts the robot on one of its kept
+   copies is applied without the consistency check (:meth:`MCLBackend._picks_kept_copy`).
 
 Maps: one :class:`~estimators.mcl.occupancy.OccupancyGrid` per range-sensor type,
 rasterized from ``world.layout.obstacles`` honouring each obstacle's
@@ -466,7 +467,8 @@ class MCLBackend(EstimatorBackend):
                     rec = replace(rec, orientation=None, orientation_std=None)
                 if self.reset_fraction > 0:
                     self._detection_reset(ib, rec, observer, target)
-                res = self.transfer.apply(rec, observer, target, self.rng)
+                res = self.transfer.apply(rec, observer, target, self.rng,
+                                          check=not self._picks_kept_copy(ia, ib, rec))
                 if res.applied:
                     stats["detections_applied"] += 1
                     self.transfers_applied[ib] += 1
@@ -485,6 +487,28 @@ class MCLBackend(EstimatorBackend):
             self.keep_copies(live)
         return stats
 
+    def _picks_kept_copy(self, ia: int, ib: int, rec: RobotDetection) -> bool:
+        """Whether a certified observer ``ia`` puts an uncertified target ``ib`` on one of the
+        symmetric copies of its main mode that it keeps (:meth:`keep_copies`), within
+        ``CONFLICT_M``.
+
+        The target's scans cannot reject that copy, and the observer's reject every copy of
+        its own pose, so the detection tells the target which copy it is on: its weight
+        moving from the main mode to the copy is the kept copy taking over, not a conflict
+        (the consistency check would refuse it, the main mode looking confident).
+        """
+        plausible = self._plausible[ib]
+        if not (plausible and self._certified[ia]) or self._certified[ib]:
+            return False
+        radius = (self.check or ConsistencyConfig()).mode_radius
+        observer, target = self.filters[ia], self.filters[ib]
+        o = pose_estimate(observer.particles, observer.weights, radius)
+        implied = o[:2] + rec.range * np.array([math.cos(o[2] + rec.bearing),
+                                                math.sin(o[2] + rec.bearing)])
+        own = pose_estimate(target.particles, target.weights, radius)
+        copies = np.array([symmetric_copies(own, s)[:2] for s in plausible])
+        return bool((np.hypot(*(copies - implied).T) <= CONFLICT_M).any())
+
     def keep_copies(self, live: list[int]) -> None:
         """Keep the map's symmetric copies of each live robot's main mode alive while the
         robot's own scans cannot reject them (:mod:`estimators.mcl.map_symmetry`).
@@ -495,7 +519,8 @@ class MCLBackend(EstimatorBackend):
         main mode's cloud turned there, in place of the least likely particles:
         :func:`~estimators.mcl.detection_consistency.widen`), so the reported belief is not
         confident while the map cannot be told apart, and the copy takes over if the main
-        mode was the wrong one when the robot reaches a feature that breaks the symmetry.
+        mode was the wrong one when the robot reaches a feature that breaks the symmetry
+        or a certified teammate detects it on the copy (:meth:`_picks_kept_copy`).
         A robot whose evidence rejects every copy by ``EVIDENCE_NATS`` is certified and not
         checked again until its main mode loses that weight or a detection conflicts with it.
         """

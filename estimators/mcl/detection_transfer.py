@@ -387,11 +387,14 @@ class DetectionTransfer:
         observer_pf: ParticleFilter,
         target_pf: ParticleFilter,
         rng: np.random.Generator,
+        check: bool = True,
     ) -> TransferResult:
         """Use one detection: reweight the target's particles (and the observer's if symmetric).
 
         Returns why it was ignored when a guard applies. The filters are not
         resampled here; their next resampling step picks the new weights up.
+        ``check=False`` skips the consistency check (the caller knows the detection
+        picks a hypothesis the target holds, not one it has ruled out).
         """
         if not getattr(det, "detected", True) or det.target is None:
             return TransferResult(False, "negative")
@@ -412,7 +415,7 @@ class DetectionTransfer:
         pdf, factors, posterior_fp = self._factors(target_pf, tree, use_heading)
         bayes = tree_bayes_factor(pdf, target_pf.weights, tree.volume)
         self.lockout.record(det.observer, det.target, observer_pf.odometer)
-        if cfg.consistency is not None:
+        if cfg.consistency is not None and check:
             check = assess_detection(target_pf.particles[:, :2], target_pf.weights, factors,
                                      bayes, cfg.consistency)
             if check.conflict:

@@ -211,3 +211,31 @@ def test_checked_transfer_does_not_move_a_confident_robot_to_stray_particles():
     res, err = moved["checked"]
     assert not res.applied and res.reason == "conflict" and err < 0.2
     assert res.bayes_factor is not None
+
+
+def test_unchecked_transfer_moves_a_confident_robot_to_the_hypothesis_it_keeps():
+    # The same confident target, its few particles where the detection puts it: with
+    # ``check=False`` (the caller knows the detection picks a hypothesis the target keeps,
+    # as a kept symmetric copy) the transfer is applied and the weight moves there.
+    grid = _room()
+    observer_at, target_at, kept = (np.array([4.0, 5.0, 0.0]), np.array([7.0, 5.0, 0.0]),
+                                    np.array([15.0, 2.0, 0.0]))
+    z = relative_pose(observer_at, kept)
+    det = RobotDetection(0, 1, range=float(z[0]), bearing=float(z[1]), range_std=0.3,
+                         bearing_std=0.04, orientation=float(z[2]), orientation_std=0.1)
+    results = {}
+    for check in (True, False):
+        m = ParticleFilter(grid, np.random.default_rng(5), MCLConfig(n_particles=1000))
+        m.init_gaussian(observer_at, np.diag([0.1, 0.1, 0.03]) ** 2)
+        n = ParticleFilter(grid, np.random.default_rng(6), MCLConfig(n_particles=1000))
+        n.init_gaussian(target_at, np.diag([0.1, 0.1, 0.03]) ** 2)
+        parts = n.particles.copy()
+        parts[:5] = kept
+        n.set_particles(parts)
+        transfer = DetectionTransfer(TransferConfig(consistency=ConsistencyConfig()))
+        res = transfer.apply(det, m, n, np.random.default_rng(7), check=check)
+        results[check] = (res, float(n.weights[:5].sum()))
+    assert not results[True][0].applied and results[True][0].reason == "conflict"
+    assert results[True][1] == pytest.approx(5e-3)
+    res, kept_mass = results[False]
+    assert res.applied and kept_mass > 0.5
