@@ -1,6 +1,6 @@
 """Monte Carlo localization backend (Fox, Burgard, Kruppa, Thrun): ``estimator="mcl"``.
 
-One class in one file on purpose (about 900 lines): every pass of a step (resampling,
+One class in one file on purpose (about 1,000 lines): every pass of a step (resampling,
 motion, weighting, detections and their conflicts, symmetric copies) reads the same
 per-robot filters, evidence ring and conflict records of :class:`MCLBackend`.
 
