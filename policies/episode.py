@@ -21,6 +21,14 @@ from policies.scripted.baselines import Policy
 FIGURES = ("localization_error_m", "coverage", "map_rmse_m", "collisions", "tip_overs")
 
 
+def env_overrides_for(policy: Policy, overrides: dict[str, Any] | None) -> dict[str, Any]:
+    """The config overrides of an env for ``policy``: the observation settings a trained
+    policy carries (``policy.env_settings``, e.g. ``obs_format="dict"`` and the belief
+    map's grid), then ``overrides`` (which win; a clash with the network's inputs is
+    then reported by the policy's shape check)."""
+    return {**dict(getattr(policy, "env_settings", None) or {}), **(overrides or {})}
+
+
 def run_episode(
     env, policy: Policy, seed: int, on_step=None, on_reset=None
 ) -> dict[str, Any]:

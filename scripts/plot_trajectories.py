@@ -20,17 +20,18 @@ from pathlib import Path
 import numpy as np
 
 import coop_loc_env
-from policies.episode import run_episode
+from policies.episode import env_overrides_for, run_episode
 from policies.experiments.compare import parse_policy_list, policy_label, resolve_policy
 from policies.experiments.runner import parse_overrides
 
 
 def record_paths(scenario: str, spec: str, seed: int, overrides: dict) -> tuple[np.ndarray, dict]:
     """``(steps + 1, n, 3)`` true poses of one episode of policy ``spec``, and its record."""
-    env = coop_loc_env.parallel_env(scenario, **overrides)
+    policy = resolve_policy(spec)
+    env = coop_loc_env.parallel_env(scenario, **env_overrides_for(policy, overrides))
     poses: list[np.ndarray] = []
     try:
-        ep = run_episode(env, resolve_policy(spec), seed,
+        ep = run_episode(env, policy, seed,
                          on_step=lambda e, _i: poses.append(e.world.poses.copy()),
                          on_reset=lambda e: poses.append(e.world.poses.copy()))
         ep["layout"] = env.world.layout

@@ -91,6 +91,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--localize-collision-weight", type=float,
                    default=d.localize_collision_weight,
                    help="--reward localize: penalty per new contact")
+    p.add_argument("--obs-format", default=None, choices=("flat", "dict"),
+                   help="observation format (default: the scenario's; dict: the belief map "
+                        "read by a CNN, saved with the model)")
     p.add_argument("--bc-from", default=None, metavar="TEACHER",
                    help="behaviour-clone this teacher before PPO: wander, wander:SPEED, fsm, "
                         "gather, ... ('none': no cloning, e.g. over a scenario's default)")
@@ -136,7 +139,8 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         progress_bar=not args.no_progress,
         max_wall_s=None if args.max_wall_minutes is None else 60.0 * args.max_wall_minutes,
         normalize_reward=not args.no_reward_norm, clip_range=args.clip_range,
-        reward_mode=args.reward_mode, localize_step_reward=args.localize_step_reward,
+        reward_mode=args.reward_mode, obs_format=args.obs_format,
+        localize_step_reward=args.localize_step_reward,
         localize_team_weight=args.localize_team_weight,
         localize_collision_weight=args.localize_collision_weight,
         bc_from=None if no_bc else args.bc_from,

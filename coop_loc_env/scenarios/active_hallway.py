@@ -34,6 +34,11 @@ from coop_loc_env.scenarios.fox import symmetric_hallway
 #: localize (per robot, half its own, half the team's; minus 0.1 per new contact).
 TRAINING_DEFAULTS: dict = {
     **CLONE_THEN_PPO,
+    "obs_format": "dict",
+    "bc_episodes": 8,
+    "bc_epochs": 20,
+    "dagger_rounds": 3,
+    "dagger_epochs": 8,
     "bc_from": "corridor",
     "reward_mode": "localize",
     "localize_step_reward": 0.1,

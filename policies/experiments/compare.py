@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from policies.episode import FIGURES, episode_figures, run_episode
+from policies.episode import FIGURES, env_overrides_for, episode_figures, run_episode
 from policies.experiments.fox import LOCALIZED_M, robot_times_to_localize
 from policies.learning.loader import make_policy
 from policies.scripted.baselines import StandStillPolicy  # noqa: F401 (re-exported)
@@ -174,7 +174,7 @@ def _run(scenario: str, policy, n_episodes: int, seed: int, overrides: dict[str,
     (when the estimator reports it) as ``series["particle_spread_m"]``."""
     import coop_loc_env
 
-    env = coop_loc_env.parallel_env(scenario, **overrides)
+    env = coop_loc_env.parallel_env(scenario, **env_overrides_for(policy, overrides))
     bar = None
     if progress:
         from tqdm import tqdm

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 import coop_loc_env
-from policies.episode import run_episode
+from policies.episode import env_overrides_for, run_episode
 from policies.learning.loader import make_policy
 from policies.scripted.baselines import Policy
 
@@ -65,7 +65,7 @@ def run_episodes(
         raise ValueError(f"n_episodes must be a positive integer, got {n_episodes!r}")
     if isinstance(policy, str):
         policy = make_policy(policy)
-    env = coop_loc_env.parallel_env(scenario, **(overrides or {}))
+    env = coop_loc_env.parallel_env(scenario, **env_overrides_for(policy, overrides))
     bar = None
     if progress:
         from tqdm import tqdm
@@ -103,7 +103,8 @@ def record_frames(
         raise ValueError(f"every must be a positive integer, got {every!r}")
     if isinstance(policy, str):
         policy = make_policy(policy)
-    env = coop_loc_env.parallel_env(scenario, render_mode="rgb_array", **(overrides or {}))
+    env = coop_loc_env.parallel_env(scenario, render_mode="rgb_array",
+                                    **env_overrides_for(policy, overrides))
     frames: list[np.ndarray] = []
     bar = None
     if progress:

@@ -33,7 +33,30 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["behaviour_clone", "collect_demonstrations", "make_teacher", "discounted_returns"]
+__all__ = ["behaviour_clone", "collect_demonstrations", "make_teacher", "discounted_returns",
+           "stack_observations", "concat_observations"]
+
+
+def _as_float32(obs):
+    if isinstance(obs, dict):
+        return {k: np.asarray(v, dtype=np.float32) for k, v in obs.items()}
+    return np.asarray(obs, dtype=np.float32)
+
+
+def stack_observations(items: list):
+    """Stack per-agent observations into a batch: an array, or (``obs_format="dict"``) a
+    dict of arrays, one per key."""
+    if items and isinstance(items[0], dict):
+        return {k: np.stack([np.asarray(o[k], dtype=np.float32) for o in items])
+                for k in items[0]}
+    return np.stack(items).astype(np.float32)
+
+
+def concat_observations(batches: list):
+    """Join observation batches (arrays, or dicts of arrays) along the first axis."""
+    if batches and isinstance(batches[0], dict):
+        return {k: np.concatenate([b[k] for b in batches]) for k in batches[0]}
+    return np.concatenate(batches).astype(np.float32)
 
 
 def make_teacher(spec: str):
@@ -110,11 +133,11 @@ def collect_demonstrations(
             while env.agents:
                 actions = teacher.act(obs)
                 for a in env.agents:
-                    per_agent[a]["obs"].append(np.asarray(obs[a], dtype=np.float32))
+                    per_agent[a]["obs"].append(_as_float32(obs[a]))
                     per_agent[a]["act"].append(np.clip(np.asarray(actions[a], float), -1, 1))
                 if actor is not None:
                     live = list(env.agents)
-                    driven = np.clip(np.asarray(actor(np.stack([obs[a] for a in live])),
+                    driven = np.clip(np.asarray(actor(stack_observations([obs[a] for a in live])),
                                                 dtype=np.float32).reshape(len(live), -1), -1, 1)
                     actions = dict(zip(live, driven, strict=True))
                 obs, rewards, terms, truncs, _ = env.step(actions)
@@ -126,14 +149,14 @@ def collect_demonstrations(
             for a, rec in per_agent.items():
                 if not rec["rew"]:
                     continue
-                obs_all.append(np.stack(rec["obs"]))
+                obs_all.append(stack_observations(rec["obs"]))
                 act_all.append(np.stack(rec["act"]))
                 ret_all.append(discounted_returns(np.array(rec["rew"]), gamma,
                                                   truncated.get(a, True)))
     finally:
         env.close()
     return {
-        "obs": np.concatenate(obs_all).astype(np.float32),
+        "obs": concat_observations(obs_all),
         "actions": np.concatenate(act_all).astype(np.float32),
         "returns": np.concatenate(ret_all).astype(np.float32),
         "episodes": n_episodes,
@@ -169,13 +192,25 @@ def behaviour_clone(
             raise ValueError(f"behaviour_clone needs an actor-critic policy (PPO/A2C), "
                              f"{type(policy).__name__} has no {attr!r}")
     start = time.perf_counter()
-    obs = torch.as_tensor(demos["obs"], dtype=torch.float32)
+    raw = demos["obs"]
+    if isinstance(raw, dict):  # obs_format="dict": one tensor per key
+        obs = {k: torch.as_tensor(v, dtype=torch.float32) for k, v in raw.items()}
+        sizes = {len(v) for v in obs.values()}
+        shape = {k: tuple(v.shape) for k, v in obs.items()}
+    else:
+        obs = torch.as_tensor(raw, dtype=torch.float32)
+        sizes, shape = {len(obs)}, tuple(obs.shape)
     act = torch.as_tensor(demos["actions"], dtype=torch.float32)
     ret = torch.as_tensor(demos["returns"], dtype=torch.float32)
-    n = len(obs)
-    if n == 0 or act.shape != (n, policy.action_space.shape[0]) or ret.shape != (n,):
-        raise ValueError(f"demos do not match: obs {tuple(obs.shape)}, actions "
+    n = len(act)
+    if n == 0 or sizes != {n} or act.shape != (n, policy.action_space.shape[0]) or \
+            ret.shape != (n,):
+        raise ValueError(f"demos do not match: obs {shape}, actions "
                          f"{tuple(act.shape)}, returns {tuple(ret.shape)}")
+
+    def rows(idx):
+        return {k: v[idx] for k, v in obs.items()} if isinstance(obs, dict) else obs[idx]
+
     params = [p for name, p in policy.named_parameters() if name != "log_std"]
     opt = torch.optim.Adam(params, lr=learning_rate)
     gen = torch.Generator().manual_seed(int(seed))
@@ -195,7 +230,7 @@ def behaviour_clone(
         perm = torch.randperm(n, generator=gen)
         for i in range(0, n, batch_size):
             idx = perm[i : i + batch_size]
-            mean, v = forward(obs[idx])
+            mean, v = forward(rows(idx))
             loss = torch.mean((mean - act[idx]) ** 2)
             if value:
                 loss = loss + torch.mean((v - ret[idx]) ** 2)

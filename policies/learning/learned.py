@@ -40,12 +40,15 @@ class LearnedPolicy:
             torch.set_num_threads(threads)
         self.model = model
         self.name = name
+        #: the observation settings the network was trained with (config overrides an
+        #: evaluation env needs; saved with the model by :mod:`policies.learning.training`)
+        self.env_settings: dict[str, Any] = dict(getattr(model, "env_settings", None) or {})
         self.deterministic = deterministic
         self.env = None
 
     def reset(self, env, seed: int | None = None) -> None:
         """Bind to ``env``; the observation shape must match the model's."""
-        check_observation_shape(self.name, self.model.observation_space.shape, env)
+        check_observation_shape(self.name, self.model.observation_space, env)
         self.env = env
 
     def act(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:

@@ -236,9 +236,7 @@ def run_from_train_config(
                 f"--n-procs: use --num-env-runners)"
                 if key == "n_procs" else f"--backend rllib does not support {key}={value!r}"
             )
-    overrides = dict(cfg.overrides)
-    if cfg.estimator is not None:
-        overrides["estimator"] = cfg.estimator
+    overrides = cfg.env_overrides()
     return RLlibRun(
         out=cfg.out, scenario=cfg.scenario, overrides=overrides, timesteps=cfg.timesteps,
         seed=cfg.seed, num_env_runners=1 if num_env_runners is None else num_env_runners,

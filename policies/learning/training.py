@@ -47,14 +47,21 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from gymnasium import spaces
 
 from policies.episode import run_episode
-from policies.learning.imitation import behaviour_clone, collect_demonstrations, make_teacher
+from policies.learning.imitation import (
+    behaviour_clone,
+    collect_demonstrations,
+    concat_observations,
+    make_teacher,
+)
 from policies.learning.learned import LearnedPolicy
 from policies.learning.loader import make_policy
 from policies.learning.vec_env import REWARD_MODES, TimeToLocalizeReward, make_env_fn
 
 ALGOS = ("PPO", "SAC")
+OBS_DICT_FIELDS = ("belief_map_cells", "belief_map_headings", "belief_modes")
 EVAL_SEED = 100_000  # evaluation episodes use seeds EVAL_SEED + k, apart from training seeds
 BC_SEED = 200_000  # behaviour-cloning demonstrations use seeds BC_SEED + k
 
@@ -97,6 +104,7 @@ class TrainConfig:
     verbose: int = 0
     clip_range: float = 0.2
     reward_mode: str = "env"
+    obs_format: str | None = None
     localize_step_reward: float = 0.1
     localize_team_weight: float = 0.0
     localize_collision_weight: float = 0.0
@@ -167,6 +175,8 @@ class TrainConfig:
     def env_overrides(self) -> dict[str, Any]:
         """The env config overrides of this run (``estimator`` included when set)."""
         out = dict(self.overrides)
+        if self.obs_format is not None:
+            out.setdefault("obs_format", self.obs_format)
         if self.estimator is not None:
             out["estimator"] = self.estimator
         return out
@@ -205,16 +215,36 @@ def make_model(cfg: TrainConfig, venv, tensorboard_log: str | None):
         learning_rate=cfg.learning_rate, gamma=cfg.gamma, seed=cfg.seed, verbose=cfg.verbose,
         tensorboard_log=tensorboard_log, device="cpu",
     )
+    policy, extractor = "MlpPolicy", {}
+    if isinstance(venv.observation_space, spaces.Dict):  # obs_format="dict": CNN on the map
+        from policies.learning.belief_cnn import BeliefMapExtractor
+
+        policy, extractor = "MultiInputPolicy", {"features_extractor_class": BeliefMapExtractor}
     if algo == "PPO":
-        return sb3.PPO(
-            "MlpPolicy", venv, n_steps=cfg.n_steps, batch_size=cfg.batch_size,
+        model = sb3.PPO(
+            policy, venv, n_steps=cfg.n_steps, batch_size=cfg.batch_size,
             n_epochs=cfg.n_epochs, ent_coef=cfg.ent_coef, clip_range=cfg.clip_range,
-            policy_kwargs=dict(net_arch=dict(pi=arch, vf=arch)), **common,
+            policy_kwargs=dict(net_arch=dict(pi=arch, vf=arch), **extractor), **common,
         )
-    return sb3.SAC(
-        "MlpPolicy", venv, batch_size=cfg.batch_size, buffer_size=cfg.buffer_size,
-        learning_starts=min(1000, cfg.timesteps), policy_kwargs=dict(net_arch=arch), **common,
-    )
+    else:
+        model = sb3.SAC(
+            policy, venv, batch_size=cfg.batch_size, buffer_size=cfg.buffer_size,
+            learning_starts=min(1000, cfg.timesteps),
+            policy_kwargs=dict(net_arch=arch, **extractor), **common,
+        )
+    model.env_settings = observation_settings(cfg.scenario, cfg.env_overrides())
+    return model
+
+
+def observation_settings(scenario: str, overrides: dict[str, Any]) -> dict[str, Any]:
+    """The config fields that shape a policy's observations (saved with the model, so an
+    evaluation builds the env its network reads): the observation format and, for the
+    dict observation, the belief map's grid, headings and modes."""
+    import coop_loc_env
+
+    cfg = coop_loc_env.make_config(scenario, **overrides)
+    keys = ("obs_format",) + (OBS_DICT_FIELDS if cfg.obs_format == "dict" else ())
+    return {k: getattr(cfg, k) for k in keys}
 
 
 def evaluate_figures(
@@ -384,11 +414,12 @@ def warm_start(cfg: TrainConfig, model) -> dict[str, Any]:
                                       actor=actor)
         collect_s += more["wall_s"]
         team_steps += more["steps"]
-        for key in ("obs", "actions", "returns"):
+        demos["obs"] = concat_observations([demos["obs"], more["obs"]])
+        for key in ("actions", "returns"):
             demos[key] = np.concatenate([demos[key], more[key]])
         fit = behaviour_clone(model, demos, epochs=cfg.dagger_epochs, log_std=cfg.bc_log_std,
                               value=not cfg.normalize_reward, seed=cfg.seed + r)
-        rounds.append({"round": r, "samples": len(demos["obs"]),
+        rounds.append({"round": r, "samples": len(demos["actions"]),
                        "action_mse": fit["action_mse"]})
     return {"teacher": cfg.bc_from, "episodes": demos["episodes"], "team_steps": team_steps,
             "collect_wall_s": collect_s, "mean_return": float(demos["returns"].mean()),
