@@ -22,7 +22,9 @@ beside the true height field.
 ``--compare A,B,...`` runs every listed policy on the same seeds (20 episodes
 unless ``--episodes`` says otherwise) and prints one table of means with 95 %
 confidence intervals (plus the time to localize, spread < 1.5 m), saves a bar
-plot ``SCENARIO_compare.png`` in ``--plot-dir`` (default ``outputs``) and the
+plot ``SCENARIO_compare.png`` in ``--plot-dir`` (default ``outputs``; where time to
+localize is reported, also ``SCENARIO_localized.png``, the fraction of robots localized
+over time per policy, and the median time with a bootstrap interval) and the
 report as JSON with ``--json`` (see :mod:`policies.experiments.compare`), and the paired
 difference (same seeds) in time to localize of every other policy vs the
 first listed one. Where every robot is localized from the first step (e.g. with
@@ -112,7 +114,9 @@ def _compare(args: argparse.Namespace, overrides: dict) -> int:
         localized_from_the_start,
         parse_policy_list,
         plot_compare,
+        policy_label,
     )
+    from policies.experiments.localization_curves import median_ci, plot_localized_curve
 
     specs = parse_policy_list(args.compare)
     n = 20 if args.episodes is None else args.episodes
@@ -133,6 +137,11 @@ def _compare(args: argparse.Namespace, overrides: dict) -> int:
         print(f"(time to localize left out: every robot's spread was below "
               f"{SPREAD_THRESHOLD} m from the first step)")
     print(format_compare_table(data, table))
+    if paired == "time_to_localize_s":
+        print("median time to localize (s) [95 % bootstrap CI]: " + ", ".join(
+            "{}: {:.4g} [{:.4g}, {:.4g}]".format(policy_label(spec), *median_ci(
+                [r["time_to_localize_s"] for r in data["episodes"][spec]]))
+            for spec in specs))
     if len(specs) > 1 and n > 1:
         print(format_paired(data, specs[0], paired))
     if n < 20:
@@ -142,6 +151,10 @@ def _compare(args: argparse.Namespace, overrides: dict) -> int:
         print(f"wrote {args.json}")
     plot_dir = args.plot_dir if args.plot_dir is not None else Path("outputs")
     print(f"wrote {plot_compare(data, plot_dir / f'{args.scenario}_compare.png', panels)}")
+    if paired == "time_to_localize_s":
+        curve = plot_localized_curve(data, plot_dir / f"{args.scenario}_localized.png",
+                                     make_config(args.scenario, **overrides).dt)
+        print(f"wrote {curve}")
     return 0
 
 

@@ -145,7 +145,10 @@ def compare(
         records = []
         for ep in eps:
             t_loc, frac = episode_time_to_localize(ep, dt)
+            robot_t, robot_done = robot_times_to_localize(_spread(ep), dt, SPREAD_THRESHOLD)
             rec = episode_figures(ep)
+            rec["robot_times_to_localize_s"] = robot_t.tolist()
+            rec["robot_localized"] = robot_done.tolist()
             rec["time_to_localize_s"] = t_loc
             rec["localized_fraction"] = frac
             rec["localized_at_end"] = localized_at_end(ep)

@@ -8,7 +8,8 @@ from typing import Any
 import numpy as np
 
 
-def _figure(width: float, height: float):
+def new_figure(width: float, height: float):
+    """A matplotlib figure on an Agg canvas (no display needed)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -20,7 +21,7 @@ def _figure(width: float, height: float):
 def plot_errors(episodes: list[dict[str, Any]], path: str | Path, title: str = "") -> Path:
     """Localization error vs time, one line per robot (first episode solid, the others faint,
     both named in the legend)."""
-    fig = _figure(8, 4)
+    fig = new_figure(8, 4)
     ax = fig.add_subplot(1, 1, 1)
     colors = [f"C{i}" for i in range(10)]
     for k, ep in enumerate(episodes):
@@ -52,7 +53,7 @@ def plot_terrain(episode: dict[str, Any], path: str | Path, title: str = "") -> 
     est, true = maps["estimated"], maps["true"]
     extent = maps["extent"]
     lo, hi = float(np.nanmin(true)), float(np.nanmax(true))
-    fig = _figure(11, 4.8)
+    fig = new_figure(11, 4.8)
     axes = [fig.add_subplot(1, 2, k + 1) for k in range(2)]
     for ax, grid, name in zip(axes, (est, true), ("team terrain map", "true height field"),
                               strict=True):
