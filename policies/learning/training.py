@@ -30,7 +30,12 @@ loads), and runs PPO (default) or SAC with:
   ``BC_SEED``, ``bc_epochs``, exploration ``bc_log_std``); the critic is fitted
   to the teacher's returns too when rewards are not normalized. The clone is
   saved as ``DIR/bc_model.zip``; the wall-clock limit counts the cloning;
-  ``dagger_rounds`` DAgger rounds refine the clone (``dagger_epochs`` each).
+  ``dagger_rounds`` DAgger rounds refine the clone (``dagger_epochs`` each);
+* ``obs_format="dict"`` (the env's observation a ``Dict`` with the belief map):
+  SB3's ``MultiInputPolicy`` with :class:`~policies.learning.belief_cnn.BeliefMapExtractor`
+  (a small CNN on the map, the vector passed through); the model keeps the
+  observation settings it was trained with (``model.env_settings``, saved in the
+  ``.zip``), which evaluation applies (:func:`policies.episode.env_overrides_for`).
 
 "env steps" here are SB3 timesteps: one per agent slot per step, so one
 parallel-env step of a 3-robot team counts 3.
