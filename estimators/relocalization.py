@@ -439,14 +439,14 @@ class Relocalizer:
         """The pose all kept readings agree on, when it is ``min_jump`` or more from the
         belief ``mean`` and refutes it without any one landmark's readings.
 
-        The pose is the best local optimum of the fit from :data:`_CONSENSUS_STARTS`
-        headings; it must explain every reading (chi-square test at ``agree_prob``), be
-        determined within ``consensus_std``, and beat every other optimum ``min_jump`` or
-        more away by the ``agree_prob`` bound of 3 dof (two poses the readings cannot tell
-        apart: no verdict). Dropping the readings of any one landmark, those left must
-        still favour it over the belief by that bound: a biased or misidentified landmark
-        is one landmark, and one cluster of landmarks places a robot only up to a circle
-        around it, so a second place must agree."""
+        The readings must come from ``min_places`` places. The pose is the best local
+        optimum of the fit from :data:`_CONSENSUS_STARTS` headings; it must explain every
+        reading (chi-square test at ``agree_prob``), be determined within
+        ``consensus_std``, beat every other optimum ``min_jump`` or more away by the
+        ``agree_prob`` bound of 3 dof (two poses the readings cannot tell apart: no
+        verdict), and explain the readings ``min_ratio`` times better than the belief.
+        Dropping the readings of any one landmark, those left must still favour it over
+        the belief by that bound: a biased or misidentified landmark is one landmark."""
         if _places(np.unique(window[1], axis=0), self.min_baseline) < self.min_places:
             return None
         fits = sorted(fit_candidates(*window, starts=_CONSENSUS_STARTS), key=lambda f: f[2])

@@ -150,7 +150,9 @@ def test_fit_pose_recovers_a_pose_from_readings_along_a_path():
     [({"min_readings": 0}, "min_readings"), ({"min_landmarks": 1}, "min_landmarks"),
      ({"window_s": 0.0}, "window_s"), ({"max_turn_rate": math.nan}, "max_turn_rate"),
      ({"min_baseline": -1.0}, "min_baseline"), ({"max_std": (1.0, 0.0)}, "max_std"),
-     ({"agree_prob": 1.0}, "probability"), ({"suspect_prob": 0.0}, "probability")],
+     ({"agree_prob": 1.0}, "probability"), ({"suspect_prob": 0.0}, "probability"),
+     ({"min_jump": 0.0}, "min_jump"), ({"consensus_std": (1.0,)}, "consensus_std"),
+     ({"min_places": 1}, "min_places"), ({"min_ratio": 0.5}, "min_ratio")],
 )
 def test_relocalizer_checks_its_arguments(kwargs, match):
     with pytest.raises(ValueError, match=match):
