@@ -449,6 +449,10 @@ class Relocalizer:
         the belief by that bound: a biased or misidentified landmark is one landmark."""
         if _places(np.unique(window[1], axis=0), self.min_baseline) < self.min_places:
             return None
+        margin = chi2_threshold(self.agree_prob, 3)
+        at_belief = residuals(mean, *window)
+        if _without_worst(keep, at_belief) <= margin:
+            return None  # no pose can gain that much on the readings of the others
         fits = sorted(fit_candidates(*window, starts=_CONSENSUS_STARTS), key=lambda f: f[2])
         if not fits:
             return None
@@ -460,13 +464,12 @@ class Relocalizer:
             return None
         if np.hypot(*(pose[:2] - mean[:2])) < self.min_jump:
             return None
-        margin = chi2_threshold(self.agree_prob, 3)
         for other in fits[1:]:
             if np.hypot(*(other[0][:2] - pose[:2])) >= self.min_jump \
                     and other[2] - chi <= margin:
                 return None
         fitted = residuals(pose, *window)
-        gain = residuals(mean, *window) - fitted
+        gain = at_belief - fitted
         if gain.sum() < (self.min_ratio - 1.0) * fitted.sum():
             return None
         per: dict[Hashable, float] = {}
@@ -511,6 +514,15 @@ class Relocalizer:
                 or sum(count[lm] for lm in against) < self.min_readings:
             return False
         return _spread(np.array([marks[lm] for lm in against])) >= self.min_baseline
+
+
+def _without_worst(keep: list[_Reading], values: np.ndarray) -> float:
+    """The sum of ``values (k,)``, one per kept reading, less that of the landmark whose
+    readings sum highest."""
+    per: dict[Hashable, float] = {}
+    for k, v in zip(keep, values.tolist(), strict=True):
+        per[k.landmark] = per.get(k.landmark, 0.0) + v
+    return sum(per.values()) - max(per.values())
 
 
 def _places(points: np.ndarray, apart: float) -> int:
