@@ -34,6 +34,21 @@ when
 * and the belief rules it out (chi-square test of the difference, with both
   covariances).
 
+A belief can also settle on a wrong pose whose readings pass the gate: one
+cluster of landmarks places a robot only up to a circle around it, and a
+generous noise model lets a pose metres off pass. So the readings are also
+searched for a *consensus* every ``check_every_s``, whatever their gate
+statistics (:meth:`Relocalizer._consensus`): the best of several local optima
+of the fit, which must come from landmarks of ``min_places`` places (groups of
+landmarks ``min_baseline`` apart), explain every reading, be determined within
+``consensus_std``, lie ``min_jump`` or more from the belief, beat every other
+optimum that far away by the 0.999 bound of 3 dof (two poses the readings
+cannot tell apart: no verdict), explain the readings ``min_ratio`` times better
+than the belief (a ratio of chi-squares, which a model too confident or too
+generous passes alike), and still beat the belief by that bound when the
+readings of any one landmark are left out (a biased or misidentified landmark
+is one landmark).
+
 The robot's belief is then replaced by the fitted pose and its covariance (no
 correlation with the others: it rests on the landmarks and the robot's own
 odometry only); the readings it rests on are not fused a second time.
@@ -48,11 +63,12 @@ import numpy as np
 
 from estimators.gating import chi2_threshold
 
-__all__ = ["Relocalizer", "fit_pose"]
+__all__ = ["Relocalizer", "fit_candidates", "fit_pose", "residuals"]
 
 # Headings tried as starting points of the fit (the lost robot's heading may be anything).
 _HEADINGS = np.linspace(-np.pi, np.pi, 180, endpoint=False)
 _STARTS = 3  # the best few of them are refined
+_CONSENSUS_STARTS = 6  # ... and more of them when several optima must be compared
 
 
 def _wrap(a: np.ndarray | float) -> np.ndarray | float:
@@ -93,9 +109,9 @@ def _predict(
     return z, j, j_own
 
 
-def _starts(rel, marks, z, r, offset) -> np.ndarray:
+def _starts(rel, marks, z, r, offset, count: int = _STARTS) -> np.ndarray:
     """The poses (at the reference time) that best explain the readings for each heading
-    of :data:`_HEADINGS`, best :data:`_STARTS` of them: each reading puts the robot at
+    of :data:`_HEADINGS`, best ``count`` of them: each reading puts the robot at
     one point once the heading is given; the spread of those points scores it."""
     heads = _HEADINGS[:, None] + rel[None, :, 2]  # (H, k)
     ray = heads + z[None, :, 1]
@@ -109,7 +125,7 @@ def _starts(rel, marks, z, r, offset) -> np.ndarray:
     w = 1.0 / (r[:, 0, 0] + z[:, 0] ** 2 * r[:, 1, 1])  # (k,) position weight of each reading
     mean = np.einsum("hki,k->hi", ref, w) / w.sum()
     cost = np.einsum("hki,k->h", (ref - mean[:, None]) ** 2, w)
-    best = np.argsort(cost)[:_STARTS]
+    best = np.argsort(cost)[:count]
     return np.column_stack([mean[best], _HEADINGS[best]])
 
 
@@ -136,6 +152,39 @@ def _linearize(
     return nu, j, s_inv, info
 
 
+def fit_candidates(
+    rel: np.ndarray,
+    marks: np.ndarray,
+    z: np.ndarray,
+    r: np.ndarray,
+    q: np.ndarray,
+    offset: np.ndarray,
+    iterations: int = 10,
+    starts: int = _STARTS,
+) -> list[tuple[np.ndarray, np.ndarray, float]]:
+    """The local optima of :func:`fit_pose`'s problem reached from its ``starts`` best
+    starting headings: ``(pose, covariance, chi-square)`` each, in the order tried."""
+    found = []
+    for pose in _starts(rel, marks, z, r, offset, starts):
+        for _ in range(iterations):
+            nu, j, s_inv, info = _linearize(pose, rel, marks, z, r, q, offset)
+            if not np.all(np.isfinite(info)) or np.linalg.cond(info) > 1e12:
+                break
+            step = np.linalg.solve(info, np.einsum("kai,kab,kb->i", j, s_inv, nu))
+            pose = pose + step
+            pose[2] = _wrap(pose[2])
+            if np.abs(step).max() < 1e-6:
+                break
+        else:
+            nu, j, s_inv, info = _linearize(pose, rel, marks, z, r, q, offset)
+        if not np.all(np.isfinite(info)) or np.linalg.cond(info) > 1e12:
+            continue
+        nu = _innovation(pose, rel, marks, z, offset)[0]
+        chi = float(np.einsum("ka,kab,kb->", nu, s_inv, nu))
+        found.append((pose.copy(), np.linalg.inv(info), chi))
+    return found
+
+
 def fit_pose(
     rel: np.ndarray,
     marks: np.ndarray,
@@ -157,24 +206,9 @@ def fit_pose(
     when the readings do not fix a pose.
     """
     best = None
-    for pose in _starts(rel, marks, z, r, offset):
-        for _ in range(iterations):
-            nu, j, s_inv, info = _linearize(pose, rel, marks, z, r, q, offset)
-            if not np.all(np.isfinite(info)) or np.linalg.cond(info) > 1e12:
-                break
-            step = np.linalg.solve(info, np.einsum("kai,kab,kb->i", j, s_inv, nu))
-            pose = pose + step
-            pose[2] = _wrap(pose[2])
-            if np.abs(step).max() < 1e-6:
-                break
-        else:
-            nu, j, s_inv, info = _linearize(pose, rel, marks, z, r, q, offset)
-        if not np.all(np.isfinite(info)) or np.linalg.cond(info) > 1e12:
-            continue
-        nu = _innovation(pose, rel, marks, z, offset)[0]
-        chi = float(np.einsum("ka,kab,kb->", nu, s_inv, nu))
-        if best is None or chi < best[2]:
-            best = (pose.copy(), np.linalg.inv(info), chi)
+    for fit in fit_candidates(rel, marks, z, r, q, offset, iterations):
+        if best is None or fit[2] < best[2]:
+            best = fit
     return best
 
 
@@ -222,6 +256,14 @@ class Relocalizer:
             above this quantile of the chi-square distribution of 2 dof.
         check_every_s: after an accepted reading, a robot's readings are looked into at
             most this often (s).
+        consensus: also search the readings for a pose they agree on, far from the
+            belief, whatever their gate statistics (:meth:`_consensus`).
+        min_jump: how far (m) that pose must be from the belief, at least.
+        consensus_std: the largest position std (m) and heading std (rad) of that pose.
+        min_places: the fewest places (groups of landmarks, ``min_baseline`` apart) that
+            the readings of that search must come from.
+        min_ratio: how many times worse than that pose the belief must explain them
+            (chi-square ratio: a test a model too confident or too generous passes alike).
     """
 
     def __init__(
@@ -237,6 +279,11 @@ class Relocalizer:
         max_std: tuple[float, float] = (1.0, 0.2),
         check_every_s: float = 0.5,
         suspect_prob: float = 0.9,
+        consensus: bool = True,
+        min_jump: float = 1.5,
+        consensus_std: tuple[float, float] = (1.5, 0.3),
+        min_places: int = 2,
+        min_ratio: float = 4.0,
     ) -> None:
         if min_readings is not None and (
             isinstance(min_readings, bool) or not isinstance(min_readings, int | np.integer)
@@ -266,6 +313,21 @@ class Relocalizer:
             raise ValueError(f"check_every_s must be finite and >= 0, got {check_every_s!r}")
         self.check_every_s = float(check_every_s)
         self.suspect_d2 = chi2_threshold(suspect_prob, 2)
+        if not (np.isfinite(min_jump) and min_jump > 0):
+            raise ValueError(f"min_jump must be finite and > 0, got {min_jump!r}")
+        if len(consensus_std) != 2 or not all(np.isfinite(v) and v > 0 for v in consensus_std):
+            raise ValueError(f"consensus_std must be two finite values > 0, got {consensus_std!r}")
+        if isinstance(min_places, bool) or not isinstance(min_places, int | np.integer) \
+                or min_places < 2:
+            raise ValueError(f"min_places must be an int >= 2, got {min_places!r}")
+        self.min_places = int(min_places)
+        if not (np.isfinite(min_ratio) and min_ratio >= 1):
+            raise ValueError(f"min_ratio must be finite and >= 1, got {min_ratio!r}")
+        self.min_ratio = float(min_ratio)
+        self.consensus = bool(consensus)
+        self.min_jump = float(min_jump)
+        self.consensus_std = (float(consensus_std[0]), float(consensus_std[1]))
+        self._searched = np.full(int(n), -np.inf)
         self._readings: list[list[_Reading]] = [[] for _ in range(int(n))]
         self._checked = np.full(int(n), -np.inf)
         self.recoveries = 0
@@ -309,18 +371,33 @@ class Relocalizer:
         landmarks, two of them ``min_baseline`` apart, are above the ``suspect_prob``
         quantile of one reading's: after a rejected reading, and at most every
         ``check_every_s`` after an accepted one (a belief that has settled on a wrong
-        pose, where readings still pass the gate one by one, but narrowly)."""
+        pose, where readings still pass the gate one by one, but narrowly). With
+        ``consensus``, the readings are also searched every ``check_every_s`` for a pose
+        far from the belief that they agree on without any one of their landmarks
+        (:meth:`_consensus`), whatever their gate statistics."""
         keep = self._readings[i]
         if not self.enabled or len(keep) < 3:
             return None
         newest = keep[-1]
-        if not newest.rejected and newest.time - self._checked[i] < self.check_every_s:
+        suspect = (newest.rejected or newest.time - self._checked[i] >= self.check_every_s) \
+            and self._suspects(keep)
+        search = self.consensus and newest.time - self._searched[i] >= self.check_every_s
+        if not (suspect or search):
             return None
-        if not self._suspects(keep):
-            return None
-        self._checked[i] = newest.time
+        window = self._window(keep, offset)
+        fix = None
+        if suspect:
+            self._checked[i] = newest.time
+            fix = self._refute(keep, window, mean, cov)
+        if fix is None and search:
+            self._searched[i] = newest.time
+            fix = self._consensus(keep, window, mean)
+        return fix
+
+    def _window(self, keep: list[_Reading], offset: np.ndarray) -> tuple[np.ndarray, ...]:
+        """The arguments of :func:`fit_pose` for the kept readings, referred to the newest."""
         marks = np.array([k.mark for k in keep])
-        last = newest.row
+        last = keep[-1].row
         rel = np.empty((len(keep), 3))
         q = np.empty((len(keep), 3, 3))
         for k, reading in enumerate(keep):
@@ -331,8 +408,14 @@ class Relocalizer:
             q[k] = self.motion(reading.row, last, float(rel[k, 2]))[1]
         z = np.array([k.z for k in keep])
         r = np.array([k.r for k in keep])
-        offset = np.asarray(offset, dtype=float)
-        fit = fit_pose(rel, marks, z, r, q, offset)
+        return rel, marks, z, r, q, np.asarray(offset, dtype=float)
+
+    def _refute(
+        self, keep: list[_Reading], window: tuple[np.ndarray, ...], mean: np.ndarray,
+        cov: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """The fitted pose of suspect readings when it passes the tests of the module doc."""
+        fit = fit_pose(*window)
         if fit is None:
             return None
         pose, p_fit, chi = fit
@@ -341,13 +424,59 @@ class Relocalizer:
         if np.linalg.eigvalsh(p_fit[:2, :2])[-1] > self.max_std[0] ** 2 \
                 or p_fit[2, 2] > self.max_std[1] ** 2:
             return None
-        gain = residuals(mean, rel, marks, z, r, q, offset) - residuals(
-            pose, rel, marks, z, r, q, offset)
+        gain = residuals(mean, *window) - residuals(pose, *window)
         if not self._contradicted(keep, gain):
             return None
         d = pose - mean
         d[2] = _wrap(d[2])
         if d @ np.linalg.solve(cov + p_fit, d) <= chi2_threshold(self.agree_prob, 3):
+            return None
+        return pose, p_fit
+
+    def _consensus(
+        self, keep: list[_Reading], window: tuple[np.ndarray, ...], mean: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """The pose all kept readings agree on, when it is ``min_jump`` or more from the
+        belief ``mean`` and refutes it without any one landmark's readings.
+
+        The readings must come from ``min_places`` places. The pose is the best local
+        optimum of the fit from :data:`_CONSENSUS_STARTS` headings; it must explain every
+        reading (chi-square test at ``agree_prob``), be determined within
+        ``consensus_std``, beat every other optimum ``min_jump`` or more away by the
+        ``agree_prob`` bound of 3 dof (two poses the readings cannot tell apart: no
+        verdict), and explain the readings ``min_ratio`` times better than the belief.
+        Dropping the readings of any one landmark, those left must still favour it over
+        the belief by that bound: a biased or misidentified landmark is one landmark."""
+        if _places(np.unique(window[1], axis=0), self.min_baseline) < self.min_places:
+            return None
+        margin = chi2_threshold(self.agree_prob, 3)
+        at_belief = residuals(mean, *window)
+        if _without_worst(keep, at_belief) <= margin:
+            return None  # no pose can gain that much on the readings of the others
+        fits = sorted(fit_candidates(*window, starts=_CONSENSUS_STARTS), key=lambda f: f[2])
+        if not fits:
+            return None
+        pose, p_fit, chi = fits[0]
+        if chi > chi2_threshold(self.agree_prob, 2 * len(keep) - 3):
+            return None
+        if np.linalg.eigvalsh(p_fit[:2, :2])[-1] > self.consensus_std[0] ** 2 \
+                or p_fit[2, 2] > self.consensus_std[1] ** 2:
+            return None
+        if np.hypot(*(pose[:2] - mean[:2])) < self.min_jump:
+            return None
+        for other in fits[1:]:
+            if np.hypot(*(other[0][:2] - pose[:2])) >= self.min_jump \
+                    and other[2] - chi <= margin:
+                return None
+        fitted = residuals(pose, *window)
+        gain = at_belief - fitted
+        if gain.sum() < (self.min_ratio - 1.0) * fitted.sum():
+            return None
+        per: dict[Hashable, float] = {}
+        for k, g in zip(keep, gain.tolist(), strict=True):
+            per[k.landmark] = per.get(k.landmark, 0.0) + g
+        total = sum(per.values())
+        if len(per) < 2 or any(total - g <= margin for g in per.values()):
             return None
         return pose, p_fit
 
@@ -385,6 +514,27 @@ class Relocalizer:
                 or sum(count[lm] for lm in against) < self.min_readings:
             return False
         return _spread(np.array([marks[lm] for lm in against])) >= self.min_baseline
+
+
+def _without_worst(keep: list[_Reading], values: np.ndarray) -> float:
+    """The sum of ``values (k,)``, one per kept reading, less that of the landmark whose
+    readings sum highest."""
+    per: dict[Hashable, float] = {}
+    for k, v in zip(keep, values.tolist(), strict=True):
+        per[k.landmark] = per.get(k.landmark, 0.0) + v
+    return sum(per.values()) - max(per.values())
+
+
+def _places(points: np.ndarray, apart: float) -> int:
+    """How many groups ``points (k, 2)`` form, points closer than ``apart`` grouped."""
+    group = np.arange(len(points))
+    near = np.linalg.norm(points[:, None] - points[None], axis=-1) < apart
+    for _ in range(len(points)):
+        merged = np.where(near, group[None, :], len(points)).min(axis=1)
+        if np.array_equal(merged, group):
+            break
+        group = merged
+    return len(np.unique(group))
 
 
 def _spread(points: np.ndarray) -> float:

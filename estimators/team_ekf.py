@@ -20,8 +20,10 @@ with range-bearing instead of a Cartesian relative pose).
   is taken to be lost (locked out by the gate), not the landmarks wrong, only
   when its recent landmark readings all agree on one well-determined pose,
   odometry included, that explains the readings of several landmarks metres
-  apart better than the belief does and that the belief rules out; its belief
-  is then replaced by that pose (:class:`~estimators.relocalization.Relocalizer`).
+  apart better than the belief does and that the belief rules out, or, whatever
+  the gate says, agree on a pose far from the belief even without any one
+  landmark's readings; its belief is then replaced by that pose
+  (:class:`~estimators.relocalization.Relocalizer`).
 
 Independent per-robot EKFs are the same class with ``cooperative=False``:
 robot-to-robot updates are then skipped and the covariance stays block

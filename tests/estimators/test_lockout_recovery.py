@@ -150,7 +150,9 @@ def test_fit_pose_recovers_a_pose_from_readings_along_a_path():
     [({"min_readings": 0}, "min_readings"), ({"min_landmarks": 1}, "min_landmarks"),
      ({"window_s": 0.0}, "window_s"), ({"max_turn_rate": math.nan}, "max_turn_rate"),
      ({"min_baseline": -1.0}, "min_baseline"), ({"max_std": (1.0, 0.0)}, "max_std"),
-     ({"agree_prob": 1.0}, "probability"), ({"suspect_prob": 0.0}, "probability")],
+     ({"agree_prob": 1.0}, "probability"), ({"suspect_prob": 0.0}, "probability"),
+     ({"min_jump": 0.0}, "min_jump"), ({"consensus_std": (1.0,)}, "consensus_std"),
+     ({"min_places": 1}, "min_places"), ({"min_ratio": 0.5}, "min_ratio")],
 )
 def test_relocalizer_checks_its_arguments(kwargs, match):
     with pytest.raises(ValueError, match=match):
@@ -238,3 +240,57 @@ def test_recovery_table_groups_cases_and_compares_trees(script_module, script_ma
                           "| 3 | 0 ")
     assert "| 0.30 | 0.06 | 3.00 | 1.20 |" in row
     assert script_main("bench/recovery_table")([str(tmp_path / "one.json")]) == 2
+
+
+# ------------------------------------------------------- consensus re-localization
+# Two pairs of landmarks 0.3 m apart (two places) and a single landmark (a third place).
+PLACES = {"A1": (4.0, 0.0), "A2": (4.0, 0.3), "B1": (0.0, 4.0), "B2": (0.3, 4.0),
+          "C": (-4.0, -1.0)}
+VAGUE = np.diag([1.0**2, 0.03**2])  # a range as vague as the MR.CLAM model's at 4 m
+
+
+def _first_fix(
+    belief: np.ndarray, moved: dict[str, np.ndarray], **kw
+) -> tuple[float, np.ndarray, np.ndarray] | None:
+    """A still robot at the origin reads the landmarks in turn, one every 0.1 s for 20 s,
+    every reading passing the gate (gate statistic 1); the map puts the landmarks of
+    ``moved`` that far off. The relocalizer is asked after each reading, as the filter
+    does, with the belief ``belief``: the time, pose and covariance of its first fix."""
+    rng = np.random.default_rng(5)
+    track = OdometryTrack(np.array([0.0]), np.zeros(1), np.zeros(1), NOISE)
+    reloc = Relocalizer(1, OdometryTrack.motion, **kw)
+    names = list(PLACES)
+    for k in range(200):
+        t = 0.1 * (k + 1)
+        name = names[k % len(names)]
+        true = np.array(PLACES[name])
+        mark = true + moved.get(name, 0.0)
+        z = np.array([np.hypot(*true), math.atan2(true[1], true[0])])
+        z += rng.normal(0.0, [0.05, 0.005])
+        reloc.add(0, t, track.state(t), 0.0, name, mark, z, VAGUE, 1.0, False)
+        fix = reloc.propose(0, np.zeros(2), belief, np.eye(3) * 1e-4)
+        if fix is not None:
+            return t, *fix
+    return None
+
+
+def test_a_lost_robot_whose_readings_pass_the_gate_is_placed_by_their_consensus():
+    """Believed 3.6 m off, where the vague ranges let every reading pass the gate (no
+    landmark suspect): the readings of three places agree on the true pose within 20 s
+    of the first reading; consensus=False leaves the robot lost."""
+    found = _first_fix(np.array([3.0, -2.0, 0.0]), {})
+    assert found is not None
+    t, pose, cov = found
+    assert t <= 20.0
+    assert np.hypot(*pose[:2]) < 0.3 and abs(pose[2]) < 0.05
+    assert pose @ np.linalg.solve(cov, pose) < NEES_BOUND
+    assert _first_fix(np.array([3.0, -2.0, 0.0]), {}, consensus=False) is None
+
+
+@pytest.mark.parametrize("bias", [1.0, 3.0])
+def test_one_biased_landmark_does_not_trigger_a_consensus_reset(bias):
+    """An accurate belief; the map puts the single landmark C ``bias`` off. With 3 m, a
+    pose 1.8 m from the belief explains every reading, C's too (the vague ranges), but
+    without C the readings agree with the belief."""
+    moved = {"C": np.array([bias, -bias]) / math.sqrt(2.0)}
+    assert _first_fix(np.zeros(3), moved) is None
