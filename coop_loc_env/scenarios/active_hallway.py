@@ -15,7 +15,8 @@ time a robot's particle spread -- the mean particle distance from the true
 pose -- falls below 1.5 m, the episode length for a robot that never gets
 there). For learning, the scenario carries the training defaults of
 ``scripts/train.py --scenario active_hallway`` (:data:`TRAINING_DEFAULTS`):
-the reward is minus the time to localize
+the dict observation (``obs_format="dict"``: the belief map and its modes) and,
+as reward, minus the time to localize
 (:class:`policies.learning.vec_env.TimeToLocalizeReward`), paid per robot.
 """
 
@@ -30,8 +31,10 @@ from coop_loc_env.scenarios import (
 from coop_loc_env.scenarios.fox import symmetric_hallway
 
 #: ``scripts/train.py`` option defaults for this scenario (option dest -> value): the
-#: cloning recipe of ``CLONE_THEN_PPO`` with the ``corridor`` teacher, on minus the time to
-#: localize (per robot, half its own, half the team's; minus 0.1 per new contact).
+#: dict observation (the belief map, read by a small CNN), the cloning recipe of
+#: ``CLONE_THEN_PPO`` with the ``corridor`` teacher on fewer episodes (a CNN fits them
+#: slower), on minus the time to localize (per robot, half its own, half the team's;
+#: minus 0.1 per new contact).
 TRAINING_DEFAULTS: dict = {
     **CLONE_THEN_PPO,
     "obs_format": "dict",
