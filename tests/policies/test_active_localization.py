@@ -118,6 +118,12 @@ def test_scenario_training_defaults_reach_train_cli():
     assert plain.learning_rate == train_cli.build_parser().get_default("learning_rate")
     given = train_cli.parse_args(["--scenario", "rendezvous", "--out", "x", "--gamma", "0.9"])
     assert given.gamma == 0.9
+    hallway = train_cli.config_from_args(
+        train_cli.parse_args(["--scenario", "active_hallway", "--out", "x"]))
+    assert hallway.env_overrides()["obs_format"] == "dict"  # the belief map, by default
+    flat = train_cli.config_from_args(train_cli.parse_args(
+        ["--scenario", "active_hallway", "--out", "x", "--obs-format", "flat"]))
+    assert flat.env_overrides()["obs_format"] == "flat"
 
 
 def test_dagger_collection_labels_the_actor_states():
