@@ -385,7 +385,6 @@ _CHOICES = (
     ("cooperative_fusion", ("ci", "naive"), "'ci' or 'naive'"),
     ("detection_model", DETECTION_MODELS, f"one of {DETECTION_MODELS}"),
 )
-_FLAGS = ("teammate_obs", "reward_terms_dict", "global_localization", "detection_orientation")
 
 
 def _check_counts(cfg: ScenarioConfig) -> None:
@@ -401,10 +400,11 @@ def _check_choices(cfg: ScenarioConfig) -> None:
 
 
 def _check_flags(cfg: ScenarioConfig) -> None:
-    for key in _FLAGS:
-        value = getattr(cfg, key)
-        if not isinstance(value, bool):
-            raise ValueError(f"{key} must be True or False, got {value!r}")
+    """Every ``bool`` field (a string such as ``"false"`` from a command line is truthy)."""
+    for f in dataclasses.fields(cfg):
+        value = getattr(cfg, f.name)
+        if f.type in ("bool", bool) and not isinstance(value, bool):
+            raise ValueError(f"{f.name} must be True or False, got {value!r}")
 
 
 def _check_info_keys(cfg: ScenarioConfig) -> None:

@@ -53,3 +53,13 @@ def test_every_shipped_scenario_and_profile_uses_declared_extras_only():
 def test_field_bounds_declared_beside_the_fields_are_checked(key, value):
     with pytest.raises(ValueError, match=f"{key} must be"):
         ScenarioConfig().replace(**{key: value})
+
+
+@pytest.mark.parametrize("key", ["cooperative_updates", "privileged_obs", "tip_over_terminates",
+                                 "global_localization"])
+def test_every_flag_refuses_a_string(key):
+    """``--set cooperative_updates=false`` arrives as the string ``"false"``, which is truthy:
+    every ``bool`` field refuses anything but True or False, naming the field and value."""
+    with pytest.raises(ValueError, match=f"{key} must be True or False, got 'false'"):
+        coop_loc_env.make_config("active_hallway", **{key: "false"})
+    assert getattr(coop_loc_env.make_config("active_hallway", **{key: False}), key) is False
