@@ -31,6 +31,7 @@ import time
 import numpy as np
 
 import coop_loc_env
+from policies.episode import env_overrides_for
 from policies.experiments.runner import parse_overrides
 from policies.learning.loader import make_policy
 
@@ -54,9 +55,9 @@ def bootstrap_ci(values: np.ndarray, n_boot: int = 10000, seed: int = 0,
 
 def run_episode(seed: int, policy_spec: str, scenario: str, overrides: dict) -> dict:
     """One episode: per robot and step, the honesty figures (see the module docstring)."""
-    env = coop_loc_env.parallel_env(scenario, **overrides)
-    obs, _ = env.reset(seed=seed)
     policy = make_policy(policy_spec)
+    env = coop_loc_env.parallel_env(scenario, **env_overrides_for(policy, overrides))
+    obs, _ = env.reset(seed=seed)
     policy.reset(env, seed=seed)
     agents = list(env.possible_agents)
     dt = env.config.dt

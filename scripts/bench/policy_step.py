@@ -16,14 +16,15 @@ import sys
 import time
 
 import coop_loc_env
+from policies.episode import env_overrides_for
 from policies.experiments.compare import parse_policy_list, resolve_policy
 from policies.experiments.runner import parse_overrides
 
 
 def bench(scenario: str, spec: str, episodes: int, overrides: dict) -> tuple[float, float]:
     """``(ms per act call, ms per env step)`` of ``spec`` over ``episodes`` seeded episodes."""
-    env = coop_loc_env.parallel_env(scenario, **overrides)
     policy = resolve_policy(spec)
+    env = coop_loc_env.parallel_env(scenario, **env_overrides_for(policy, overrides))
     t_act = t_env = 0.0
     steps = 0
     for k in range(episodes):
