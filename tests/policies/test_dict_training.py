@@ -3,6 +3,9 @@ a saved model that carries the observation settings it was trained with."""
 
 from __future__ import annotations
 
+import importlib.util
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -87,6 +90,12 @@ def test_saved_model_carries_its_observation_settings(tmp_path):
     rep = compare("active_hallway", [summary["final_model"], "corridor"], 1, 3, overrides,
                   progress=False)
     assert rep["episodes"][summary["final_model"]][0]["steps"] == 6
+    path = Path(__file__).resolve().parents[2] / "scripts" / "bench" / "policy_step.py"
+    spec = importlib.util.spec_from_file_location("policy_step", path)
+    policy_step = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(policy_step)
+    act_ms, env_ms = policy_step.bench("active_hallway", summary["final_model"], 1, overrides)
+    assert act_ms > 0 and env_ms > 0  # the benchmark builds the env the model reads
     env = coop_loc_env.parallel_env("active_hallway", **overrides)  # flat observations
     env.reset(seed=0)
     with pytest.raises(ValueError, match="obs_format"):
