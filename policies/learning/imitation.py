@@ -37,12 +37,6 @@ __all__ = ["behaviour_clone", "collect_demonstrations", "make_teacher", "discoun
            "stack_observations", "concat_observations"]
 
 
-def _as_float32(obs):
-    if isinstance(obs, dict):
-        return {k: np.asarray(v, dtype=np.float32) for k, v in obs.items()}
-    return np.asarray(obs, dtype=np.float32)
-
-
 def stack_observations(items: list):
     """Stack per-agent observations into a batch: an array, or (``obs_format="dict"``) a
     dict of arrays, one per key."""
@@ -133,7 +127,7 @@ def collect_demonstrations(
             while env.agents:
                 actions = teacher.act(obs)
                 for a in env.agents:
-                    per_agent[a]["obs"].append(_as_float32(obs[a]))
+                    per_agent[a]["obs"].append(obs[a])  # float32 once stacked
                     per_agent[a]["act"].append(np.clip(np.asarray(actions[a], float), -1, 1))
                 if actor is not None:
                     live = list(env.agents)

@@ -19,27 +19,20 @@ threads vs 0.96-1.08 ms with 1: ``python scripts/bench/inference.py``)."""
 def check_observation_shape(name: str, expected, env) -> None:
     """Raise ``ValueError`` unless ``env``'s observations fit a network's: ``expected`` is
     its observation space (a ``Box`` or a ``Dict`` of them) or a ``Box``'s shape."""
-    got = env.observation_space(env.possible_agents[0])
-    want_dict = isinstance(expected, spaces.Dict)
-    if want_dict or isinstance(got, spaces.Dict):
-        shapes = {k: s.shape for k, s in expected.spaces.items()} if want_dict else None
-        have = {k: s.shape for k, s in got.spaces.items()} if isinstance(
-            got, spaces.Dict) else None
-        if shapes != have:
-            raise ValueError(
-                f"model {name!r} expects observations {shapes or _shape(expected)}, the env "
-                f"gives {have or got.shape}: use the same scenario/config overrides as in "
-                f"training (obs_format, belief_map_cells, ...)"
-            )
-        return
-    if tuple(_shape(expected)) != tuple(got.shape):
+    want = _layout(expected)
+    got = _layout(env.observation_space(env.possible_agents[0]))
+    if want != got:
         raise ValueError(
-            f"model {name!r} expects observations of shape {_shape(expected)}, the env "
-            f"gives {got.shape}: use the same scenario/config overrides as in training"
+            f"model {name!r} expects observations of shape {want}, the env gives {got}: use "
+            f"the same scenario/config overrides as in training (obs_format, "
+            f"belief_map_cells, ...)"
         )
 
 
-def _shape(space_or_shape) -> tuple:
+def _layout(space_or_shape) -> tuple | dict[str, tuple]:
+    """A space's shape, or a ``Dict`` space's shape per key."""
+    if isinstance(space_or_shape, spaces.Dict):
+        return {k: tuple(s.shape) for k, s in space_or_shape.spaces.items()}
     return tuple(getattr(space_or_shape, "shape", space_or_shape))
 
 
