@@ -30,8 +30,8 @@ source_suffix = {".md": "markdown", ".rst": "restructuredtext"}
 root_doc = "index"
 # docs/README.md is the folder's guide for readers browsing the repository.
 exclude_patterns = ["_build", "README.md", "models", "figures/README.md"]
-# An optional page named by a toctree glob (e.g. configs.md) may not exist yet.
-suppress_warnings = ["toc.empty_glob"]
+# Pages listed in a table of contents only when they exist (configs.md: config files).
+OPTIONAL_PAGES = ("configs",)
 
 myst_enable_extensions = ["colon_fence", "deflist", "dollarmath"]
 myst_heading_anchors = 3
@@ -48,3 +48,16 @@ html_title = "coop-loc-env"
 html_static_path = ["_static"]
 pygments_style = "sphinx"
 pygments_dark_style = "monokai"
+
+
+def _drop_missing_optional_pages(app, docname: str, source: list[str]) -> None:
+    """Leave an optional page that does not exist out of the index's tables of contents."""
+    if docname != "index":
+        return
+    for page in OPTIONAL_PAGES:
+        if not (Path(app.srcdir) / f"{page}.md").exists():
+            source[0] = source[0].replace(f"\n{page}\n", "\n")
+
+
+def setup(app) -> None:
+    app.connect("source-read", _drop_missing_optional_pages)

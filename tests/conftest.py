@@ -100,7 +100,7 @@ SLOW_TESTS = frozenset({
     "test_mrclam.py::test_cli_writes_the_documented_json",
     "test_mrclam.py::test_mle_runs_on_excerpt_and_beats_dead_reckoning",
     "test_particle_filter.py::test_beam_model_tracks_with_wide_cones[180]",
-    "test_quoted_commands.py::test_belief_honesty_figures_quoted_in_the_readme",
+    "test_quoted_commands.py::test_belief_honesty_figures_quoted_in_the_docs",
     "test_rllib.py::test_tiny_training_then_evaluate_and_compare",
     "test_sb3_adapter.py::test_two_processes_match_one_process",
     "test_torchrl.py::test_torchrl_env_specs_and_rollout_on_every_scenario",

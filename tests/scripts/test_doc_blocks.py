@@ -207,12 +207,24 @@ def _run_shell(block: Block, cwd: Path, base_env: dict[str, str]) -> None:
         _run(argv, cwd, env, block)
 
 
-def _run_python(block: Block, cwd: Path, env: dict[str, str], namespace: Path) -> None:
-    """Run the block after the page's earlier Python blocks (one namespace per page)."""
-    earlier = namespace.read_text() if namespace.exists() else ""
-    source = earlier + f"\n# --- {block}\n" + block.code
-    namespace.write_text(source)
-    _run([sys.executable, str(namespace)], cwd, env, block)
+# Runs a page's Python blocks in one namespace and fails on an API that its library has
+# announced for removal ("... will be removed in v0.13"): documented code must not use it.
+RUNNER = """
+import runpy, sys, warnings
+with warnings.catch_warnings(record=True) as caught:
+    warnings.simplefilter("always")
+    runpy.run_path(sys.argv[1], run_name="__main__")
+removed = sorted({str(w.message) for w in caught if " removed in v" in str(w.message)})
+if removed:
+    sys.exit("uses an API announced for removal: " + removed[0])
+"""
+
+
+def _run_python(blocks_of_page: list[Block], cwd: Path, env: dict[str, str], script: Path):
+    """Run the page's Python blocks in order, one namespace (a page's blocks continue
+    each other)."""
+    script.write_text("".join(f"\n# --- {b}\n{b.code}" for b in blocks_of_page))
+    _run([sys.executable, "-c", RUNNER, str(script)], cwd, env, blocks_of_page[0])
 
 
 def _runnable(page: Path) -> list[Block]:
@@ -235,11 +247,7 @@ def test_page_blocks_run(page, tmp_path):
             _run_shell(block, cwd, env)
         else:
             python_blocks.append(block)
-    # Python blocks of one page continue each other; run them once, all together.
     if python_blocks:
-        for block in python_blocks[:-1]:
-            namespace.write_text((namespace.read_text() if namespace.exists() else "")
-                                 + f"\n# --- {block}\n" + block.code)
-        _run_python(python_blocks[-1], cwd, env, namespace)
+        _run_python(python_blocks, cwd, env, namespace)
     written = [p for p in (cwd / "docs").iterdir() if p.name != "models"]
     assert written == [], f"{page.name}: commands wrote into docs/: {written}"
