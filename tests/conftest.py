@@ -51,6 +51,7 @@ SLOW_TESTS = frozenset({
     "test_compare.py::test_evaluate_compare_prints_one_table_and_saves_plot_and_json",
     "test_compare.py::test_still_policy_covers_less_than_random",
     "test_density_tree.py::test_monte_carlo_integral_of_pdf_over_the_domain_is_one",
+    "test_doc_blocks.py::test_page_blocks_run",
     "test_ekf.py::test_filter_is_consistent_with_gps_over_a_long_run",
     "test_env_api.py::test_aec_api[dispersal]",
     "test_env_api.py::test_aec_api[hexagon]",

@@ -3,7 +3,10 @@
 A block of commands (``console``, ``bash``; an indented block whose first word is a
 command) or of Python runs in a fresh folder where the repository's ``scripts/``,
 ``examples/`` and ``tests/`` are linked (``docs/models`` too, the rest of ``docs/``
-is not there), in the page's order. An HTML comment just before a block changes that:
+is not there), in the page's order: ``python scripts/X.py ARGS`` as the script's
+``__main__`` does (``main(ARGS)``, in this process: no interpreter start per command;
+a ``VAR=value`` prefix is then moot, conftest sets the thread variables), the rest in a
+subprocess. An HTML comment just before a block changes that:
 
 - ``<!-- not run: REASON -->``: not run, for the reason given;
 - ``<!-- run shortened: SCRIPT ARGS; SCRIPT ARGS -->``: each command of ``SCRIPT`` runs
@@ -15,6 +18,8 @@ The README's two ``    $ `` commands are the ones ``.ci/run`` runs.
 
 from __future__ import annotations
 
+import importlib.util
+import inspect
 import os
 import re
 import shlex
@@ -193,7 +198,23 @@ def _run(argv: list[str], cwd: Path, env: dict[str, str], where: Block) -> None:
         f"{result.stdout[-2000:]}\n{result.stderr[-4000:]}")
 
 
-def _run_shell(block: Block, cwd: Path, base_env: dict[str, str]) -> None:
+def _run_script(path: str, args: list[str], cwd: Path, where: Block, monkeypatch) -> None:
+    """Run ``scripts/...py`` in this process, as its ``__main__`` block does: its ``main``
+    with the arguments (one interpreter for the page: no start-up per command)."""
+    monkeypatch.chdir(cwd)
+    monkeypatch.setattr(sys, "argv", [path, *args])
+    spec = importlib.util.spec_from_file_location(f"doc_{Path(path).stem}", ROOT / path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    takes_argv = bool(inspect.signature(module.main).parameters)
+    try:
+        rc = module.main(args) if takes_argv else module.main()
+    except SystemExit as stop:
+        rc = stop.code
+    assert rc in (0, None) or isinstance(rc, dict), f"{where}: {path} {shlex.join(args)} -> {rc}"
+
+
+def _run_shell(block: Block, cwd: Path, base_env: dict[str, str], monkeypatch) -> None:
     extra = _shortened(block.marker[1]) if block.marker else {}
     for words in commands(block.code):
         env = dict(base_env)
@@ -201,10 +222,12 @@ def _run_shell(block: Block, cwd: Path, base_env: dict[str, str]) -> None:
             key, _, value = words.pop(0).partition("=")
             env[key] = value
         assert words[0] in ("python", "python3"), f"{block}: cannot run {words[0]!r} here"
-        argv = [sys.executable, *words[1:]]
         script = next((Path(w).name for w in words[1:] if w.endswith(".py")), None)
-        argv += extra.get(script, [])
-        _run(argv, cwd, env, block)
+        args = [*words[1:], *extra.get(script, [])]
+        if args[0].startswith("scripts/") and args[0].endswith(".py"):
+            _run_script(args[0], args[1:], cwd, block, monkeypatch)
+        else:
+            _run([sys.executable, *args], cwd, env, block)
 
 
 # Runs a page's Python blocks in one namespace and fails on an API that its library has
@@ -235,7 +258,7 @@ def _runnable(page: Path) -> list[Block]:
 
 @pytest.mark.parametrize("page", [p for p in PAGES if _runnable(p)],
                          ids=lambda p: str(p.relative_to(ROOT)))
-def test_page_blocks_run(page, tmp_path):
+def test_page_blocks_run(page, tmp_path, monkeypatch):
     """The page's blocks run (exit status 0), in order, and write nothing into docs/."""
     cwd = _workdir(tmp_path / "work")
     env = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1",
@@ -244,7 +267,7 @@ def test_page_blocks_run(page, tmp_path):
     python_blocks = []
     for block in _runnable(page):
         if block.kind == "shell":
-            _run_shell(block, cwd, env)
+            _run_shell(block, cwd, env, monkeypatch)
         else:
             python_blocks.append(block)
     if python_blocks:
