@@ -68,7 +68,10 @@ def _kind(token) -> str:
     first = token.content.lstrip().split("\n", 1)[0]
     if first.startswith(("from ", "import ")):
         return "python"
-    words = [w for w in first.split() if not re.fullmatch(r"[A-Z_]+=\S*", w)]
+    words = first.split()
+    if words and all(re.fullmatch(r"[A-Z_]+=\S*", w) for w in words):
+        return "shell"  # a variable set for the commands below
+    words = [w for w in words if not re.fullmatch(r"[A-Z_]+=\S*", w)]
     return "shell" if words and words[0] in COMMAND_WORDS else "text"
 
 
@@ -180,7 +183,7 @@ def test_text_blocks_hold_no_command():
         for block in page:
             if block.kind == "text":
                 first = block.code.lstrip().split("\n", 1)[0]
-                assert not re.match(r"(python3? |pip |\$ )", first), str(block)
+                assert not re.match(r"(python3? |pip |\$ |[A-Z_]+=)", first), str(block)
 
 
 def _workdir(tmp_path: Path) -> Path:
