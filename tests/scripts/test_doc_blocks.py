@@ -132,7 +132,7 @@ RUN = [b for page in ALL.values() for b in page if b.kind != "text"]
 
 
 def _is_ci(block: Block) -> bool:
-    return block.page.name == "README.md" and block.code.lstrip().startswith("$ ")
+    return block.page == ROOT / "README.md" and block.code.lstrip().startswith("$ ")
 
 
 def test_every_block_is_run_or_marked_with_a_reason():
