@@ -125,6 +125,7 @@ def _plot(result, metrics: dict, path: Path, landmarks: dict | None = None) -> N
     )
     ax1.legend(fontsize=8)
     fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)
     plt.close(fig)
 
@@ -215,6 +216,7 @@ def _run(args: argparse.Namespace) -> int:
     )
     print(f"run time {metrics['runtime_s']:.2f} s")
     if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(metrics, indent=2) + "\n")
     if args.plot:
         _plot(result, metrics, args.plot, dataset.landmarks)
