@@ -16,7 +16,8 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["mode_mask", "near_weight", "pairwise_sum", "turned_free", "weighted_median"]
+__all__ = ["copy_masks", "lightest_outside", "mode_mask", "pairwise_sum", "topped_up_weights",
+           "turned_free", "uniform_centre", "weighted_median"]
 
 SAFE = 1e-9  # relative margin: far above the rounding of a few thousand float64 terms
 
@@ -244,16 +245,134 @@ def turned_free(poses: np.ndarray, cx: float, cy: float, angle: float, c: float,
 
 
 @njit(cache=True)
-def near_weight(x: np.ndarray, y: np.ndarray, w: np.ndarray, cx: float, cy: float,
-                radius: float) -> float:  # pragma: no cover (compiled)
-    """``w[(x - cx)**2 + (y - cy)**2 <= radius**2].sum()``, bit for bit."""
+def uniform_centre(claimed: np.ndarray, radius: float
+                   ) -> tuple[float, float, bool, bool]:  # pragma: no cover (compiled)
+    """The centre :func:`~estimators.mcl.detection_consistency.main_mode` finds for poses
+    ``claimed`` ``(M, 3)`` under equal weights: ``(cx, cy, exact, ok)``. ``exact``: the
+    centre is a coordinate median, bit for bit (equal weights make the sorted running
+    sum a function of ``M`` alone, repeated here); otherwise it is the mean up to
+    rounding (a mask drawn about it needs a margin). ``ok`` False: the choice between
+    mean and median lies within rounding of the threshold."""
+    m = claimed.shape[0]
+    u0 = 1.0 / m
+    full = np.full(m, u0)
+    u = u0 / pairwise_sum(full)
+    mx = 0.0
+    my = 0.0
+    for i in range(m):
+        mx += u * claimed[i, 0]
+        my += u * claimed[i, 1]
+    spread = 0.0
+    for i in range(m):
+        dx = claimed[i, 0] - mx
+        dy = claimed[i, 1] - my
+        spread += u * (dx * dx + dy * dy)
+    lim = (0.25 * radius) ** 2
+    if abs(spread - lim) <= SAFE * (lim + spread) + 1e-300 or spread != spread:
+        return 0.0, 0.0, False, False
+    if spread <= lim:
+        return mx, my, False, True
+    # numpy's cumsum of m equal weights, and the first entry reaching half the last
+    cum = np.empty(m)
+    c = 0.0
+    for j in range(m):
+        c = u if j == 0 else c + u
+        cum[j] = c
+    half = 0.5 * cum[m - 1]
+    j = 0
+    while j < m - 1 and cum[j] < half:
+        j += 1
+    xs = np.partition(claimed[:, 0].copy(), j)
+    ys = np.partition(claimed[:, 1].copy(), j)
+    return xs[j], ys[j], True, True
+
+
+@njit(cache=True)
+def copy_masks(x: np.ndarray, y: np.ndarray, wn: np.ndarray, claimed: np.ndarray,
+               cx: float, cy: float, exact: bool, radius: float
+               ) -> tuple[np.ndarray, np.ndarray, float, bool]:  # pragma: no cover
+    """``widen``'s masks about the centre ``cx, cy`` of the claimed poses: the particles
+    ``x, y`` within ``radius`` (``here``) and the claims within it (``near``), and
+    ``wn[here].sum()`` bit for bit; ``ok`` False when the centre is not ``exact`` and a
+    point lies within its rounding of the radius."""
     r2 = radius * radius
-    inside = np.empty(x.size)
+    margin = 0.0 if exact else SAFE * (r2 + 1.0)
+    n = x.size
+    here = np.zeros(n, dtype=np.bool_)
+    inside = np.empty(n)
     k = 0
-    for i in range(x.size):
+    for i in range(n):
         dx = x[i] - cx
         dy = y[i] - cy
-        if dx * dx + dy * dy <= r2:
-            inside[k] = w[i]
+        d2 = dx * dx + dy * dy
+        if margin > 0.0 and abs(d2 - r2) <= margin:
+            return here, here, 0.0, False
+        if d2 <= r2:
+            here[i] = True
+            inside[k] = wn[i]
             k += 1
-    return _pairwise(inside, 0, k)
+    m = claimed.shape[0]
+    near = np.zeros(m, dtype=np.bool_)
+    for i in range(m):
+        dx = claimed[i, 0] - cx
+        dy = claimed[i, 1] - cy
+        d2 = dx * dx + dy * dy
+        if margin > 0.0 and abs(d2 - r2) <= margin:
+            return here, near, 0.0, False
+        near[i] = d2 <= r2
+    return here, near, _pairwise(inside, 0, k), True
+
+
+@njit(cache=True)
+def lightest_outside(wn: np.ndarray, here: np.ndarray, k: int
+                     ) -> np.ndarray:  # pragma: no cover (compiled)
+    """``outside[np.argsort(wn[outside], kind="stable")[:k]]`` for ``outside`` the indices
+    not ``here``: the ``k`` least weights outside, ties by index."""
+    slots = np.empty(k, dtype=np.intp)
+    vals = np.empty(k)
+    filled = 0
+    for i in range(wn.size):
+        if here[i]:
+            continue
+        v = wn[i]
+        if filled == k and v >= vals[k - 1]:
+            continue  # not lighter than the k-th (a tie keeps the earlier index)
+        j = filled if filled < k else k - 1
+        while j > 0 and vals[j - 1] > v:
+            vals[j] = vals[j - 1]
+            slots[j] = slots[j - 1]
+            j -= 1
+        vals[j] = v
+        slots[j] = i
+        if filled < k:
+            filled += 1
+    return slots[:filled]
+
+
+@njit(cache=True)
+def topped_up_weights(wn: np.ndarray, here: np.ndarray, slots: np.ndarray, mass: float,
+                      have: float) -> np.ndarray:  # pragma: no cover (compiled)
+    """``widen``'s new weights, bit for bit: the particles outside ``here`` and not in
+    ``slots`` scaled to ``1 - mass`` in all, each slot ``(mass - have) / k``, normalized."""
+    n = wn.size
+    keep = np.ones(n, dtype=np.bool_)
+    for i in range(n):
+        keep[i] = not here[i]
+    for s in slots:
+        keep[s] = False
+    rest_w = np.empty(n)
+    k = 0
+    for i in range(n):
+        if keep[i]:
+            rest_w[k] = wn[i]
+            k += 1
+    rest = _pairwise(rest_w, 0, k)
+    f = (1.0 - mass) / rest if rest > 0 else 0.0
+    out = wn.copy()
+    for i in range(n):
+        if keep[i]:
+            out[i] *= f
+    each = (mass - have) / slots.size
+    for s in slots:
+        out[s] = each
+    return out / pairwise_sum(out)

@@ -17,7 +17,14 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from estimators.mcl._keeper_kernels import mode_mask, near_weight, turned_free
+from estimators.mcl._keeper_kernels import (
+    copy_masks,
+    lightest_outside,
+    mode_mask,
+    topped_up_weights,
+    turned_free,
+    uniform_centre,
+)
 from estimators.mcl.detection_consistency import main_mode, widen
 from estimators.mcl.map_symmetry import MapSymmetry
 from estimators.mcl.occupancy import OccupancyGrid
@@ -53,11 +60,14 @@ def top_up_copies(
     ``widen`` called copy after copy on ``symmetric_copies(cloud, s)[grid.is_free(...)]``
     and the particles and weights it returns)."""
     parts, w = particles, weights
+    own = False  # whether ``parts`` is this function's copy yet
     cloud = np.ascontiguousarray(cloud, dtype=float)
     gx, gy = (float(v) for v in grid.origin)
     res = float(grid.resolution)
     occupied = grid.occupied
+    radius = float(radius)
     placed = False
+    x = y = None
     for sym in symmetries:
         a = float(sym.angle)
         cx, cy = (float(v) for v in sym.centre)
@@ -65,13 +75,31 @@ def top_up_copies(
                              occupied)
         if not len(turned):
             continue
-        # widen's first steps: a copy that already holds ``mass`` is left as it is
+        # widen, copy by copy: the claims' centre, the weight near it, then the lightest
+        # particles elsewhere turned into claims
         wn = w / w.sum()
-        centre, _ = main_mode(turned[:, :2], np.full(len(turned), 1.0 / len(turned)), radius)
-        if near_weight(parts[:, 0], parts[:, 1], wn, float(centre[0]), float(centre[1]),
-                       float(radius)) >= mass:
-            w = wn
+        mx, my, exact, ok = uniform_centre(turned, radius)
+        if ok:
+            if x is None:
+                x, y = np.ascontiguousarray(parts[:, 0]), np.ascontiguousarray(parts[:, 1])
+            here, near, have, ok = copy_masks(x, y, wn, turned, mx, my, exact, radius)
+        if not ok:  # a rounding-close case: numpy's order decides
+            parts, w, k = widen(parts, w, turned, mass, radius, rng)
+            own, x = True, None
+            placed = placed or k > 0
             continue
-        parts, w, k = widen(parts, w, turned, mass, radius, rng)
-        placed = placed or k > 0
+        w = wn
+        if have >= mass:
+            continue
+        k = min(max(1, int(round(mass * len(w)))), len(w) - int(here.sum()))
+        if k < 1:
+            continue
+        slots = lightest_outside(wn, here, k)
+        pool = turned[near] if near.any() else turned
+        if not own:
+            parts, own = np.array(parts, dtype=float), True
+        parts[slots] = pool[rng.integers(0, len(pool), size=k)]
+        x = y = None
+        w = topped_up_weights(wn, here, slots, mass, have)
+        placed = True
     return parts, w, placed
