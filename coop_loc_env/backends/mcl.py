@@ -104,6 +104,7 @@ from estimators.mcl.batch import (
 )
 from estimators.mcl.beam_table import BeamLUT, RangeTable
 from estimators.mcl.copy_keeper import filter_mode, top_up_copies
+from estimators.mcl.copy_keeper import load_kernels as load_keeper_kernels
 from estimators.mcl.density_tree import load_kernels
 from estimators.mcl.detection_consistency import (
     ConsistencyConfig,
@@ -418,6 +419,9 @@ class MCLBackend(EstimatorBackend):
             self._hist_n = self._hist_next = 0
         if cfg.cooperative_updates:  # the first detection would load them inside a step
             load_kernels()
+        for t, syms in self.symmetries.items():  # and the first step that keeps a copy
+            if syms:
+                load_keeper_kernels(self._grids[t])
         # build the shared range tables now, not inside the first step
         for i in range(k):
             if self._sonar[i]:

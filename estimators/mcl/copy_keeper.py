@@ -24,13 +24,14 @@ from estimators.mcl._keeper_kernels import (
     topped_up_weights,
     turned_free,
     uniform_centre,
+    weighted_median,
 )
 from estimators.mcl.detection_consistency import main_mode, widen
 from estimators.mcl.map_symmetry import MapSymmetry
 from estimators.mcl.occupancy import OccupancyGrid
 from estimators.mcl.team import ParticleSet
 
-__all__ = ["filter_mode", "top_up_copies"]
+__all__ = ["filter_mode", "load_kernels", "top_up_copies"]
 
 
 def filter_mode(ps: ParticleSet, radius: float) -> tuple[np.ndarray, float]:
@@ -103,3 +104,20 @@ def top_up_copies(
         w = topped_up_weights(wn, here, slots, mass, have)
         placed = True
     return parts, w, placed
+
+
+def load_kernels(grid: OccupancyGrid) -> None:
+    """Load the compiled loops now (from numba's disk cache, compiling them the first
+    time), with the argument types the passes above give them on ``grid``: otherwise the
+    first step that keeps a copy pays it."""
+    poses = np.zeros((2, 3))
+    x = np.zeros(2)
+    w = np.full(2, 0.5)
+    here = np.zeros(2, dtype=np.bool_)
+    mode_mask(np.zeros((3, 2), dtype=np.float32), 0.0, 0.0, w, 1.0)
+    turned_free(poses, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, grid.occupied)
+    uniform_centre(poses, 1.0)
+    copy_masks(x, x, w, poses, 0.0, 0.0, False, 1.0)
+    lightest_outside(w, here, 1)
+    topped_up_weights(w, here, np.zeros(1, dtype=np.intp), 0.1, 0.0)
+    weighted_median(x, w)
