@@ -82,7 +82,7 @@ def top_up_copies(
         mx, my, exact, ok = uniform_centre(turned, radius)
         if ok:
             if x is None:
-                x, y = np.ascontiguousarray(parts[:, 0]), np.ascontiguousarray(parts[:, 1])
+                x, y = parts[:, 0].copy(), parts[:, 1].copy()  # one compiled signature
             here, near, have, ok = copy_masks(x, y, wn, turned, mx, my, exact, radius)
         if not ok:  # a rounding-close case: numpy's order decides
             parts, w, k = widen(parts, w, turned, mass, radius, rng)
@@ -120,4 +120,6 @@ def load_kernels(grid: OccupancyGrid) -> None:
     copy_masks(x, x, w, poses, 0.0, 0.0, False, 1.0)
     lightest_outside(w, here, 1)
     topped_up_weights(w, here, np.zeros(1, dtype=np.intp), 0.1, 0.0)
+    weighted_median(x, w)
+    x.flags.writeable = False  # as main_mode passes a filter's (read-only) positions
     weighted_median(x, w)
