@@ -103,7 +103,7 @@ from estimators.mcl.batch import (
     weigh_batch,
 )
 from estimators.mcl.beam_table import BeamLUT, RangeTable
-from estimators.mcl.copy_keeper import filter_mode, top_up_copies
+from estimators.mcl.copy_keeper import filter_mode, mode_weight_below, top_up_copies
 from estimators.mcl.copy_keeper import load_kernels as load_keeper_kernels
 from estimators.mcl.density_tree import load_kernels
 from estimators.mcl.detection_consistency import (
@@ -538,8 +538,13 @@ class MCLBackend(EstimatorBackend):
             syms = self.symmetries.get(self._kinds[i])
             if not syms:
                 continue
-            mode, mass = self._mode(i, radius)
-            if mass < KEEP_CHECK_MASS:
+            # a spread-out belief's mode cannot hold KEEP_CHECK_MASS: a bound settles it
+            below = self._cached_mode(i, radius) is None and mode_weight_below(
+                self.filters[i].particle_set, radius, KEEP_CHECK_MASS)
+            if not below:
+                mode, mass = self._mode(i, radius)
+                below = mass < KEEP_CHECK_MASS
+            if below:
                 self._certified[i] = False
                 self._plausible[i] = None
                 continue
@@ -564,17 +569,26 @@ class MCLBackend(EstimatorBackend):
         :func:`~estimators.mcl.detection_consistency.main_mode` over its particles) and the
         weight in it, computed once per state of the filter: cached until a step begins or
         the filter's particles, weights or motion count change."""
-        ps = self.filters[i].particle_set
-        hit = self._modes.get(i)
+        hit = self._cached_mode(i, radius)
         if hit is not None:
-            t, state, weights, steps, r, mode, mass = hit
-            if (t == self._t and state is ps.state and weights is ps.weights
-                    and steps == ps.unwrapped_steps and r == radius):
-                return mode, mass
+            return hit
+        ps = self.filters[i].particle_set
         mode, mass = filter_mode(ps, radius)
         mode.flags.writeable = False
         self._modes[i] = (self._t, ps.state, ps.weights, ps.unwrapped_steps, radius, mode, mass)
         return mode, mass
+
+    def _cached_mode(self, i: int, radius: float) -> tuple[np.ndarray, float] | None:
+        """:meth:`_mode`'s answer for filter ``i``'s current state, if it has one."""
+        hit = self._modes.get(i)
+        if hit is None:
+            return None
+        ps = self.filters[i].particle_set
+        t, state, weights, steps, r, mode, mass = hit
+        if (t == self._t and state is ps.state and weights is ps.weights
+                and steps == ps.unwrapped_steps and r == radius):
+            return mode, mass
+        return None
 
     def _plausible_copies(self, i: int, cloud: np.ndarray, weights: np.ndarray,
                           syms: tuple, radius: float) -> list:

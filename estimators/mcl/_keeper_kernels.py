@@ -16,8 +16,8 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["copy_masks", "lightest_outside", "mode_mask", "pairwise_sum", "topped_up_weights",
-           "turned_free", "uniform_centre", "weighted_median"]
+__all__ = ["copy_masks", "disc_weight_bound", "lightest_outside", "mode_mask", "pairwise_sum",
+           "topped_up_weights", "turned_free", "uniform_centre", "weighted_median"]
 
 SAFE = 1e-9  # relative margin: far above the rounding of a few thousand float64 terms
 
@@ -376,3 +376,42 @@ def topped_up_weights(wn: np.ndarray, here: np.ndarray, slots: np.ndarray, mass:
     for s in slots:
         out[s] = each
     return out / pairwise_sum(out)
+
+
+@njit(cache=True)
+def disc_weight_bound(state: np.ndarray, ox: float, oy: float, w: np.ndarray,
+                      radius: float) -> float:  # pragma: no cover (compiled)
+    """An upper bound on the weight ``w`` of the particles (``state`` as in
+    :func:`mode_mask`) within ``radius`` of any point: the most weight in 2 x 2 cells of a
+    grid of cells a little over ``2 * radius`` (a disc of that diameter meets at most 2 x 2
+    of them);
+    ``inf`` when the particles span more than 4096 cells."""
+    n = w.size
+    if n == 0:
+        return 0.0
+    cell = 2.0 * radius * (1.0 + 1e-6)  # a disc spans 2 cells even where rounding bins
+    x0 = np.float64(state[0, 0]) + ox
+    y0 = np.float64(state[1, 0]) + oy
+    x1, y1 = x0, y0
+    for i in range(n):
+        x = np.float64(state[0, i]) + ox
+        y = np.float64(state[1, i]) + oy
+        if not (x == x and y == y):
+            return np.inf
+        x0, x1 = min(x0, x), max(x1, x)
+        y0, y1 = min(y0, y), max(y1, y)
+    nx = int((x1 - x0) / cell) + 1
+    ny = int((y1 - y0) / cell) + 1
+    if nx * ny > 4096:
+        return np.inf
+    grid = np.zeros((ny + 1, nx + 1))
+    for i in range(n):
+        ix = min(int((np.float64(state[0, i]) + ox - x0) / cell), nx - 1)
+        iy = min(int((np.float64(state[1, i]) + oy - y0) / cell), ny - 1)
+        grid[iy, ix] += w[i]
+    best = 0.0
+    for iy in range(ny):
+        for ix in range(nx):
+            s = grid[iy, ix] + grid[iy, ix + 1] + grid[iy + 1, ix] + grid[iy + 1, ix + 1]
+            best = max(best, s)
+    return best

@@ -18,7 +18,9 @@ from collections.abc import Sequence
 import numpy as np
 
 from estimators.mcl._keeper_kernels import (
+    SAFE,
     copy_masks,
+    disc_weight_bound,
     lightest_outside,
     mode_mask,
     topped_up_weights,
@@ -31,7 +33,7 @@ from estimators.mcl.map_symmetry import MapSymmetry
 from estimators.mcl.occupancy import OccupancyGrid
 from estimators.mcl.team import ParticleSet
 
-__all__ = ["filter_mode", "load_kernels", "top_up_copies"]
+__all__ = ["filter_mode", "load_kernels", "mode_weight_below", "top_up_copies"]
 
 
 def filter_mode(ps: ParticleSet, radius: float) -> tuple[np.ndarray, float]:
@@ -47,6 +49,17 @@ def filter_mode(ps: ParticleSet, radius: float) -> tuple[np.ndarray, float]:
     xy = np.column_stack([state[0] + ox, state[1] + oy])
     _, mask = main_mode(xy, ps.weights, radius)
     return mask, float(ps.weights[mask].sum())
+
+
+def mode_weight_below(ps: ParticleSet, radius: float, limit: float) -> bool:
+    """Whether no disc of ``radius`` holds ``limit`` of the set's weight, by a bound (a
+    grid of cells twice the radius), so certainly its main mode does not (True); False:
+    it cannot tell (:func:`filter_mode` can)."""
+    ox, oy = ps.origin_xy
+    state = ps.state
+    if not state.flags.c_contiguous:
+        state = np.ascontiguousarray(state)
+    return disc_weight_bound(state, ox, oy, ps.weights, float(radius)) < limit * (1.0 - SAFE)
 
 
 def top_up_copies(
@@ -115,6 +128,7 @@ def load_kernels(grid: OccupancyGrid) -> None:
     w = np.full(2, 0.5)
     here = np.zeros(2, dtype=np.bool_)
     mode_mask(np.zeros((3, 2), dtype=np.float32), 0.0, 0.0, w, 1.0)
+    disc_weight_bound(np.zeros((3, 2), dtype=np.float32), 0.0, 0.0, w, 1.0)
     turned_free(poses, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, grid.occupied)
     uniform_centre(poses, 1.0)
     copy_masks(x, x, w, poses, 0.0, 0.0, False, 1.0)

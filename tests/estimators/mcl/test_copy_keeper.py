@@ -9,9 +9,14 @@ import numpy as np
 import pytest
 
 import coop_loc_env
-from estimators.mcl._keeper_kernels import SAFE, pairwise_sum, weighted_median
+from estimators.mcl._keeper_kernels import (
+    SAFE,
+    disc_weight_bound,
+    pairwise_sum,
+    weighted_median,
+)
 from estimators.mcl.beam_table import BeamLUT, RangeTable
-from estimators.mcl.copy_keeper import filter_mode, top_up_copies
+from estimators.mcl.copy_keeper import filter_mode, mode_weight_below, top_up_copies
 from estimators.mcl.detection_consistency import main_mode, scan_loglik_along, widen
 from estimators.mcl.map_symmetry import symmetric_copies
 
@@ -121,6 +126,28 @@ def test_filter_mode_is_main_mode_bit_for_bit(hallway):
         _, expected = main_mode(pf.particles[:, :2], pf.weights, 2.0)
         assert np.array_equal(mask, expected)
         assert mass == float(pf.weights[expected].sum())
+
+
+def test_the_disc_bound_holds_and_settles_spread_beliefs(hallway):
+    rng = np.random.default_rng(5)
+    pf = hallway.filters[0]
+    settled = 0
+    for t in range(60):
+        spread = (0.3, 1.0, 2.0, 6.0)[t % 4]
+        parts, w = _belief(rng, pf.grid, spread, {})
+        pf.set_particles(parts, w)
+        ps = pf.particle_set
+        _, mass = filter_mode(ps, 2.0)
+        bound = disc_weight_bound(ps.state, *ps.origin_xy, ps.weights, 2.0)
+        assert bound >= mass
+        # every disc of the radius, centred on particles, holds no more than the bound
+        xy = pf.particles[:, :2]
+        for c in xy[rng.integers(0, len(xy), 20)]:
+            assert pf.weights[((xy - c) ** 2).sum(axis=1) <= 4.0].sum() <= bound + 1e-12
+        if mode_weight_below(ps, 2.0, 0.8):
+            settled += 1
+            assert mass < 0.8
+    assert settled >= 10  # the widest beliefs are settled without their mode
 
 
 def test_top_up_copies_is_widen_copy_by_copy(hallway):
