@@ -40,7 +40,8 @@ in a known map built from the scenario's layout. Per env step and robot:
    (:mod:`estimators.mcl.map_symmetry`); a robot whose main mode holds most of its
    weight keeps ``KEEP_MASS`` on every turned copy of it that its remembered scans,
    weighed along its odometry, and the detections it received from teammates that
-   know which copy they are on, do not reject (:meth:`MCLBackend.keep_copies`). A
+   know which copy they are on, do not reject (:meth:`MCLBackend.keep_copies`, its
+   per-step passes compiled in :mod:`estimators.mcl.copy_keeper`). A
    filter with a bounded particle budget otherwise keeps whichever copies happened
    to hold particles when the scans stopped being ambiguous along whole corridors,
    and reports one of them sharply before the robot has seen what breaks the
