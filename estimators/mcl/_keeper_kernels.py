@@ -101,16 +101,18 @@ def weighted_median(x: np.ndarray, w: np.ndarray) -> tuple[float, bool]:  # prag
 
     ``ok`` is False (the value is then meaningless) when half the weight lies within
     ``SAFE`` of the cumulative weight at the crossing, where the sorted running sum's
-    rounding decides, or when ``x`` holds NaN.
+    rounding decides, or when ``x`` holds NaN or ``w`` a negative or NaN weight.
     """
     n = x.size
     xs = x.copy()
     ws = w.copy()
     total = 0.0
     for i in range(n):
-        if xs[i] != xs[i]:
-            return 0.0, False
+        if xs[i] != xs[i] or not ws[i] >= 0.0:
+            return 0.0, False  # NaN, or a negative weight: the sort's answer holds
         total += ws[i]
+    if not 0.0 < total < np.inf:
+        return 0.0, False
     half = 0.5 * total
     tol = SAFE * total
     lo, hi = 0, n

@@ -77,6 +77,7 @@ def test_weighted_median_leaves_rounding_close_cases_to_the_sort():
     # equal weights over an even count: the half falls on a boundary
     assert not weighted_median(np.arange(10.0), np.full(10, 0.1))[1]
     assert not weighted_median(np.array([0.0, np.nan]), np.full(2, 0.5))[1]
+    assert not weighted_median(np.arange(3.0), np.array([0.6, -0.1, 0.5]))[1]
 
 
 def _belief(rng: np.random.Generator, grid, spread: float, copies: dict) -> tuple:
