@@ -40,7 +40,8 @@ in a known map built from the scenario's layout. Per env step and robot:
    (:mod:`estimators.mcl.map_symmetry`); a robot whose main mode holds most of its
    weight keeps ``KEEP_MASS`` on every turned copy of it that its remembered scans,
    weighed along its odometry, and the detections it received from teammates that
-   know which copy they are on, do not reject (:meth:`MCLBackend.keep_copies`). A
+   know which copy they are on, do not reject (:meth:`MCLBackend.keep_copies`, its
+   per-step passes compiled in :mod:`estimators.mcl.copy_keeper`). A
    filter with a bounded particle budget otherwise keeps whichever copies happened
    to hold particles when the scans stopped being ambiguous along whole corridors,
    and reports one of them sharply before the robot has seen what breaks the
@@ -103,6 +104,8 @@ from estimators.mcl.batch import (
     weigh_batch,
 )
 from estimators.mcl.beam_table import BeamLUT, RangeTable
+from estimators.mcl.copy_keeper import filter_mode, mode_weight_below, top_up_copies
+from estimators.mcl.copy_keeper import load_kernels as load_keeper_kernels
 from estimators.mcl.density_tree import load_kernels
 from estimators.mcl.detection_consistency import (
     ConsistencyConfig,
@@ -368,6 +371,7 @@ class MCLBackend(EstimatorBackend):
         self._t = 0
         self._conflicts: dict[int, list] = {}
         self._summary: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._modes: dict[int, tuple] = {}  # filter -> its state's main mode (:meth:`_mode`)
 
     # ------------------------------------------------------------------ reset
     def _sensor(self, i: int) -> str:
@@ -407,6 +411,7 @@ class MCLBackend(EstimatorBackend):
         self._t = 0
         self._conflicts = {}
         self._summary = None
+        self._modes = {}
         if self._keeps_history:
             h = max(1, int(round(EVIDENCE_WINDOW_S / cfg.dt)))
             width = max((len(a) for a in self._angles.values()), default=0)
@@ -415,6 +420,9 @@ class MCLBackend(EstimatorBackend):
             self._hist_n = self._hist_next = 0
         if cfg.cooperative_updates:  # the first detection would load them inside a step
             load_kernels()
+        for t, syms in self.symmetries.items():  # and the first step that keeps a copy
+            if syms:
+                load_keeper_kernels(self._grids[t])
         # build the shared range tables now, not inside the first step
         for i in range(k):
             if self._sonar[i]:
@@ -531,27 +539,57 @@ class MCLBackend(EstimatorBackend):
             syms = self.symmetries.get(self._kinds[i])
             if not syms:
                 continue
-            pf = self.filters[i]
-            parts, w = pf.particles, pf.weights
-            _, mode = main_mode(parts[:, :2], w, radius)
-            if float(w[mode].sum()) < KEEP_CHECK_MASS:
+            # a spread-out belief's mode cannot hold KEEP_CHECK_MASS: a bound settles it
+            below = self._cached_mode(i, radius) is None and mode_weight_below(
+                self.filters[i].particle_set, radius, KEEP_CHECK_MASS)
+            if not below:
+                mode, mass = self._mode(i, radius)
+                below = mass < KEEP_CHECK_MASS
+            if below:
                 self._certified[i] = False
                 self._plausible[i] = None
                 continue
             if self._certified[i]:
                 continue
+            pf = self.filters[i]
+            parts, w = pf.particles, pf.weights
             cloud = parts[mode]
             if self._plausible[i] is None or self._t % KEEP_CHECK_EVERY == 0:
                 self._plausible[i] = self._plausible_copies(i, cloud, w[mode], syms, radius)
-            placed = False
-            for sym in self._plausible[i]:
-                turned = symmetric_copies(cloud, sym)
-                turned = turned[pf.grid.is_free(turned[:, :2])]
-                if len(turned):
-                    parts, w, k = widen(parts, w, turned, KEEP_MASS, radius, self.rng)
-                    placed = placed or k > 0
+            if not self._plausible[i]:
+                continue
+            # each copy's particles turned from the main mode's and its weight topped up to
+            # KEEP_MASS (compiled; most copies still hold it from an earlier step)
+            parts, w, placed = top_up_copies(parts, w, cloud, self._plausible[i], KEEP_MASS,
+                                             radius, self.rng, pf.grid)
             if placed:
                 pf.set_particles(parts, w)
+
+    def _mode(self, i: int, radius: float) -> tuple[np.ndarray, float]:
+        """Filter ``i``'s main mode (the mask of
+        :func:`~estimators.mcl.detection_consistency.main_mode` over its particles) and the
+        weight in it, computed once per state of the filter: cached until a step begins or
+        the filter's particles, weights or motion count change."""
+        hit = self._cached_mode(i, radius)
+        if hit is not None:
+            return hit
+        ps = self.filters[i].particle_set
+        mode, mass = filter_mode(ps, radius)
+        mode.flags.writeable = False
+        self._modes[i] = (self._t, ps.state, ps.weights, ps.unwrapped_steps, radius, mode, mass)
+        return mode, mass
+
+    def _cached_mode(self, i: int, radius: float) -> tuple[np.ndarray, float] | None:
+        """:meth:`_mode`'s answer for filter ``i``'s current state, if it has one."""
+        hit = self._modes.get(i)
+        if hit is None:
+            return None
+        ps = self.filters[i].particle_set
+        t, state, weights, steps, r, mode, mass = hit
+        if (t == self._t and state is ps.state and weights is ps.weights
+                and steps == ps.unwrapped_steps and r == radius):
+            return mode, mass
+        return None
 
     def _plausible_copies(self, i: int, cloud: np.ndarray, weights: np.ndarray,
                           syms: tuple, radius: float) -> list:
@@ -679,7 +717,7 @@ class MCLBackend(EstimatorBackend):
             # its scans gave it fits there as well in a symmetric map, and a noisy draw from
             # the claim would lose weight to the well-fitted own mode while it settles
             pf = self.filters[i]
-            _, mode = main_mode(pf.particles[:, :2], pf.weights, cfg.mode_radius)
+            mode, _ = self._mode(i, cfg.mode_radius)
             moved = move_rigidly(pf.particles[mode] if mode.any() else pf.particles, own, alt)
             clouds[i] = moved[pf.grid.is_free(moved[:, :2])]
         claims = {i: c for i, c in clouds.items() if len(c)}
@@ -712,7 +750,7 @@ class MCLBackend(EstimatorBackend):
             return pf.position_std()
         radius = (self.check or ConsistencyConfig()).mode_radius
         parts, w = pf.particles, pf.weights
-        _, mode = main_mode(parts[:, :2], w, radius)
+        mode, _ = self._mode(i, radius)
         wm = w[mode] / w[mode].sum()
         d = parts[mode, :2] - wm @ parts[mode, :2]
         return math.sqrt(0.5 * float(wm @ (d * d).sum(axis=1)))
@@ -764,8 +802,8 @@ class MCLBackend(EstimatorBackend):
         if self.check is not None:
             if self.claim_std(ib) <= obs_std:
                 return
-            _, mode = main_mode(target.particles[:, :2], target.weights, self.check.mode_radius)
-            if target.weights[mode].sum() >= self.check.confident_mass:
+            _, mass = self._mode(ib, self.check.mode_radius)
+            if mass >= self.check.confident_mass:
                 return
         elif target.position_std() <= RESET_STD and not self._confirmed_conflict(
             ib, rec, observer, target
