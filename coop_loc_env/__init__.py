@@ -37,6 +37,7 @@ from coop_loc_env.scenarios import (
     register_scenario,
     unregister_scenario,
 )
+from coop_loc_env.vector import CoopLocVectorEnv
 
 __version__ = "0.1.0"
 REGISTRY_NAMESPACE = "coop_loc"
@@ -44,6 +45,7 @@ REGISTRY_NAMESPACE = "coop_loc"
 __all__ = [
     "CoopLocAECEnv",
     "CoopLocParallelEnv",
+    "CoopLocVectorEnv",
     "ObsBlock",
     "Obstacle",
     "RewardTerm",
@@ -63,6 +65,7 @@ __all__ = [
     "register_scenario",
     "torchrl_env",
     "unregister_scenario",
+    "vector_env",
 ]
 
 
@@ -71,6 +74,14 @@ def parallel_env(
 ) -> CoopLocParallelEnv:
     """The parallel environment for ``scenario`` (any config field overridable by keyword)."""
     return CoopLocParallelEnv(scenario=scenario, render_mode=render_mode, **overrides)
+
+
+def vector_env(
+    scenario: str = "outdoor_terrain", num_envs: int = 1, **overrides: Any
+) -> CoopLocVectorEnv:
+    """``num_envs`` independent worlds of ``scenario`` stepped as one batch, on arrays
+    ``(num_envs, n_robots, ...)`` (:mod:`coop_loc_env.vector`: seeding, autoreset, infos)."""
+    return CoopLocVectorEnv(scenario, num_envs=num_envs, **overrides)
 
 
 def raw_env(scenario: str = "outdoor_terrain", render_mode: str | None = None, **overrides: Any):
