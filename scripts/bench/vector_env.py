@@ -1,0 +1,152 @@
+"""Env steps per second of the batched env (``vector_env``) next to our single env and VMAS.
+
+EKF ``rendezvous`` (4 robots, random actions in ``[-1, 1]``, worlds reset as they end)
+through ``coop_loc_env.vector_env(num_envs=B)`` for each ``--sizes`` B, our single
+``parallel_env`` (its PettingZoo dicts), and VMAS ``navigation`` (4 agents with lidar,
+CPU, ``--torch-threads`` torch threads) at each B when ``vmas`` is installed (the
+``bench`` extra). The sides alternate in ``--rounds`` rounds of ``--seconds`` wall-clock
+seconds each; the figures are the medians of the rounds, the ratios of the per-round
+figures. Env steps count worlds: one batched step of B worlds is B env steps::
+
+    python scripts/bench/vector_env.py [--sizes 1 64 1024] [--seconds 2] [--rounds 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+import coop_loc_env
+
+SCENARIO, N_ROBOTS = "rendezvous", 4
+
+
+def _ours(num_envs: int) -> Callable[[], int]:
+    """One batched step of ``num_envs`` worlds per call; returns the env steps taken."""
+    env = coop_loc_env.vector_env(SCENARIO, num_envs=num_envs, estimator="ekf")
+    env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    actions = [rng.uniform(-1, 1, (num_envs, N_ROBOTS, 2)) for _ in range(8)]
+    count = [0]
+
+    def step() -> int:
+        env.step(actions[count[0] % 8])
+        count[0] += 1
+        return num_envs
+
+    return step
+
+
+def _single() -> Callable[[], int]:
+    env = coop_loc_env.parallel_env(SCENARIO, estimator="ekf")
+    env.reset(seed=0)
+    rng = np.random.default_rng(0)
+
+    def step() -> int:
+        if not env.agents:
+            env.reset()
+        env.step({a: rng.uniform(-1, 1, 2).astype(np.float32) for a in env.agents})
+        return 1
+
+    return step
+
+
+def _vmas(num_envs: int, threads: int) -> Callable[[], int] | None:
+    try:
+        import torch
+        import vmas
+    except ImportError:
+        return None
+    torch.set_num_threads(threads)
+    env = vmas.make_env("navigation", num_envs=num_envs, device="cpu",
+                        continuous_actions=True, n_agents=N_ROBOTS, seed=0)
+    env.reset()
+    gen = torch.Generator().manual_seed(0)
+    actions = [[torch.rand(num_envs, 2, generator=gen) * 2 - 1 for _ in range(N_ROBOTS)]
+               for _ in range(8)]
+    count = [0]
+
+    def step() -> int:
+        _, _, dones, _ = env.step(actions[count[0] % 8])
+        count[0] += 1
+        if bool(dones.any()):
+            for i in torch.nonzero(dones).flatten().tolist():
+                env.reset_at(i)
+        return num_envs
+
+    return step
+
+
+def _rate(step: Callable[[], int], seconds: float) -> float:
+    """Env steps per wall-clock second over about ``seconds``."""
+    steps = step()  # a warm-up step
+    steps, start = 0, time.perf_counter()
+    while time.perf_counter() - start < seconds:
+        steps += step()
+    return steps / (time.perf_counter() - start)
+
+
+def measure(sizes: list[int], seconds: float, rounds: int, threads: int = 2) -> dict:
+    """The figures: per side the median env steps/s and the per-round values."""
+    sides: dict[str, Callable[[], int]] = {"single": _single()}
+    for b in sizes:
+        sides[f"ours_B{b}"] = _ours(b)
+        vm = _vmas(b, threads)
+        if vm is not None:
+            sides[f"vmas_B{b}"] = vm
+    per_round: dict[str, list[float]] = {name: [] for name in sides}
+    for _ in range(rounds):
+        for name, step in sides.items():
+            per_round[name].append(_rate(step, seconds))
+    out: dict = {name: statistics.median(v) for name, v in per_round.items()}
+    for b in sizes:
+        ours = per_round[f"ours_B{b}"]
+        out[f"ours_B{b}_over_single"] = statistics.median(
+            o / s for o, s in zip(ours, per_round["single"], strict=True))
+        if f"vmas_B{b}" in per_round:
+            out[f"ours_B{b}_over_vmas"] = statistics.median(
+                o / v for o, v in zip(ours, per_round[f"vmas_B{b}"], strict=True))
+    out["vmas_installed"] = any(name.startswith("vmas") for name in sides)
+    return out
+
+
+def bench_vector_env() -> dict:
+    """The benchmark's figures (``scripts/benchmark.py`` prints them)."""
+    return measure([1, 64, 1024], seconds=1.0, rounds=3)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--sizes", type=int, nargs="+", default=[1, 64, 1024])
+    p.add_argument("--seconds", type=float, default=2.0)
+    p.add_argument("--rounds", type=int, default=3)
+    p.add_argument("--torch-threads", type=int, default=2)
+    args = p.parse_args(argv)
+    if any(b < 1 for b in args.sizes) or not args.seconds > 0 or args.rounds < 1 or (
+            args.torch_threads < 1):
+        print("error: --sizes, --seconds, --rounds and --torch-threads must be positive",
+              file=sys.stderr)
+        return 2
+    figures = measure(args.sizes, args.seconds, args.rounds, args.torch_threads)
+    print(f"env steps/s, {SCENARIO} EKF {N_ROBOTS} robots vs VMAS navigation "
+          f"({args.torch_threads} torch threads), median of {args.rounds} rounds")
+    print(f"  {'single parallel_env':<24} {figures['single']:>10.0f}")
+    for b in args.sizes:
+        line = (f"  {'vector_env B=' + str(b):<24} {figures[f'ours_B{b}']:>10.0f}   "
+                f"{figures[f'ours_B{b}_over_single']:.2f}x single")
+        if f"vmas_B{b}" in figures:
+            line += (f"   VMAS {figures[f'vmas_B{b}']:>9.0f}   "
+                     f"{figures[f'ours_B{b}_over_vmas']:.3f}x VMAS")
+        print(line)
+    if not figures["vmas_installed"]:
+        print("  (vmas is not installed: pip install -e \".[bench]\")")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
