@@ -27,9 +27,10 @@ or ``max_cycles`` reached) is reset at once, continuing its own random stream (a
 episode's first ones, and its final observations are in ``infos["final_obs"]`` (the
 array of all worlds, or a dict of them; rows of worlds that did not end are zeros) with
 ``infos["_final_obs"]`` ``(B,)`` saying which worlds ended (Gymnasium's same-step
-autoreset, as SB3's VecEnv and TorchRL's collectors expect). Rewards, flags and the other
-infos of that row are those of the step that ended the episode. ``reset_count`` counts
-each world's resets.
+autoreset, as SB3's VecEnv expects). Rewards, flags and the other infos of that row are
+those of the step that ended the episode. ``reset_count`` counts each world's resets.
+With ``autoreset=False`` an ended world waits for ``reset(worlds=...)`` (TorchRL's
+convention: the collector resets the worlds its ``_reset`` mask names).
 
 **Structure.** Each world is a :class:`~coop_loc_env.env.CoopLocParallelEnv` whose
 array core (``_advance``: physics, sensors, estimators, team map, reward terms, one
@@ -68,19 +69,25 @@ class CoopLocVectorEnv:
         num_envs: the number of worlds ``B`` (>= 1).
         info_keys: the infos to report besides ``mask``; default :data:`DEFAULT_INFO_KEYS`
             and the reward terms. Unknown names are refused at :meth:`reset`.
+        autoreset: reset a world in the step that ends it (default); with False an ended
+            world waits for ``reset(worlds=...)`` (TorchRL's ``_reset`` mask) and a step
+            before it is refused.
         **overrides: any config field, as for :func:`coop_loc_env.parallel_env`.
     """
 
     def __init__(self, scenario: str = "outdoor_terrain", num_envs: int = 1,
                  info_keys: tuple[str, ...] | list[str] | None = None,
-                 **overrides: Any) -> None:
+                 autoreset: bool = True, **overrides: Any) -> None:
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or (
                 num_envs < 1):
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
         if info_keys is not None and (isinstance(info_keys, str) or not all(
                 isinstance(k, str) for k in info_keys)):
             raise ValueError(f"info_keys must be a list of info names, got {info_keys!r}")
+        if not isinstance(autoreset, bool):
+            raise ValueError(f"autoreset must be True or False, got {autoreset!r}")
         self.scenario = scenario
+        self.autoreset = autoreset
         self.num_envs = int(num_envs)
         self.envs = [CoopLocParallelEnv(scenario, **overrides) for _ in range(self.num_envs)]
         first = self.envs[0]
@@ -94,27 +101,48 @@ class CoopLocVectorEnv:
         self._requested = None if info_keys is None else tuple(info_keys)
         self.info_keys: tuple[str, ...] = ()
         self._mask = np.zeros((self.num_envs, n), dtype=bool)
-        self._terminated = np.zeros((self.num_envs, n), dtype=bool)
+        self._ended = np.zeros(self.num_envs, dtype=bool)
         self.reset_count = np.zeros(self.num_envs, dtype=np.int64)
         self._ready = False
 
     # ------------------------------------------------------------------ reset
-    def reset(self, seed: int | None = None) -> tuple[Any, dict[str, np.ndarray]]:
-        """Start every world: world ``i`` seeded with ``seed + i`` (or unseeded, continuing
-        its stream, with ``seed=None``). Returns the observations and the infos
-        (``mask`` only)."""
+    def reset(self, seed: int | None = None, worlds: Any = None
+              ) -> tuple[Any, dict[str, np.ndarray]]:
+        """Start every world, or only ``worlds`` (indices or a ``(B,)`` bool mask): world
+        ``i`` seeded with ``seed + i`` (or unseeded, continuing its stream, with
+        ``seed=None``). Returns every world's observations and the infos (``mask``)."""
         if seed is not None and (isinstance(seed, bool) or not isinstance(
                 seed, (int, np.integer)) or seed < 0):
             raise ValueError(f"seed must be a non-negative integer or None, got {seed!r}")
-        for i, env in enumerate(self.envs):
-            env.reset(seed=None if seed is None else int(seed) + i)
-        self.info_keys = self._check_info_keys()
-        self._mask[:] = True
-        self._terminated[:] = False
-        self.reset_count[:] = 1
+        rows = self._world_rows(worlds)
+        if not self._ready and len(rows) < self.num_envs:
+            raise ValueError("the first reset() starts every world: call it without worlds")
+        for i in rows:
+            self.envs[i].reset(seed=None if seed is None else int(seed) + int(i))
+        if not self._ready:
+            self.info_keys = self._check_info_keys()
+        self._mask[rows] = True
+        self._ended[rows] = False
+        self.reset_count[rows] += 1
         self._ready = True
         obs = self._observe()
         return obs, {"mask": self._mask.copy()}
+
+    def _world_rows(self, worlds: Any) -> np.ndarray:
+        """The indices of ``worlds`` (all with ``None``), checked."""
+        if worlds is None:
+            return np.arange(self.num_envs)
+        w = np.asarray(worlds)
+        if w.dtype == bool:
+            if w.shape != (self.num_envs,):
+                raise ValueError(f"a worlds mask must have shape ({self.num_envs},), "
+                                 f"got {w.shape}")
+            return np.flatnonzero(w)
+        if w.dtype.kind not in "iu" or w.ndim != 1 or (
+                w.size and not (0 <= w.min() and w.max() < self.num_envs)):
+            raise ValueError(f"worlds must be indices in [0, {self.num_envs}) or a bool mask, "
+                             f"got {worlds!r}")
+        return w.astype(np.int64)
 
     def _check_info_keys(self) -> tuple[str, ...]:
         env = self.envs[0]
@@ -134,6 +162,9 @@ class CoopLocVectorEnv:
         """Step every world by ``actions`` ``(B, n, 2)`` in ``[-1, 1]``; returns
         ``(obs, rewards, terminated, truncated, infos)`` (module docstring)."""
         act = self._check_actions(actions)
+        if self._ended.any():
+            raise ValueError(f"world {int(np.flatnonzero(self._ended)[0])} has ended and "
+                             "autoreset is off: reset(worlds=...) it first")
         B, n = self.num_envs, self.n_robots
         mask = self._mask.copy()  # the robots that act in this step
         records: list[StepRecord] = []
@@ -149,7 +180,9 @@ class CoopLocVectorEnv:
         ended = truncated_world | ~alive.any(axis=1)
         self._mask = alive & ~truncated_world[:, None]
         obs = self._observe()
-        if ended.any():
+        if ended.any() and not self.autoreset:
+            self._ended |= ended
+        elif ended.any():
             infos["final_obs"] = _zeros_like_rows(obs, ended)
             infos["_final_obs"] = ended
             for b in np.flatnonzero(ended):

@@ -196,3 +196,23 @@ def test_step_before_reset_refused():
     vec = coop_loc_env.vector_env("rendezvous", num_envs=2)
     with pytest.raises(ValueError, match="before reset"):
         vec.step(np.zeros((2, 4, 2)))
+
+
+def test_without_autoreset_an_ended_world_waits_for_its_reset():
+    vec = coop_loc_env.vector_env("rendezvous", num_envs=3, max_cycles=2, autoreset=False)
+    ref = coop_loc_env.parallel_env("rendezvous", max_cycles=2)
+    vec.reset(seed=0)
+    ref.reset(seed=1)
+    act = np.zeros((3, 4, 2))
+    for _ in range(2):
+        _, _, _, trunc, infos = vec.step(act)
+        ref.step({a: act[1, k] for k, a in enumerate(ref.agents)})
+    assert trunc.all() and "_final_obs" not in infos and not vec.mask.any()
+    with pytest.raises(ValueError, match="world 0 has ended"):
+        vec.step(act)
+    obs, infos = vec.reset(worlds=np.array([True, True, True]))
+    np.testing.assert_array_equal(obs[1], _stack(ref.reset()[0]))  # unseeded: own stream
+    assert infos["mask"].all() and vec.reset_count.tolist() == [2, 2, 2]
+    vec.step(act)
+    with pytest.raises(ValueError, match="worlds must be indices"):
+        vec.reset(worlds=[3])
