@@ -99,9 +99,14 @@ def torchrl_env(
     scenario: str = "outdoor_terrain",
     seed: int | None = None,
     device: str = "cpu",
+    num_envs: int | None = None,
     **overrides: Any,
 ):
     """The TorchRL environment of ``scenario``, ready for a collector.
+
+    With ``num_envs=B``: ``B`` worlds as one batch, ``batch_size=[B]``
+    (:class:`coop_loc_env.torchrl_vector.CoopLocTorchRLVectorEnv`, the layout below with
+    a batch dimension in front, as TorchRL's ``VmasEnv``; world ``i`` seeded ``seed + i``).
 
     A native ``torchrl.envs.EnvBase`` (:class:`coop_loc_env.native_torchrl.CoopLocTorchRLEnv`)
     that steps the team as one batch: group ``robot`` with ``observation``, ``action``,
@@ -109,6 +114,11 @@ def torchrl_env(
     infos under ``(robot, info)`` (``info_keys=[...]`` picks them). Any config field is
     overridable by keyword. Needs the ``torchrl`` extra.
     """
+    if num_envs is not None:
+        from coop_loc_env.torchrl_vector import make_torchrl_vector_env
+
+        return make_torchrl_vector_env(scenario, num_envs, seed=seed, device=device,
+                                       **overrides)
     from coop_loc_env.native_torchrl import make_torchrl_env
 
     return make_torchrl_env(scenario, seed=seed, device=device, **overrides)
