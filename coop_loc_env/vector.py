@@ -106,19 +106,18 @@ class CoopLocVectorEnv:
         self._ready = False
 
     # ------------------------------------------------------------------ reset
-    def reset(self, seed: int | None = None, worlds: Any = None
+    def reset(self, seed: Any = None, worlds: Any = None
               ) -> tuple[Any, dict[str, np.ndarray]]:
         """Start every world, or only ``worlds`` (indices or a ``(B,)`` bool mask): world
-        ``i`` seeded with ``seed + i`` (or unseeded, continuing its stream, with
-        ``seed=None``). Returns every world's observations and the infos (``mask``)."""
-        if seed is not None and (isinstance(seed, bool) or not isinstance(
-                seed, (int, np.integer)) or seed < 0):
-            raise ValueError(f"seed must be a non-negative integer or None, got {seed!r}")
+        ``i`` seeded with ``seed + i`` (or ``seed[i]`` given a list of ``B`` seeds;
+        unseeded, continuing its stream, with ``None``). Returns every world's
+        observations and the infos (``mask``)."""
+        seeds = self._seeds(seed)
         rows = self._world_rows(worlds)
         if not self._ready and len(rows) < self.num_envs:
             raise ValueError("the first reset() starts every world: call it without worlds")
         for i in rows:
-            self.envs[i].reset(seed=None if seed is None else int(seed) + int(i))
+            self.envs[i].reset(seed=seeds[i])
         if not self._ready:
             self.info_keys = self._check_info_keys()
         self._mask[rows] = True
@@ -127,6 +126,23 @@ class CoopLocVectorEnv:
         self._ready = True
         obs = self._observe()
         return obs, {"mask": self._mask.copy()}
+
+    def _seeds(self, seed: Any) -> list[int | None]:
+        """One seed per world: ``seed + i``, the given list, or ``None`` for each."""
+        def bad(x: Any) -> bool:
+            return isinstance(x, bool) or not isinstance(x, (int, np.integer)) or x < 0
+
+        if seed is None:
+            return [None] * self.num_envs
+        if isinstance(seed, (list, tuple, np.ndarray)):
+            if len(seed) != self.num_envs or any(x is not None and bad(x) for x in seed):
+                raise ValueError(f"a list of seeds needs one non-negative integer (or None) "
+                                 f"per world ({self.num_envs}), got {seed!r}")
+            return [None if x is None else int(x) for x in seed]
+        if bad(seed):
+            raise ValueError(f"seed must be a non-negative integer, a list of them or None, "
+                             f"got {seed!r}")
+        return [int(seed) + i for i in range(self.num_envs)]
 
     def _world_rows(self, worlds: Any) -> np.ndarray:
         """The indices of ``worlds`` (all with ``None``), checked."""
