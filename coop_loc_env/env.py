@@ -170,6 +170,33 @@ class CoopLocParallelEnv(ParallelEnv):
         return self._last_readings
 
     @property
+    def active(self) -> np.ndarray:
+        """``(n,)``: the robots still in the episode (the env's array: do not change it)."""
+        return self._active
+
+    @property
+    def tipped(self) -> np.ndarray:
+        """``(n,)``: the robots that tipped over in this episode (the env's array)."""
+        return self._tipped
+
+    @property
+    def new_cells(self) -> np.ndarray:
+        """``(n,)``: team-map cells each robot newly mapped in the last step."""
+        return self._new_cells
+
+    @property
+    def covered_cells(self) -> np.ndarray:
+        """``(n,)``: drivable cells each robot was first to cover in the last step."""
+        return self._covered_cells
+
+    def observation_inputs(self) -> ObsInputs:
+        """What the observation blocks read now (:class:`~coop_loc_env.obs_blocks.
+        ObsInputs`): the beliefs, the last action, the true poses, the active robots."""
+        beliefs = self._beliefs
+        return ObsInputs(beliefs.features, self._last_action, self.world.poses, beliefs.mean,
+                         beliefs.cov, self._active, self)
+
+    @property
     def step_count(self) -> int:
         """Steps taken in this episode."""
         return self._step_count
@@ -249,7 +276,7 @@ class CoopLocParallelEnv(ParallelEnv):
         """
         act = self._validate_actions(actions)
         live = list(self.agents)
-        out = self._advance(act)
+        out = self.step_core(act)
         infos, rewards = self._infos(
             out.tipped_now, out.new_contacts, live, in_contact=out.in_contact, step=out,
         )
@@ -268,7 +295,7 @@ class CoopLocParallelEnv(ParallelEnv):
             self.render()
         return obs, rewards, terminations, truncations, infos
 
-    def _advance(self, act: np.ndarray) -> StepRecord:
+    def step_core(self, act: np.ndarray) -> StepRecord:
         """The step's array core, shared with :func:`coop_loc_env.vector_env`: moves the
         world by the checked actions ``(n, 2)`` (rows of robots already out are zeros),
         reads the sensors, updates the beliefs, the team map and the reward terms, and
@@ -386,10 +413,7 @@ class CoopLocParallelEnv(ParallelEnv):
                        JoinedSampler(samplers) if samplers else None)
 
     def _observe_all(self, agents: list[str]) -> dict[str, np.ndarray]:
-        beliefs = self._beliefs
-        obs = self.observations.observe_all(ObsInputs(
-            beliefs.features, self._last_action, self.world.poses, beliefs.mean, beliefs.cov,
-            self._active, self))
+        obs = self.observations.observe_all(self.observation_inputs())
         if len(agents) == len(obs):  # every agent (a live list keeps their order): row views
             return dict(zip(agents, obs, strict=True))
         return {a: obs[self.agent_name_mapping[a]] for a in agents}
@@ -410,7 +434,7 @@ class CoopLocParallelEnv(ParallelEnv):
         poses, est, cov = step.true_pose, step.est_pose, step.pose_cov
         err_xy, err_th, terms, totals = step.err_xy, step.err_th, step.terms, step.rewards
         readings = self._last_readings
-        extra = self._extra_infos()
+        extra = self.extra_infos()
         coverage = self.mapper.coverage()
         map_rmse = self.mapper.map_rmse()
         terms_dict = cfg.reward_terms_dict
@@ -498,7 +522,7 @@ class CoopLocParallelEnv(ParallelEnv):
         self.reward_terms.advance(x)
         return terms
 
-    def _extra_infos(self) -> dict[int, dict]:
+    def extra_infos(self) -> dict[int, dict]:
         """The estimators' extra info entries per robot, every robot with the same keys.
 
         In a mixed team a key that only some robots' estimator reports (e.g. MCL's

@@ -33,7 +33,7 @@ With ``autoreset=False`` an ended world waits for ``reset(worlds=...)`` (TorchRL
 convention: the collector resets the worlds its ``_reset`` mask names).
 
 **Structure.** Each world is a :class:`~coop_loc_env.env.CoopLocParallelEnv` whose
-array core (``_advance``: physics, sensors, estimators, team map, reward terms, one
+array core (``step_core``: physics, sensors, estimators, team map, reward terms, one
 :class:`~coop_loc_env.records.StepRecord`) the parallel env runs too; the vector env
 stacks the records and builds the observations, skipping the per-agent dicts.
 
@@ -50,7 +50,6 @@ from gymnasium import spaces
 
 from coop_loc_env.actions import ACTION_TOLERANCE
 from coop_loc_env.env import CoopLocParallelEnv
-from coop_loc_env.obs_blocks import ObsInputs
 from coop_loc_env.records import StepRecord
 
 #: The infos every step reports, besides ``mask`` and the reward terms (``reward_<term>``).
@@ -163,7 +162,7 @@ class CoopLocVectorEnv:
     def _check_info_keys(self) -> tuple[str, ...]:
         env = self.envs[0]
         terms = [f"reward_{name}" for name in env.reward_terms.names]
-        extra = sorted({k for entries in env._extra_infos().values() for k in entries})
+        extra = sorted({k for entries in env.extra_infos().values() for k in entries})
         if self._requested is None:
             return (*DEFAULT_INFO_KEYS, *terms)
         known = (*DEFAULT_INFO_KEYS, *terms, *OPT_IN_INFO_KEYS, *extra)
@@ -185,11 +184,11 @@ class CoopLocVectorEnv:
         mask = self._mask.copy()  # the robots that act in this step
         records: list[StepRecord] = []
         for b, env in enumerate(self.envs):
-            records.append(env._advance(act[b]))
+            records.append(env.step_core(act[b]))
         rewards = np.array([r.rewards for r in records], dtype=float).reshape(B, n)
         rewards[~mask] = 0.0
         truncated_world = np.fromiter((r.truncated for r in records), bool, B)
-        alive = np.stack([env._active for env in self.envs])
+        alive = np.stack([env.active for env in self.envs])
         terminated = ~alive
         truncated = np.repeat(truncated_world[:, None], n, axis=1) & mask
         infos = self._infos(records, mask)
@@ -255,9 +254,7 @@ class CoopLocVectorEnv:
         """Write the current observations of ``worlds`` into their rows of ``out``."""
         for b in worlds:
             env = self.envs[int(b)]
-            beliefs = env.beliefs
-            x = ObsInputs(beliefs.features, env._last_action, env.world.poses, beliefs.mean,
-                          beliefs.cov, env._active, env)
+            x = env.observation_inputs()
             builder = env.observations
             if not self.dict_obs:
                 out[b] = builder.vectors(x)
@@ -284,7 +281,7 @@ class CoopLocVectorEnv:
         if key == "in_contact":
             return np.stack([r.in_contact for r in records]).astype(bool)
         if key == "tipped_over":
-            return np.stack([env._tipped for env in self.envs])
+            return np.stack([env.tipped for env in self.envs])
         if key.startswith("reward_") and key[7:] in records[0].terms:
             return np.array([r.terms[key[7:]] for r in records], dtype=float).reshape(B, n)
         if key in ("true_pose", "est_pose", "pose_cov"):
@@ -293,15 +290,15 @@ class CoopLocVectorEnv:
             name = "gps_mask" if key == "gps_fix" else "satellites"
             return np.stack([getattr(env.last_readings, name) for env in self.envs])
         if key == "new_cells":
-            return np.stack([env._new_cells for env in self.envs])
+            return np.stack([env.new_cells for env in self.envs])
         if key == "covered_cells":
-            return np.stack([env._covered_cells for env in self.envs])
+            return np.stack([env.covered_cells for env in self.envs])
         if key in ("coverage", "map_rmse"):
             values = [getattr(env.mapper, key)() for env in self.envs]
             return np.repeat(np.asarray(values, dtype=float)[:, None], n, axis=1)
         out = np.full((B, n), np.nan)  # an estimator's own entry
         for b, env in enumerate(self.envs):
-            for i, entries in env._extra_infos().items():
+            for i, entries in env.extra_infos().items():
                 out[b, i] = entries.get(key, np.nan)
         return out
 

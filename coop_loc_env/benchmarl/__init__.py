@@ -81,7 +81,7 @@ class CoopLocClass(TaskClass):
         scenario = self.scenario
         probe = CoopLocParallelEnv(scenario=scenario, **config)  # its estimators' infos
         probe.reset(seed=0)
-        extra = [k for entries in probe._extra_infos().values() for k in entries]
+        extra = [k for entries in probe.extra_infos().values() for k in entries]
         keys = tuple(dict.fromkeys([*DEFAULT_INFO_KEYS, *extra]))
         return lambda: make_torchrl_vector_env(
             scenario, num_envs, seed=seed, device=device, info_keys=keys,
