@@ -4,11 +4,13 @@ EKF ``rendezvous`` (4 robots, random actions in ``[-1, 1]``, worlds reset as the
 through ``coop_loc_env.vector_env(num_envs=B)`` for each ``--sizes`` B, our single
 ``parallel_env`` (its PettingZoo dicts), and VMAS ``navigation`` (4 agents with lidar,
 CPU, ``--torch-threads`` torch threads) at each B when ``vmas`` is installed (the
-``bench`` extra). The sides alternate in ``--rounds`` rounds of ``--seconds`` wall-clock
-seconds each; the figures are the medians of the rounds, the ratios of the per-round
-figures. Env steps count worlds: one batched step of B worlds is B env steps::
+``bench`` extra), and with ``--torchrl`` the batched TorchRL env
+(``torchrl_env(num_envs=B)``, ``step_and_maybe_reset``). The sides alternate in
+``--rounds`` rounds of ``--seconds`` wall-clock seconds each; the figures are the
+medians of the rounds, the ratios of the per-round figures. Env steps count worlds:
+one batched step of B worlds is B env steps::
 
-    python scripts/bench/vector_env.py [--sizes 1 64 1024] [--seconds 2] [--rounds 3]
+    python scripts/bench/vector_env.py [--sizes 1 64 1024] [--seconds 2] [--rounds 3] [--torchrl]
 """
 
 from __future__ import annotations
@@ -82,6 +84,23 @@ def _vmas(num_envs: int, threads: int) -> Callable[[], int] | None:
     return step
 
 
+def _torchrl(num_envs: int) -> Callable[[], int]:
+    """``torchrl_env(num_envs=B).step`` with a fixed random action, done worlds reset."""
+    import torch
+
+    env = coop_loc_env.torchrl_env(SCENARIO, num_envs=num_envs, seed=0, estimator="ekf")
+    td = env.reset()
+    td.set(("robot", "action"), torch.rand(num_envs, N_ROBOTS, 2) * 2 - 1)
+    state = [td]
+
+    def step() -> int:
+        out, state[0] = env.step_and_maybe_reset(state[0])
+        state[0].set(("robot", "action"), td.get(("robot", "action")))
+        return num_envs
+
+    return step
+
+
 def _rate(step: Callable[[], int], seconds: float) -> float:
     """Env steps per wall-clock second over about ``seconds``."""
     steps = step()  # a warm-up step
@@ -91,11 +110,14 @@ def _rate(step: Callable[[], int], seconds: float) -> float:
     return steps / (time.perf_counter() - start)
 
 
-def measure(sizes: list[int], seconds: float, rounds: int, threads: int = 2) -> dict:
+def measure(sizes: list[int], seconds: float, rounds: int, threads: int = 2,
+            torchrl: bool = False) -> dict:
     """The figures: per side the median env steps/s and the per-round values."""
     sides: dict[str, Callable[[], int]] = {"single": _single()}
     for b in sizes:
         sides[f"ours_B{b}"] = _ours(b)
+        if torchrl:
+            sides[f"torchrl_B{b}"] = _torchrl(b)
         vm = _vmas(b, threads)
         if vm is not None:
             sides[f"vmas_B{b}"] = vm
@@ -108,6 +130,9 @@ def measure(sizes: list[int], seconds: float, rounds: int, threads: int = 2) -> 
         ours = per_round[f"ours_B{b}"]
         out[f"ours_B{b}_over_single"] = statistics.median(
             o / s for o, s in zip(ours, per_round["single"], strict=True))
+        if f"torchrl_B{b}" in per_round:  # step time of torchrl_env over the bare step
+            out[f"torchrl_B{b}_step_ratio"] = statistics.median(
+                o / t for o, t in zip(ours, per_round[f"torchrl_B{b}"], strict=True))
         if f"vmas_B{b}" in per_round:
             out[f"ours_B{b}_over_vmas"] = statistics.median(
                 o / v for o, v in zip(ours, per_round[f"vmas_B{b}"], strict=True))
@@ -126,13 +151,16 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seconds", type=float, default=2.0)
     p.add_argument("--rounds", type=int, default=3)
     p.add_argument("--torch-threads", type=int, default=2)
+    p.add_argument("--torchrl", action="store_true",
+                   help="also time torchrl_env(num_envs=B).step against the bare step")
     args = p.parse_args(argv)
     if any(b < 1 for b in args.sizes) or not args.seconds > 0 or args.rounds < 1 or (
             args.torch_threads < 1):
         print("error: --sizes, --seconds, --rounds and --torch-threads must be positive",
               file=sys.stderr)
         return 2
-    figures = measure(args.sizes, args.seconds, args.rounds, args.torch_threads)
+    figures = measure(args.sizes, args.seconds, args.rounds, args.torch_threads,
+                      args.torchrl)
     print(f"env steps/s, {SCENARIO} EKF {N_ROBOTS} robots vs VMAS navigation "
           f"({args.torch_threads} torch threads), median of {args.rounds} rounds")
     print(f"  {'single parallel_env':<24} {figures['single']:>10.0f}")
@@ -143,6 +171,9 @@ def main(argv: list[str] | None = None) -> int:
             line += (f"   VMAS {figures[f'vmas_B{b}']:>9.0f}   "
                      f"{figures[f'ours_B{b}_over_vmas']:.3f}x VMAS")
         print(line)
+        if f"torchrl_B{b}" in figures:
+            print(f"  {'torchrl_env B=' + str(b):<24} {figures[f'torchrl_B{b}']:>10.0f}   "
+                  f"step {figures[f'torchrl_B{b}_step_ratio']:.2f}x the bare batched step")
     if not figures["vmas_installed"]:
         print("  (vmas is not installed: pip install -e \".[bench]\")")
     return 0
