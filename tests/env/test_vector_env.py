@@ -216,3 +216,14 @@ def test_without_autoreset_an_ended_world_waits_for_its_reset():
     vec.step(act)
     with pytest.raises(ValueError, match="worlds must be indices"):
         vec.reset(worlds=[3])
+
+
+def test_a_list_of_seeds_seeds_each_world_and_bad_seeds_are_refused():
+    vec = coop_loc_env.vector_env("rendezvous", num_envs=2)
+    obs, _ = vec.reset(seed=[9, 3])
+    ref = coop_loc_env.parallel_env("rendezvous")
+    np.testing.assert_array_equal(obs[0], _stack(ref.reset(seed=9)[0]))
+    np.testing.assert_array_equal(obs[1], _stack(ref.reset(seed=3)[0]))
+    for bad in ([1], [1, -2], -1, 1.5):
+        with pytest.raises(ValueError, match="seed"):
+            vec.reset(seed=bad)
