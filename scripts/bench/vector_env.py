@@ -26,14 +26,16 @@ import numpy as np
 import coop_loc_env
 
 SCENARIO, N_ROBOTS = "rendezvous", 4
+#: The env settings the sides are built with (``--scenario``, ``--obs-format``).
+SETTINGS: dict = {"scenario": SCENARIO, "estimator": "ekf"}
 
 
 def _ours(num_envs: int) -> Callable[[], int]:
     """One batched step of ``num_envs`` worlds per call; returns the env steps taken."""
-    env = coop_loc_env.vector_env(SCENARIO, num_envs=num_envs, estimator="ekf")
+    env = coop_loc_env.vector_env(num_envs=num_envs, **SETTINGS)
     env.reset(seed=0)
     rng = np.random.default_rng(0)
-    actions = [rng.uniform(-1, 1, (num_envs, N_ROBOTS, 2)) for _ in range(8)]
+    actions = [rng.uniform(-1, 1, (num_envs, env.n_robots, 2)) for _ in range(8)]
     count = [0]
 
     def step() -> int:
@@ -45,7 +47,7 @@ def _ours(num_envs: int) -> Callable[[], int]:
 
 
 def _single() -> Callable[[], int]:
-    env = coop_loc_env.parallel_env(SCENARIO, estimator="ekf")
+    env = coop_loc_env.parallel_env(**SETTINGS)
     env.reset(seed=0)
     rng = np.random.default_rng(0)
 
@@ -88,9 +90,9 @@ def _torchrl(num_envs: int) -> Callable[[], int]:
     """``torchrl_env(num_envs=B).step`` with a fixed random action, done worlds reset."""
     import torch
 
-    env = coop_loc_env.torchrl_env(SCENARIO, num_envs=num_envs, seed=0, estimator="ekf")
+    env = coop_loc_env.torchrl_env(num_envs=num_envs, seed=0, **SETTINGS)
     td = env.reset()
-    td.set(("robot", "action"), torch.rand(num_envs, N_ROBOTS, 2) * 2 - 1)
+    td.set(("robot", "action"), torch.rand(num_envs, env.n_agents, 2) * 2 - 1)
     state = [td]
 
     def step() -> int:
@@ -111,14 +113,14 @@ def _rate(step: Callable[[], int], seconds: float) -> float:
 
 
 def measure(sizes: list[int], seconds: float, rounds: int, threads: int = 2,
-            torchrl: bool = False) -> dict:
+            torchrl: bool = False, vmas: bool = True) -> dict:
     """The figures: per side the median env steps/s and the per-round values."""
     sides: dict[str, Callable[[], int]] = {"single": _single()}
     for b in sizes:
         sides[f"ours_B{b}"] = _ours(b)
         if torchrl:
             sides[f"torchrl_B{b}"] = _torchrl(b)
-        vm = _vmas(b, threads)
+        vm = _vmas(b, threads) if vmas else None
         if vm is not None:
             sides[f"vmas_B{b}"] = vm
     per_round: dict[str, list[float]] = {name: [] for name in sides}
@@ -153,16 +155,31 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--torch-threads", type=int, default=2)
     p.add_argument("--torchrl", action="store_true",
                    help="also time torchrl_env(num_envs=B).step against the bare step")
+    p.add_argument("--scenario", default=SCENARIO, help="our scenario (VMAS is left out "
+                   "for another than rendezvous)")
+    p.add_argument("--estimator", default="ekf")
+    p.add_argument("--obs-format", default=None, choices=("flat", "dict"))
     args = p.parse_args(argv)
     if any(b < 1 for b in args.sizes) or not args.seconds > 0 or args.rounds < 1 or (
             args.torch_threads < 1):
         print("error: --sizes, --seconds, --rounds and --torch-threads must be positive",
               file=sys.stderr)
         return 2
+    try:
+        coop_loc_env.make_config(args.scenario, estimator=args.estimator)
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    SETTINGS.update(scenario=args.scenario, estimator=args.estimator)
+    if args.obs_format is not None:
+        SETTINGS["obs_format"] = args.obs_format
+    vmas = args.scenario == SCENARIO
     figures = measure(args.sizes, args.seconds, args.rounds, args.torch_threads,
-                      args.torchrl)
-    print(f"env steps/s, {SCENARIO} EKF {N_ROBOTS} robots vs VMAS navigation "
-          f"({args.torch_threads} torch threads), median of {args.rounds} rounds")
+                      args.torchrl, vmas)
+    print(f"env steps/s, {args.scenario} {args.estimator} "
+          f"{coop_loc_env.make_config(args.scenario).n_robots} robots"
+          + (f" vs VMAS navigation ({args.torch_threads} torch threads)" if vmas else "")
+          + f", median of {args.rounds} rounds")
     print(f"  {'single parallel_env':<24} {figures['single']:>10.0f}")
     for b in args.sizes:
         line = (f"  {'vector_env B=' + str(b):<24} {figures[f'ours_B{b}']:>10.0f}   "
@@ -174,7 +191,7 @@ def main(argv: list[str] | None = None) -> int:
         if f"torchrl_B{b}" in figures:
             print(f"  {'torchrl_env B=' + str(b):<24} {figures[f'torchrl_B{b}']:>10.0f}   "
                   f"step {figures[f'torchrl_B{b}_step_ratio']:.2f}x the bare batched step")
-    if not figures["vmas_installed"]:
+    if vmas and not figures["vmas_installed"]:
         print("  (vmas is not installed: pip install -e \".[bench]\")")
     return 0
 
