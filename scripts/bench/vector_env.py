@@ -11,6 +11,10 @@ medians of the rounds, the ratios of the per-round figures. Env steps count worl
 one batched step of B worlds is B env steps::
 
     python scripts/bench/vector_env.py [--sizes 1 64 1024] [--seconds 2] [--rounds 3] [--torchrl]
+
+``--trainers N`` instead times the trainers' sampling over N worlds: SB3's env copies
+against the batched ``VecEnv`` (agent steps/s), TorchRL's ``SerialEnv`` of N single envs
+against ``torchrl_env(num_envs=N)`` (env steps/s).
 """
 
 from __future__ import annotations
@@ -103,6 +107,63 @@ def _torchrl(num_envs: int) -> Callable[[], int]:
     return step
 
 
+def _sb3(kind: str, n_envs: int) -> Callable[[], int]:
+    """A step of the SB3 ``VecEnv`` of ``n_envs`` worlds (``copies`` or ``batched``);
+    returns the agent steps taken."""
+    from policies.learning.sb3_batched import BatchedVecEnv
+    from policies.learning.sb3_vec_env import ParallelEnvVecEnv
+    from policies.learning.vec_env import make_env_fn
+
+    settings = {k: v for k, v in SETTINGS.items() if k != "scenario"}
+    venv = (BatchedVecEnv(SETTINGS["scenario"], n_envs=n_envs, **settings) if kind == "batched"
+            else ParallelEnvVecEnv(make_env_fn(SETTINGS["scenario"], **settings), n_envs=n_envs))
+    venv.seed(0)
+    venv.reset()
+    act = np.random.default_rng(0).uniform(-1, 1, (venv.num_envs, 2)).astype(np.float32)
+
+    def step() -> int:
+        venv.step(act)
+        return venv.num_envs
+
+    return step
+
+
+def _serial_torchrl(num_envs: int) -> Callable[[], int]:
+    """TorchRL's ``SerialEnv`` of ``num_envs`` single TorchRL envs, one step of all."""
+    import torch
+    from torchrl.envs import SerialEnv
+
+    env = SerialEnv(num_envs, lambda: coop_loc_env.torchrl_env(seed=0, **SETTINGS))
+    td = env.reset()
+    td.set(("robot", "action"), torch.rand(*td["robot", "observation"].shape[:2], 2) * 2 - 1)
+    state = [td]
+
+    def step() -> int:
+        out, state[0] = env.step_and_maybe_reset(state[0])
+        state[0].set(("robot", "action"), td.get(("robot", "action")))
+        return num_envs
+
+    return step
+
+
+def trainer_figures(seconds: float, rounds: int, n_envs: int = 8) -> dict:
+    """SB3 agent steps/s (env copies vs the batched VecEnv) and TorchRL env steps/s
+    (``SerialEnv`` of single envs vs ``torchrl_env(num_envs)``), alternating."""
+    sides = {"sb3_copies": _sb3("copies", n_envs), "sb3_batched": _sb3("batched", n_envs),
+             "torchrl_serial": _serial_torchrl(n_envs), "torchrl_batched": _torchrl(n_envs)}
+    per_round: dict[str, list[float]] = {name: [] for name in sides}
+    for _ in range(rounds):
+        for name, step in sides.items():
+            per_round[name].append(_rate(step, seconds))
+    out: dict = {name: statistics.median(v) for name, v in per_round.items()}
+    for kind in ("sb3", "torchrl"):
+        base = "copies" if kind == "sb3" else "serial"
+        out[f"{kind}_batched_over_{base}"] = statistics.median(
+            b / c for b, c in zip(per_round[f"{kind}_batched"], per_round[f"{kind}_{base}"],
+                                  strict=True))
+    return out
+
+
 def _rate(step: Callable[[], int], seconds: float) -> float:
     """Env steps per wall-clock second over about ``seconds``."""
     steps = step()  # a warm-up step
@@ -155,6 +216,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--torch-threads", type=int, default=2)
     p.add_argument("--torchrl", action="store_true",
                    help="also time torchrl_env(num_envs=B).step against the bare step")
+    p.add_argument("--trainers", type=int, default=0, metavar="N",
+                   help="instead: SB3 and TorchRL sampling over N worlds, copies vs batched")
     p.add_argument("--scenario", default=SCENARIO, help="our scenario (VMAS is left out "
                    "for another than rendezvous)")
     p.add_argument("--estimator", default="ekf")
@@ -173,6 +236,16 @@ def main(argv: list[str] | None = None) -> int:
     SETTINGS.update(scenario=args.scenario, estimator=args.estimator)
     if args.obs_format is not None:
         SETTINGS["obs_format"] = args.obs_format
+    if args.trainers:
+        figures = trainer_figures(args.seconds, args.rounds, args.trainers)
+        print(f"{args.scenario} {args.estimator}, {args.trainers} worlds, median of "
+              f"{args.rounds} rounds")
+        print(f"  SB3 agent steps/s: env copies {figures['sb3_copies']:.0f}, batched VecEnv "
+              f"{figures['sb3_batched']:.0f} ({figures['sb3_batched_over_copies']:.2f}x)")
+        print(f"  TorchRL env steps/s: SerialEnv {figures['torchrl_serial']:.0f}, "
+              f"torchrl_env(num_envs) {figures['torchrl_batched']:.0f} "
+              f"({figures['torchrl_batched_over_serial']:.2f}x)")
+        return 0
     vmas = args.scenario == SCENARIO
     figures = measure(args.sizes, args.seconds, args.rounds, args.torch_threads,
                       args.torchrl, vmas)
