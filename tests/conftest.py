@@ -109,6 +109,8 @@ SLOW_TESTS = frozenset({
     "test_sb3_batched.py::test_training_on_the_batched_env_learns_the_model_the_copies_learn",
     "test_sb3_batched.py::test_dict_observations_flatten_per_entry",
     "test_vector_env.py::test_every_estimator_and_obs_format_replays_parallel_env[mcl-dict]",
+    "test_vector_env.py::test_every_scenario_replays_parallel_env[active_hallway]",
+    "test_vector_env.py::test_every_scenario_replays_parallel_env[hexagon]",
     "test_torchrl.py::test_wrapper_with_default_arguments_on_every_scenario",
 })
 

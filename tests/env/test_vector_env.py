@@ -227,3 +227,8 @@ def test_a_list_of_seeds_seeds_each_world_and_bad_seeds_are_refused():
     for bad in ([1], [1, -2], -1, 1.5):
         with pytest.raises(ValueError, match="seed"):
             vec.reset(seed=bad)
+
+
+@pytest.mark.parametrize("scenario", coop_loc_env.list_scenarios())
+def test_every_scenario_replays_parallel_env(scenario):
+    _replay(scenario, 2, 3, seed=1, n_particles=100)
