@@ -47,6 +47,7 @@ from typing import Any
 
 import numpy as np
 from gymnasium import spaces
+from gymnasium.vector.utils import batch_space
 
 from coop_loc_env.actions import ACTION_TOLERANCE
 from coop_loc_env.env import CoopLocParallelEnv
@@ -97,6 +98,12 @@ class CoopLocVectorEnv:
         self.single_observation_space = first.observation_space(first.possible_agents[0])
         self.single_action_space = first.action_space(first.possible_agents[0])
         self.dict_obs = isinstance(self.single_observation_space, spaces.Dict)
+        #: The spaces of the whole batch: ``(B, n, ...)`` (a ``Dict`` of them for dict
+        #: observations) and the actions ``Box(-1, 1, (B, n, 2))``.
+        self.observation_space = batch_space(batch_space(self.single_observation_space, n),
+                                             self.num_envs)
+        self.action_space = batch_space(batch_space(self.single_action_space, n),
+                                        self.num_envs)
         self._requested = None if info_keys is None else tuple(info_keys)
         self.info_keys: tuple[str, ...] = ()
         self._mask = np.zeros((self.num_envs, n), dtype=bool)

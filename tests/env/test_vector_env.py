@@ -90,6 +90,7 @@ def test_shapes_and_default_infos():
     obs, infos = vec.reset(seed=0)
     dim = vec.single_observation_space.shape[0]
     assert obs.shape == (4, 4, dim) and obs.dtype == np.float32
+    assert vec.observation_space.contains(obs) and vec.action_space.shape == (4, 4, 2)
     assert infos["mask"].all()
     obs, rew, term, trunc, infos = vec.step(np.zeros((4, 4, 2)))
     assert rew.shape == term.shape == trunc.shape == (4, 4)
