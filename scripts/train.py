@@ -35,7 +35,7 @@ import os
 import sys
 
 from policies.experiments.runner import parse_overrides
-from policies.learning.training import ALGOS, TrainConfig, train, trained_timesteps
+from policies.learning.training import ALGOS, VEC_ENVS, TrainConfig, train, trained_timesteps
 from policies.learning.vec_env import REWARD_MODES
 from policies.scripted.registry import policy_names
 
@@ -52,6 +52,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "slot per robot)")
     p.add_argument("--n-procs", type=int, default=d.n_procs, help="processes stepping the "
                    "copies (1 = this process)")
+    p.add_argument("--vec-env", default=d.vec_env, choices=VEC_ENVS, help="auto: one "
+                   "batched env when --n-procs is 1 and the env's rewards are used, else "
+                   "env copies")
     p.add_argument("--seed", type=int, default=d.seed, help="seed of model and env copies")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--max-cycles", type=int, default=None, help="episode length override")
@@ -131,6 +134,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
     return TrainConfig(
         out=args.out, scenario=args.scenario, estimator=args.estimator, algo=args.algo,
         timesteps=args.timesteps, n_envs=args.n_envs, n_procs=args.n_procs, seed=args.seed,
+        vec_env=args.vec_env,
         overrides=overrides, learning_rate=args.learning_rate, n_steps=args.n_steps,
         batch_size=args.batch_size, n_epochs=args.n_epochs, gamma=args.gamma,
         ent_coef=args.ent_coef, net_arch=tuple(args.net_arch), eval_freq=args.eval_freq,
@@ -192,7 +196,8 @@ def main(argv: list[str] | None = None) -> int:
               f"{bc['wall_s']:.0f} s (action MSE {bc['action_mse']:.4f}, value MSE "
               f"{bc['value_mse']:.4f})")
     print(f"trained {summary['timesteps']} agent steps in {summary['wall_s']:.0f} s "
-          f"({summary['steps_per_s']:.0f} steps/s), {summary['total_wall_s']:.0f} s in all; "
+          f"({summary['steps_per_s']:.0f} steps/s, {summary['vec_env']} env), "
+          f"{summary['total_wall_s']:.0f} s in all; "
           f"final model: {summary['final_model']}")
     for ev in summary["evals"]:
         print(f"  eval at {ev['timesteps']:.0f}: error {ev['localization_error_m']:.3f} m, "
@@ -213,7 +218,8 @@ def _train_rllib(cfg: TrainConfig, args: argparse.Namespace) -> int:
                          f"'.[rllib]'): {err}") from err
     summary = train_rllib(run_from_train_config(cfg, args.num_env_runners, args.address))
     print(f"trained {summary['timesteps']} agent steps with RLlib in {summary['wall_s']:.0f} s "
-          f"({summary['steps_per_s']:.0f} steps/s), {summary['total_wall_s']:.0f} s in all; "
+          f"({summary['steps_per_s']:.0f} steps/s, {summary['vec_env']} env), "
+          f"{summary['total_wall_s']:.0f} s in all; "
           f"checkpoint: {summary['checkpoint']}")
     return 0
 

@@ -46,6 +46,7 @@ def script_main():
 # quick check, the full suite runs them all. An entry without ``[...]`` covers every
 # parameter of the test.
 SLOW_TESTS = frozenset({
+    "test_bench_vector_env.py::test_every_side_steps_its_worlds",
     "test_benchmarl.py::test_a_tiny_mappo_run_on_rendezvous",
     "test_camera_pipeline.py::test_teams_without_cameras_read_nothing",
     "test_compare.py::test_evaluate_compare_prints_one_table_and_saves_plot_and_json",
@@ -104,9 +105,14 @@ SLOW_TESTS = frozenset({
     "test_quoted_commands.py::test_belief_honesty_figures_quoted_in_the_docs",
     "test_rllib.py::test_tiny_training_then_evaluate_and_compare",
     "test_sb3_adapter.py::test_two_processes_match_one_process",
+    "test_sb3_batched.py::test_dict_observations_flatten_per_entry",
+    "test_sb3_batched.py::test_training_on_the_batched_env_learns_the_model_the_copies_learn",
     "test_torchrl.py::test_torchrl_env_specs_and_rollout_on_every_scenario",
     "test_training.py::test_tiny_training_saves_a_model_that_evaluate_loads",
     "test_torchrl.py::test_wrapper_with_default_arguments_on_every_scenario",
+    "test_vector_env.py::test_every_estimator_and_obs_format_replays_parallel_env[mcl-dict]",
+    "test_vector_env.py::test_every_scenario_replays_parallel_env[active_hallway]",
+    "test_vector_env.py::test_every_scenario_replays_parallel_env[hexagon]",
 })
 
 

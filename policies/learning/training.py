@@ -66,6 +66,8 @@ from policies.learning.loader import make_policy
 from policies.learning.vec_env import REWARD_MODES, TimeToLocalizeReward, make_env_fn
 
 ALGOS = ("PPO", "SAC")
+#: How the training samples: ``auto`` (see :func:`vec_env_kind`), one batched env, or copies.
+VEC_ENVS = ("auto", "batched", "copies")
 OBS_DICT_FIELDS = ("belief_map_cells", "belief_map_headings", "belief_modes")
 EVAL_SEED = 100_000  # evaluation episodes use seeds EVAL_SEED + k, apart from training seeds
 BC_SEED = 200_000  # behaviour-cloning demonstrations use seeds BC_SEED + k
@@ -88,6 +90,7 @@ class TrainConfig:
     timesteps: int = 100_000
     n_envs: int = 2
     n_procs: int = 1
+    vec_env: str = "auto"
     seed: int = 0
     overrides: dict[str, Any] = field(default_factory=dict)
     learning_rate: float = 3e-4
@@ -135,6 +138,11 @@ class TrainConfig:
                 raise ValueError(f"{key} must be an integer >= 0 (0 = off), got {value!r}")
         if self.n_procs > self.n_envs:
             raise ValueError(f"n_procs must be <= n_envs ({self.n_envs}), got {self.n_procs!r}")
+        if self.vec_env not in VEC_ENVS:
+            raise ValueError(f"vec_env must be one of {VEC_ENVS}, got {self.vec_env!r}")
+        if self.vec_env == "batched" and (self.n_procs > 1 or self.reward_mode != "env"):
+            raise ValueError("vec_env 'batched' steps every world in this process with the "
+                             "env's rewards: it needs n_procs 1 and reward_mode 'env'")
         if self.max_wall_s is not None and not self.max_wall_s > 0:
             raise ValueError(f"max_wall_s must be > 0, got {self.max_wall_s!r}")
         if not (0 < self.gamma <= 1):
@@ -198,13 +206,29 @@ def trained_timesteps(cfg: TrainConfig) -> int:
     return -(-cfg.timesteps // chunk) * chunk
 
 
+def vec_env_kind(cfg: TrainConfig) -> str:
+    """``"batched"`` (one batched env in this process) or ``"copies"`` (env copies, in
+    ``n_procs`` processes). ``auto`` picks the batched env whenever it can run the
+    config (one process, the env's rewards): it samples exactly what the copies sample
+    without their per-agent dicts (docs/scaling.md); several processes and the
+    ``localize`` reward (a wrapper of each copy) take the copies."""
+    if cfg.vec_env != "auto":
+        return cfg.vec_env
+    return "batched" if cfg.n_procs == 1 and cfg.reward_mode == "env" else "copies"
+
+
 def make_vec_env(cfg: TrainConfig):
     """The training ``VecEnv``: slots per agent, reward-normalized when asked."""
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from policies.learning.sb3_vec_env import ParallelEnvVecEnv
+    if vec_env_kind(cfg) == "batched":
+        from policies.learning.sb3_batched import BatchedVecEnv
 
-    venv = ParallelEnvVecEnv(cfg.env_fn(), n_envs=cfg.n_envs, n_procs=cfg.n_procs)
+        venv = BatchedVecEnv(cfg.scenario, n_envs=cfg.n_envs, **cfg.env_overrides())
+    else:
+        from policies.learning.sb3_vec_env import ParallelEnvVecEnv
+
+        venv = ParallelEnvVecEnv(cfg.env_fn(), n_envs=cfg.n_envs, n_procs=cfg.n_procs)
     if cfg.normalize_reward:
         venv = VecNormalize(venv, norm_obs=False, norm_reward=True, gamma=cfg.gamma)
     return venv
@@ -496,6 +520,7 @@ def train(cfg: TrainConfig) -> dict[str, Any]:
         "total_wall_s": time.perf_counter() - t0,
         "bc": bc,
         "steps_per_s": done / wall if wall > 0 else float("nan"),
+        "vec_env": vec_env_kind(cfg),
         "evals": evaluator.history if evaluator is not None else [],
         "best_model": str(out / "best_model.zip") if evaluator is not None and evaluator.history
         else None,

@@ -25,13 +25,16 @@ def test_task_env_specs_and_a_team_written_as_dicts():
     task = CoopLocTask.RENDEZVOUS.get_task(
         {"max_cycles": 6, "n_particles": 100,
          "team": [{"estimator": "ekf"}, {"estimator": "mcl", "has_gps": False}]})
-    env = task.get_env_fun(num_envs=1, continuous_actions=True, seed=0, device="cpu")()
+    env = task.get_env_fun(num_envs=3, continuous_actions=True, seed=0, device="cpu")()
+    assert env.batch_size == torch.Size([3])  # BenchMARL's num_envs worlds in one env
     assert task.group_map(env) == {"robot": [f"robot_{i}" for i in range(4)]}
     assert task.max_steps(env) == 6
     assert list(task.observation_spec(env)["robot"].keys()) == ["observation"]
     assert "particle_spread" in task.info_spec(env)["robot", INFO_NAME].keys()
     td = env.rollout(10)
-    assert td.batch_size == torch.Size([6])
+    assert td.batch_size == torch.Size([3, 6])
+    spread = td["next", "robot", INFO_NAME, "particle_spread"]
+    assert torch.isnan(spread[..., 0]).all() and torch.isfinite(spread[..., 1]).all()
     assert env.env.config.estimators == ("ekf", "mcl", "ekf", "mcl")
     with pytest.raises(ValueError, match="continuous"):
         task.get_env_fun(num_envs=1, continuous_actions=False, seed=0, device="cpu")
