@@ -87,6 +87,21 @@ def test_gate_monitor_counts_per_robot_and_channel_and_checks_its_argument():
         GateMonitor(2, recover_after=0)
 
 
+@pytest.mark.parametrize(("d2", "agree"), [(11.5, True), (14.5, False)])
+def test_rejections_agree_up_to_the_0999_quantile(d2, agree):
+    """Two rejected fixes in a row whose difference has the chi-square statistic ``d2``
+    (2 dof, covariance ``S + S_prev``) extend one run up to the 0.999 quantile, 13.8: 11.5
+    (past the 0.99 quantile, 9.2) agrees and recovers, 14.5 (below the 0.9999 one, 18.4)
+    starts a new run."""
+    mon = GateMonitor(1, recover_after=2)
+    s = np.eye(2)[None]
+    first = mon.record("position", np.array([0]), np.array([False]), np.zeros((1, 2)), s)
+    nu = np.array([[math.sqrt(2.0 * d2), 0.0]])  # d2 = |nu - 0|^2 / 2 with S + S_prev = 2 I
+    second = mon.record("position", np.array([0]), np.array([False]), nu, s)
+    assert not first[0] and second[0] is np.bool_(agree)
+    assert mon.counts["position"][0] == (0 if agree else 1)
+
+
 def _rbo(xa, xb) -> np.ndarray:
     return relative_measurement(np.asarray(xa, float), np.asarray(xb, float))[0]
 

@@ -134,6 +134,21 @@ def test_stationary_robots_and_zero_range_give_no_nan():
     np.testing.assert_allclose(est.poses()[1, :2], 0.0, atol=0.05)
 
 
+def test_motion_floor_is_the_variance_of_a_still_robot():
+    """A robot that stands still with exact odometry gains only the motion floor per
+    motion factor: after 5 s of 1 s keyframes its covariance is its prior, 1e-3 std,
+    plus 5 floors of 1e-3 m (rad) std each."""
+    est = TeamMLE(2, initial_poses=np.zeros((2, 3)), initial_std=[1e-3, 1e-3, 1e-3],
+                  motion_window=1.0, window=None)
+    for _ in range(50):
+        for robot in (0, 1):
+            est.add_odometry(robot, 0.0, 0.0, 0.1, std=(0.0, 0.0))
+        est.step()
+    assert est.graph.n_between == 2 * 5
+    np.testing.assert_allclose(est.covariances()[1], np.eye(3) * (1e-6 + 5 * 1e-6), rtol=1e-6,
+                               atol=1e-12)
+
+
 def test_full_covariance_observation_equals_diagonal_std():
     runs = []
     for use_cov in (False, True):

@@ -239,3 +239,33 @@ def test_unchecked_transfer_moves_a_confident_robot_to_the_hypothesis_it_keeps()
     assert results[True][1] == pytest.approx(5e-3)
     res, kept_mass = results[False]
     assert res.applied and kept_mass > 0.5
+
+
+def _mode_with_mass(mass: float, n: int = 1000) -> tuple[np.ndarray, np.ndarray]:
+    """Particles of which ``mass`` of the weight sits in one tight cluster, the rest 10 m
+    away: the main mode holds exactly ``mass``."""
+    rng = np.random.default_rng(3)
+    k = int(round(mass * n))
+    xy = np.concatenate([rng.normal([5.0, 5.0], 0.2, (k, 2)), rng.normal([15.0, 15.0], 0.2,
+                                                                          (n - k, 2))])
+    return xy, np.full(n, 1.0 / n)
+
+
+@pytest.mark.parametrize(("bayes_factor", "conflict"), [(0.095, True), (0.105, False)])
+def test_default_bayes_factor_threshold(bayes_factor, conflict):
+    """A confident robot: a detection with a Bayes factor 5 % under the default 0.1
+    conflicts with it, one 5 % over does not (a transfer that keeps its mode)."""
+    xy, w = _mode_with_mass(0.9)
+    res = assess_detection(xy, w, np.ones(len(w)), bayes_factor, ConsistencyConfig())
+    assert res.confident and res.mode_mass_after == pytest.approx(0.9)
+    assert res.conflict is conflict
+
+
+@pytest.mark.parametrize(("mass", "confident"), [(0.58, False), (0.62, True)])
+def test_default_confident_mass(mass, confident):
+    """A main mode holding 0.58 of the weight is not confident (no conflict however
+    unlikely the detection), one holding 0.62 is (the default bound is 0.6)."""
+    xy, w = _mode_with_mass(mass)
+    res = assess_detection(xy, w, np.ones(len(w)), 1e-3, ConsistencyConfig())
+    assert res.mode_mass == pytest.approx(mass)
+    assert res.confident is confident and res.conflict is confident

@@ -627,3 +627,26 @@ def test_position_std_is_the_rms_weighted_axis_std():
     assert pf.position_std() == pytest.approx(np.sqrt(var.mean()), rel=1e-9)
     pf.init_gaussian(np.array([5.0, 3.0, 0.0]), np.diag([0.0, 0.0, 0.1]))
     assert pf.position_std() < 1e-5  # float32 state rounding only
+
+
+def test_default_filter_spreads_1000_particles():
+    """A filter built without a config starts global localization with 1000 particles,
+    equally weighted, all in free space, and keeps 1000 through resampling."""
+    g = room()
+    pf = ParticleFilter(g, np.random.default_rng(0))
+    assert pf.n_particles == 1000 and pf.ess == pytest.approx(1000.0)
+    assert g.is_free(pf.particles[:, :2]).all()
+    pf.resample()
+    assert pf.n_particles == 1000
+
+
+@pytest.mark.parametrize(("heavy", "resampled"), [(480, True), (520, False)])
+def test_resampling_starts_below_half_the_particles(heavy, resampled):
+    """Equal weight on ``heavy`` of 1000 particles (effective sample size ``heavy``): the
+    default filter resamples below 500 and not above (no injection to force it)."""
+    pf = ParticleFilter(room(), np.random.default_rng(0),
+                        MCLConfig(augmented=False, random_fraction=0.0))
+    pf.set_particles(pf.particles, (np.arange(1000) < heavy).astype(float))
+    assert pf.ess == pytest.approx(heavy)
+    assert pf.resample_if_needed() is resampled
+    assert pf.ess == pytest.approx(1000.0 if resampled else heavy)
