@@ -243,7 +243,8 @@ def baseline(mutations: list[Mutation], scratch: Path, timeout: float) -> str | 
         return None
     if code is None:
         return f"the unchanged tests ran over {timeout:g} s"
-    return f"the unchanged tests fail (pytest exit {code}): {_first_failure(output) or output[-300:]}"
+    failed = _first_failure(output) or output[-300:]
+    return f"the unchanged tests fail (pytest exit {code}): {failed}"
 
 
 def check(mutations: list[Mutation], root: Path = ROOT, timeout: float = 300.0,

@@ -205,12 +205,20 @@ def test_checked_transfer_does_not_move_a_confident_robot_to_stray_particles():
         parts = n.particles.copy()
         parts[:5] = [15.0, 2.0, 0.0]  # the strays, where the observer's claim points
         n.set_particles(parts)
+        x0, y0, x1, y1 = grid.bounds
+        exact = detection_bayes_factor(m.particles, n.particles, np.asarray(z),
+                                       np.array([0.3, 0.04, 0.1]),
+                                       (x1 - x0) * (y1 - y0) * 2 * np.pi, m.weights, n.weights)
         res = DetectionTransfer(cfg).apply(det, m, n, np.random.default_rng(7))
         moved[name] = (res, float(np.hypot(*(n.mean_pose()[:2] - truth_n[:2]))))
     assert moved["fox"][0].applied and moved["fox"][1] > 5.0
     res, err = moved["checked"]
     assert not res.applied and res.reason == "conflict" and err < 0.2
-    assert res.bayes_factor is not None
+    # The strays agree with the claim: the Bayes factor (the transfer's density tree;
+    # 65.5 against the Gaussian integral's 66.0) is far above min_bayes_factor, and the
+    # conflict is the move of the main mode's weight onto the strays.
+    assert res.bayes_factor == pytest.approx(exact, rel=0.05)
+    assert res.bayes_factor > ConsistencyConfig().min_bayes_factor
 
 
 def test_unchecked_transfer_moves_a_confident_robot_to_the_hypothesis_it_keeps():
