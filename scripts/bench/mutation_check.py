@@ -28,8 +28,8 @@ import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 ROOT = Path(__file__).resolve().parents[2]
 # Never copied into the scratch tree (when the root is not a git checkout).
@@ -37,8 +37,7 @@ IGNORED = (".git", ".venv", "__pycache__", ".pytest_cache", ".ruff_cache", "*.eg
            "outputs", "runs")
 
 
-@dataclass(frozen=True)
-class Mutation:
+class Mutation(NamedTuple):
     """Replace ``original`` (exactly one occurrence) in ``path`` by ``replacement``, then
     run ``tests`` (pytest node ids or paths, relative to the repository root)."""
 
@@ -49,8 +48,7 @@ class Mutation:
     tests: tuple[str, ...]
 
 
-@dataclass
-class Outcome:
+class Outcome(NamedTuple):
     """What one mutation gave: ``caught``, ``survived``, ``timeout`` or ``error``."""
 
     name: str
@@ -326,7 +324,7 @@ def main(argv: list[str] | None = None, mutations: tuple[Mutation, ...] | None =
     print(summary(outcomes))
     if args.json:
         Path(args.json).write_text(json.dumps(
-            {"summary": summary(outcomes), "mutations": [asdict(o) for o in outcomes]},
+            {"summary": summary(outcomes), "mutations": [o._asdict() for o in outcomes]},
             indent=2) + "\n")
     return 0
 
