@@ -30,8 +30,9 @@ def test_multipath_fixes_are_two_percent():
     """Over 200 000 fixes of the default receiver, the fixes more than 2 m off number as
     many as 2 % of multipath outliers (std 5 m) and 98 % of ordinary fixes (variance as
     reported) put there, within 4 binomial standard deviations (60 fixes; a 10 % change
-    of the probability moves the count by 370). The draw is the sensor suite's DGPS
-    model, called directly: a whole :meth:`SensorSuite.read` per fix would take minutes."""
+    of the probability moves the count by 370), and spread as far as outliers of std 5 m
+    do. The draw is the sensor suite's DGPS model, called directly: a whole
+    :meth:`SensorSuite.read` per fix would take minutes."""
     from coop_loc_env.sensors import SensorSuite
     from coop_loc_env.world import World
 
@@ -45,13 +46,22 @@ def test_multipath_fixes_are_two_percent():
     rng = np.random.default_rng(1)
     prob = 0.02  # the documented default, not read back from the config
     far = expected = variance = 0.0
+    excess = []
     for _ in range(2000):
-        fix, xy, var, _, _ = suite._gps(world.poses, rng, np.ones(n, dtype=bool))
+        fix, xy, var, _, sats = suite._gps(world.poses, rng, np.ones(n, dtype=bool))
         assert fix.all()
-        far += np.count_nonzero(np.hypot(*(xy - world.poses[:, :2]).T) > 2.0)
+        # the receiver reports 0.3^2 m^2 per axis at 8 satellites, scaled by 8 / count
+        np.testing.assert_allclose(var, 0.3**2 * 8 / sats, rtol=1e-12)
+        e2 = np.sum((xy - world.poses[:, :2]) ** 2, axis=1)
+        far += np.count_nonzero(e2 > 4.0)
+        excess.extend((e2[e2 > 4.0] - 4.0) / (5.0**2 + var[e2 > 4.0]))
         # P(|e| > 2 m) of a 2-D Gaussian of per-axis variance v: exp(-2^2 / (2 v))
         p = (prob * np.exp(-2.0 / (cfg.gps_multipath_std**2 + var))
              + (1 - prob) * np.exp(-2.0 / var))
         expected += p.sum()
         variance += (p * (1 - p)).sum()
     assert abs(far - expected) < 4 * np.sqrt(variance), (far, expected, np.sqrt(variance))
+    # Past 2 m, a 2-D Gaussian's squared error minus 4 m^2 is exponential with mean twice
+    # its per-axis variance (memoryless): 2 (5^2 + v) for a multipath fix of std 5 m.
+    excess = np.array(excess)
+    assert abs(excess.mean() - 2.0) < 4 * 2.0 / np.sqrt(excess.size), (excess.mean(), excess.size)

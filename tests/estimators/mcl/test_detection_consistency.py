@@ -277,3 +277,25 @@ def test_default_confident_mass(mass, confident):
     res = assess_detection(xy, w, np.ones(len(w)), 1e-3, ConsistencyConfig())
     assert res.mode_mass == pytest.approx(mass)
     assert res.confident is confident and res.conflict is confident
+
+
+@pytest.mark.parametrize(("kept", "conflict"), [(0.47, True), (0.53, False)])
+def test_default_move_fraction(kept, conflict):
+    """A confident robot (0.9 of its weight in its mode) whose would-be transfer keeps
+    ``kept`` of that share in the mode: below half (the default) it is a conflict, above
+    not, whatever the Bayes factor (1 here)."""
+    xy, w = _mode_with_mass(0.9)
+    mode = np.arange(len(w)) < 900
+    # factor f outside the mode: after = 0.9 / (0.9 + 0.1 f) = kept * 0.9
+    f = (1.0 / kept - 0.9) / 0.1
+    res = assess_detection(xy, w, np.where(mode, 1.0, f), 1.0, ConsistencyConfig())
+    assert res.mode_mass_after == pytest.approx(0.9 * kept)
+    assert res.conflict is conflict
+
+
+def test_default_mode_radius():
+    """Particles 1.9 m from the main mode's centre belong to it, 2.1 m away not (the
+    default radius is 2 m)."""
+    xy = np.array([[5.0, 5.0]] * 900 + [[6.9, 5.0]] * 50 + [[7.1, 5.0]] * 50)
+    res = assess_detection(xy, np.full(1000, 1e-3), np.ones(1000), 1.0, ConsistencyConfig())
+    assert res.mode_mass == pytest.approx(0.95)
