@@ -326,9 +326,10 @@ def main(argv: list[str] | None = None, mutations: tuple[Mutation, ...] | None =
         return 2
     print(summary(outcomes))
     if args.json:
+        rows = [{"name": o.name, "result": o.result, "caught_by": o.caught_by,
+                 "detail": o.detail, "seconds": round(o.seconds, 1)} for o in outcomes]
         Path(args.json).write_text(json.dumps(
-            {"summary": summary(outcomes), "mutations": [o._asdict() for o in outcomes]},
-            indent=2) + "\n")
+            {"summary": summary(outcomes), "mutations": rows}, indent=2) + "\n")
     return 0
 
 
