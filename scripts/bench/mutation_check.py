@@ -122,7 +122,8 @@ MUTATIONS: tuple[Mutation, ...] = (
       (GOLDEN,)),
     M("env_gate_prob", "coop_loc_env/config.py",
       "gate_prob: float = 0.99", "gate_prob: float = 0.995",
-      (GOLDEN,)),
+      ("tests/env/test_observation_gps.py::test_env_filters_gate_fixes_at_the_99_percent_"
+       "quantile",)),
     M("reward_localization_weight", "coop_loc_env/config.py",
       "reward_localization_weight: float = _non_negative(1.0)",
       "reward_localization_weight: float = _non_negative(1.1)",

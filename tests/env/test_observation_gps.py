@@ -65,3 +65,24 @@ def test_multipath_fixes_are_two_percent():
     # its per-axis variance (memoryless): 2 (5^2 + v) for a multipath fix of std 5 m.
     excess = np.array(excess)
     assert abs(excess.mean() - 2.0) < 4 * 2.0 / np.sqrt(excess.size), (excess.mean(), excess.size)
+
+
+def test_env_filters_gate_fixes_at_the_99_percent_quantile():
+    """The env's EKF gates a DGPS fix at the 0.99 chi-square quantile (2 dof) of its
+    innovation: a fix at 0.98 of it passes, one at 1.02 of it (below the 0.995 quantile,
+    10.6) is rejected."""
+    from scipy.stats import chi2
+
+    env = coop_loc_env.parallel_env("outdoor_terrain", n_robots=2, max_cycles=3)
+    env.reset(seed=0)
+    (ekf,) = [b.ekf for b in env.backends]
+    s = ekf.cov[:, :2, :2] + np.eye(2) * 0.09  # innovation covariance of a 0.3 m fix
+    q = chi2.ppf(0.99, 2)
+    offsets = []
+    for i, scale in enumerate((0.98, 1.02)):
+        # along the eigenvector of S with eigenvalue lam: d2 = |d|^2 / lam
+        lam, vec = np.linalg.eigh(s[i])
+        offsets.append(vec[:, 0] * np.sqrt(scale * q * lam[0]))
+    z = ekf.mean[:, :2] + np.array(offsets)
+    ok = ekf.update_position(np.arange(2), z, np.repeat(np.eye(2)[None] * 0.09, 2, axis=0))
+    np.testing.assert_array_equal(ok, [True, False])
