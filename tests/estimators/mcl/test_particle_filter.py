@@ -1,4 +1,8 @@
-"""Tests of the occupancy grid and the Monte Carlo localization particle filter."""
+"""Tests of the occupancy grid and the Monte Carlo localization particle filter.
+
+One file: every test drives the same simulated room and robot (``room``, ``Robot``,
+``run`` below).
+"""
 
 from __future__ import annotations
 
