@@ -144,6 +144,32 @@ def steep_and_flat():
 
 
 @pytest.fixture(scope="session")
+def mean_position_error():
+    """``f(scenario, policy, seeds, **overrides) -> float``: the mean over episodes (one per
+    seed) of the mean over steps and robots of the ``position_error`` infos of ``policy``,
+    stepped here directly (what an evaluation should report as its localization error)."""
+    import numpy as np
+
+    import coop_loc_env
+
+    def mean(scenario: str, policy, seeds, **overrides) -> float:
+        overrides = {**(getattr(policy, "env_settings", None) or {}), **overrides}
+        per_episode = []
+        for seed in seeds:
+            env = coop_loc_env.parallel_env(scenario, **overrides)
+            obs, _ = env.reset(seed=seed)
+            policy.reset(env, seed=seed)
+            errors = []
+            while env.agents:
+                obs, _, _, _, infos = env.step(policy.act(obs))
+                errors.extend(info["position_error"] for info in infos.values())
+            per_episode.append(np.mean(errors))
+        return float(np.mean(per_episode))
+
+    return mean
+
+
+@pytest.fixture(scope="session")
 def actions_with_shifted_truth():
     """``f(env, policy, obs, rng, shift=5.0) -> (before, after)``: the actions of copies of
     ``policy`` on ``obs``, before and after the true poses are shifted by up to ``shift`` m
