@@ -77,7 +77,6 @@ SLOW_TESTS = frozenset({
     "test_fox.py::test_reproduce_fox_script_writes_json",
     "test_fox.py::test_wander_reads_each_robots_own_scan",
     "test_fsm.py::test_fsm_long_run_visits_every_state_safely",
-    "test_golden_rollouts.py::test_rollout_matches_stored[mcl_hexagon_default]",
     "test_howard.py::test_circuit_error_drops_at_each_sighting_and_at_loop_closure",
     "test_howard.py::test_dispersal_error_lowest_while_crowded",
     "test_howard.py::test_script_writes_json",

@@ -81,7 +81,7 @@ CASES: dict[str, Case] = {
     "mcl_active_hallway_default": Case("active_hallway", {"max_cycles": 300}, 21, 300),
     "mcl_outdoor_default": Case("outdoor_terrain", {"estimator": "mcl"}, 30, 60),
     "mcl_hallway_default": Case("symmetric_hallway", {}, 22, 60),
-    "mcl_hexagon_default": Case("hexagon", {}, 23, 12),
+    "mcl_hexagon_default": Case("hexagon", {}, 23, 6),
     "mcl_dict_obs": Case("active_hallway", {"obs_format": "dict", "n_particles": 500}, 24, 60),
     # the scripted planners' decisions (their actions are a digested quantity)
     "plan_hypothesis": Case("active_hallway", {"n_particles": 400}, 25, 80, "policy:hypothesis"),
