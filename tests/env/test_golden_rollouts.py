@@ -60,7 +60,9 @@ def test_every_subsystem_is_exercised(golden):
     assert sum(f["camera_records"] for f in fig.values()) > 50
     assert sum(f["camera_multi_frame"] for f in fig.values()) > 0  # tracks > 1 frame
     for case, f in fig.items():
-        assert f["mapped_end"] > f["mapped_start"] > 0, case
+        assert f["mapped_start"] > 0, case
+        if CASES[case].steps >= 10:
+            assert f["mapped_end"] > f["mapped_start"], case
         assert f["steps"] == CASES[case].steps, case  # no episode ended early
     mcl = {c.split("_")[0] for c, f in fig.items() if f["mcl_robots"]}
     mle = {c.split("_")[0] for c, f in fig.items() if f["mle_pairs"]}
