@@ -85,10 +85,12 @@ CASES: dict[str, Case] = {
     "mcl_dict_obs": Case("active_hallway", {"obs_format": "dict", "n_particles": 500}, 24, 60),
     # the scripted planners' decisions (their actions are a digested quantity)
     "plan_hypothesis": Case("active_hallway", {"n_particles": 400}, 25, 80, "policy:hypothesis"),
+    "plan_hypothesis_long": Case("active_hallway", {"n_particles": 300}, 32, 240,
+                                 "policy:hypothesis"),
     "plan_corridor": Case("active_hallway", {"n_particles": 300}, 26, 60, "policy:corridor"),
     "plan_infogain_mcl": Case("active_hallway", {"n_particles": 300}, 27, 40, "policy:infogain"),
     "plan_infogain_ekf": Case("outdoor_terrain", {"n_robots": 4}, 28, 100, "policy:infogain"),
-    "plan_fsm": Case("outdoor_terrain", {"n_robots": 4}, 29, 200, "policy:fsm"),
+    "plan_fsm": Case("outdoor_terrain", {"n_robots": 6}, 39, 500, "policy:fsm"),
 }
 
 
