@@ -20,9 +20,12 @@ def golden():
 def test_rollout_matches_stored(case, golden):
     got = rollout(CASES[case])
     stored = golden[case]
-    problem = compare(case, got, stored["quantities"])
+    problem = compare(case, {k: v for k, v in got.items() if k != "events"},
+                      stored["quantities"])
     assert problem is None, problem
-    assert figures(got) == stored["figures"], f"{case}: figures differ from the stored ones"
+    # (the counts of EVENTS are measured against thresholds: recorded, not compared)
+    behaviour = {k: v for k, v in figures(got).items() if k not in EVENTS}
+    assert behaviour == {k: v for k, v in stored["figures"].items() if k not in EVENTS}, case
 
 
 def test_stored_file_holds_every_case(golden):
