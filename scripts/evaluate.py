@@ -37,20 +37,21 @@ import argparse
 import sys
 from pathlib import Path
 
+from coop_loc_env.cli import ScriptParser, add_config_arguments, run_script, scenario_and_overrides
 from policies.experiments.report import format_table, report, write_json
-from policies.experiments.runner import parse_overrides, run_episodes
+from policies.experiments.runner import run_episodes
 from policies.scripted.registry import policy_help
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The command-line interface (other scripts may extend it)."""
-    p = argparse.ArgumentParser(
+    p = ScriptParser(
         description=__doc__.split("\n\n")[0],
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog=f"policies (--policy, --compare), or the path of a saved stable-baselines3 "
                f"model (.zip):\n{policy_help()}",
     )
-    p.add_argument("--scenario", default="outdoor_terrain", help="registered scenario name")
+    add_config_arguments(p, "outdoor_terrain")
     p.add_argument("--policy", default="fsm",
                    help="a policy name (listed below), PATH.zip (SB3 model) or DIR (SB3 or "
                         "RLlib training run)")
@@ -63,8 +64,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-cycles", type=int, default=None, help="steps per episode (override)")
     p.add_argument("--json", type=Path, default=None, help="write the report as JSON here")
     p.add_argument("--plot-dir", type=Path, default=None, help="write PNG plots here")
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="config override, repeatable (e.g. --set n_robots=4)")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     return p
 
@@ -73,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
     """Run the evaluation; returns the exit status."""
     args = build_parser().parse_args(argv)
     try:
-        overrides = parse_overrides(args.overrides)
+        args.scenario, overrides = scenario_and_overrides(args)
         if args.max_cycles is not None:
             overrides["max_cycles"] = args.max_cycles
         if args.compare is not None:
@@ -148,6 +147,7 @@ def _compare(args: argparse.Namespace, overrides: dict) -> int:
         print(f"note: {n} episodes; use >= 20 episodes for 95 % intervals you can trust")
     if args.json is not None:
         write_json(data, args.json)
+        args.json.with_suffix(".partial.json").unlink(missing_ok=True)  # superseded
         print(f"wrote {args.json}")
     plot_dir = args.plot_dir if args.plot_dir is not None else Path("outputs")
     print(f"wrote {plot_compare(data, plot_dir / f'{args.scenario}_compare.png', panels)}")
@@ -159,4 +159,4 @@ def _compare(args: argparse.Namespace, overrides: dict) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_script(main))
