@@ -96,9 +96,14 @@ def torchrl_env(
     that steps the team as one batch: group ``robot`` with ``observation``, ``action``,
     ``reward``, per-robot ``done``/``terminated``/``truncated`` and ``mask``, and the scalar
     infos under ``(robot, info)`` (``info_keys=[...]`` picks them). Any config field is
-    overridable by keyword. Needs the ``torchrl`` extra.
+    overridable by keyword. Sets torch's thread count to the project's
+    (:mod:`coop_loc_env.threads`; ``COOP_LOC_TORCH_THREADS=0`` leaves torch's own).
+    Needs the ``torchrl`` extra.
     """
     from coop_loc_env.native_torchrl import make_torchrl_env
+    from coop_loc_env.threads import set_torch_threads
+
+    set_torch_threads()
 
     return make_torchrl_env(scenario, seed=seed, device=device, **overrides)
 

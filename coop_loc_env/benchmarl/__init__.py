@@ -16,9 +16,17 @@ or from the command line (the package's hydra plugin puts its task YAML on Bench
 search path; nothing is copied into site-packages)::
 
     python -m benchmarl.run algorithm=mappo task=coop_loc/rendezvous
+    python -m benchmarl.run algorithm=mappo task=coop_loc/rendezvous experiment=coop_loc_short
+
+(``experiment=coop_loc_short``: a run of about a minute on 2 cores). Every task's
+``defaults:`` list makes BenchMARL log to CSV files only (its default adds wandb;
+``experiment.loggers=[csv,wandb]`` brings it back) and adds a hydra callback that stops
+the run with one line if a logger's package is missing. The env sets torch's thread
+count to the project's (:mod:`coop_loc_env.threads`).
 
 Each task's YAML (``coop_loc_env/benchmarl/conf/task/coop_loc/<scenario>.yaml``) holds
-:class:`~coop_loc_env.config.ScenarioConfig` overrides (``team`` as a list of dicts).
+its hydra ``defaults:`` list and :class:`~coop_loc_env.config.ScenarioConfig`
+overrides (``team`` as a list of dicts).
 The env is the native TorchRL env (:mod:`coop_loc_env.native_torchrl`, group ``robot``);
 its infos are logged as NaN-aware means (:meth:`CoopLocClass.log_info`): position
 error, particle spread (MCL robots only), coverage, map RMSE, and the steps a robot
@@ -47,6 +55,7 @@ from torchrl.envs import EnvBase
 from coop_loc_env.env import CoopLocParallelEnv
 from coop_loc_env.native_torchrl import GROUP, CoopLocTorchRLEnv
 from coop_loc_env.scenarios import make_config
+from coop_loc_env.threads import set_torch_threads
 
 #: BenchMARL's environment name of these tasks (``task=coop_loc/<scenario>``).
 ENV_NAME = "coop_loc"
@@ -76,6 +85,7 @@ class CoopLocClass(TaskClass):
             )
         config = copy.deepcopy(dict(self.config))
         scenario = self.scenario
+        set_torch_threads()  # the project's torch threads for this run (coop_loc_env.threads)
         return lambda: CoopLocTorchRLEnv(
             CoopLocParallelEnv(scenario=scenario, **config), device=device, seed=seed,
             info_name=INFO_NAME,
@@ -160,6 +170,7 @@ class CoopLocTask(Task):
         if path is None:
             path = str(CONF_DIR / "task" / ENV_NAME / f"{self.name.lower()}.yaml")
         config = _read_yaml_config(path)
+        config.pop("defaults", None)  # hydra's defaults list: experiment settings, not the env's
         return self.get_task(config=config)
 
 

@@ -55,6 +55,7 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
+from coop_loc_env.threads import set_torch_threads
 from policies.episode import run_episode
 from policies.learning.imitation import (
     behaviour_clone,
@@ -467,10 +468,9 @@ def train(cfg: TrainConfig) -> dict[str, Any]:
     evaluation records).
     """
     import stable_baselines3 as sb3
-    import torch
 
     cfg.validate()
-    torch.set_num_threads(1)
+    set_torch_threads()  # small networks: more threads wait (coop_loc_env.threads)
     t0 = time.perf_counter()
     deadline = None if cfg.max_wall_s is None else t0 + cfg.max_wall_s
     out = Path(cfg.out)
