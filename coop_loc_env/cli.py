@@ -35,9 +35,10 @@ EXTRA_OF: dict[str, str] = {
 }
 
 
-def missing_extra_line(module: str) -> str:
-    """The one line telling which extra installs ``module`` (a top-level module name)."""
-    extra = EXTRA_OF[module]
+def missing_extra_line(module: str, extra: str | None = None) -> str:
+    """The one line telling which extra installs ``module`` (a top-level module name):
+    ``extra``, else the one :data:`EXTRA_OF` names."""
+    extra = extra or EXTRA_OF[module]
     return (f"error: this needs {module}, which is not installed: "
             f'pip install -e ".[{extra}]"')
 
@@ -50,16 +51,31 @@ def missing_module(err: BaseException) -> str | None:
     return root if root in EXTRA_OF else None
 
 
-def run_script(main: Callable[..., int], argv: list[str] | None = None) -> int:
-    """Run a script's ``main``; a missing optional package gives one line and status 2."""
+def run_script(main: Callable[..., Any], argv: list[str] | None = None) -> Any:
+    """Run a script's ``main`` (``main()``, or ``main(argv)`` when given); a missing optional
+    package gives one line and status 2."""
     try:
-        return main(argv)
+        return main() if argv is None else main(argv)
     except ModuleNotFoundError as err:
         module = missing_module(err)
         if module is None:
             raise
-        print(missing_extra_line(module), file=sys.stderr)
+        print(missing_extra_line(module, getattr(err, "extra", None)), file=sys.stderr)
         return 2
+
+
+def require(*modules: str, extra: str | None = None) -> None:
+    """Import ``modules`` now, so that a missing optional package stops a script before its
+    work rather than after it (:func:`run_script` turns that into one line naming ``extra``,
+    by default the module's in :data:`EXTRA_OF`)."""
+    import importlib
+
+    for module in modules:
+        try:
+            importlib.import_module(module)
+        except ModuleNotFoundError as err:
+            err.extra = extra
+            raise
 
 
 class ScriptParser(argparse.ArgumentParser):

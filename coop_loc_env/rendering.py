@@ -49,9 +49,9 @@ def _import_matplotlib():
         from matplotlib.collections import LineCollection
         from matplotlib.figure import Figure
     except ImportError as err:  # pragma: no cover - exercised only without matplotlib
-        raise ImportError(
+        raise ModuleNotFoundError(
             "rendering needs matplotlib: pip install -e '.[render]' in the repository (or "
-            "pip install matplotlib imageio)"
+            "pip install matplotlib imageio)", name="matplotlib"
         ) from err
     from matplotlib.lines import Line2D
 

@@ -37,7 +37,13 @@ import argparse
 import sys
 from pathlib import Path
 
-from coop_loc_env.cli import ScriptParser, add_config_arguments, run_script, scenario_and_overrides
+from coop_loc_env.cli import (
+    ScriptParser,
+    add_config_arguments,
+    require,
+    run_script,
+    scenario_and_overrides,
+)
 from policies.experiments.report import format_table, report, write_json
 from policies.experiments.runner import run_episodes
 from policies.scripted.registry import policy_help
@@ -71,6 +77,10 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Run the evaluation; returns the exit status."""
     args = build_parser().parse_args(argv)
+    if args.plot_dir is not None or args.compare is not None:
+        require("matplotlib")  # the plots come at the end: fail before the episodes
+    if not args.no_progress:
+        require("tqdm")
     try:
         args.scenario, overrides = scenario_and_overrides(args)
         if args.max_cycles is not None:

@@ -16,7 +16,13 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from coop_loc_env.cli import ScriptParser, add_config_arguments, run_script, scenario_and_overrides
+from coop_loc_env.cli import (
+    ScriptParser,
+    add_config_arguments,
+    require,
+    run_script,
+    scenario_and_overrides,
+)
 from policies.experiments.runner import record_frames
 from policies.scripted.registry import policy_names
 
@@ -34,6 +40,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", type=Path, default=Path("outputs/episode.gif"), help="GIF path")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     args = p.parse_args(argv)
+    require("imageio", *(() if args.no_progress else ("tqdm",)))
     try:
         args.scenario, overrides = scenario_and_overrides(args)
         if args.max_cycles is not None:

@@ -17,7 +17,13 @@ from pathlib import Path
 import numpy as np
 
 import coop_loc_env
-from coop_loc_env.cli import ScriptParser, add_config_arguments, run_script, scenario_and_overrides
+from coop_loc_env.cli import (
+    ScriptParser,
+    add_config_arguments,
+    require,
+    run_script,
+    scenario_and_overrides,
+)
 
 
 def run(scenario: str, steps: int, seed: int, frame: Path | None,
@@ -52,6 +58,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--frame", type=Path, default=Path("outputs/frame.png"))
     args = parser.parse_args(argv)
+    if args.frame:
+        require("imageio", "matplotlib")  # the frame is drawn with matplotlib, saved by imageio
     try:
         args.scenario, overrides = scenario_and_overrides(args)
         errors = run(args.scenario, args.steps, args.seed, args.frame, overrides)

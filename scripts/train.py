@@ -39,7 +39,13 @@ import argparse
 import os
 import sys
 
-from coop_loc_env.cli import ScriptParser, add_config_arguments, run_script, scenario_and_overrides
+from coop_loc_env.cli import (
+    ScriptParser,
+    add_config_arguments,
+    require,
+    run_script,
+    scenario_and_overrides,
+)
 from policies.learning.training import (
     ALGOS,
     TrainConfig,
@@ -179,6 +185,10 @@ def main(argv: list[str] | None = None) -> int:
     """Train; returns the exit status (2 on bad input)."""
     try:
         args = parse_args(argv)
+        if args.backend == "sb3":
+            require("stable_baselines3", "torch", extra="train")
+        else:
+            require("ray", "torch", extra="rllib")
         cfg = config_from_args(args)
         cfg.validate()
         import coop_loc_env
@@ -223,11 +233,8 @@ def main(argv: list[str] | None = None) -> int:
 
 def _train_rllib(cfg: TrainConfig, args: argparse.Namespace) -> int:
     """``--backend rllib`` (raises ``ValueError`` on options that path does not have)."""
-    try:
-        from policies.learning.rllib_backend import run_from_train_config, train_rllib
-    except ImportError as err:
-        raise ValueError(f"--backend rllib needs the rllib extra (pip install -e "
-                         f"'.[rllib]'): {err}") from err
+    from policies.learning.rllib_backend import run_from_train_config, train_rllib
+
     summary = train_rllib(run_from_train_config(cfg, args.num_env_runners, args.address))
     print(f"trained {summary['timesteps']} agent steps with RLlib in {summary['wall_s']:.0f} s "
           f"({summary['steps_per_s']:.0f} steps/s), {summary['total_wall_s']:.0f} s in all; "

@@ -12,7 +12,6 @@ without the imports), median over the rounds, and its ratio to the best setting:
 
 from __future__ import annotations
 
-import argparse
 import csv
 import os
 import statistics
@@ -21,6 +20,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+from coop_loc_env.cli import ScriptParser, run_script
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -45,7 +46,7 @@ def one_run(algo: str, scenario: str, threads: int, workdir: Path) -> float:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the rounds and print the table; returns the exit status."""
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = ScriptParser(description=__doc__.splitlines()[0])
     p.add_argument("--algo", default="mappo")
     p.add_argument("--scenario", default="rendezvous")
     p.add_argument("--threads", default="0,1,2", help="settings, 0 = torch's default")
@@ -72,4 +73,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_script(main))

@@ -11,12 +11,13 @@ the env and this package's tensor work cost, then with TorchRL's own step logic)
 
 from __future__ import annotations
 
-import argparse
 import statistics
 import sys
 import time
 
 import numpy as np
+
+from coop_loc_env.cli import ScriptParser, run_script
 
 
 def _bare(env, steps: int, rng: np.random.Generator) -> float:
@@ -53,7 +54,7 @@ def _torchrl(env, steps: int) -> float:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = ScriptParser(description=__doc__.splitlines()[0])
     p.add_argument("--scenario", default="rendezvous")
     p.add_argument("--steps", type=int, default=400)
     p.add_argument("--reps", type=int, default=5)
@@ -94,4 +95,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(run_script(main))
