@@ -106,7 +106,13 @@ def main(argv: list[str] | None = None) -> int:
         stem = f"{args.scenario}_{Path(args.policy).stem}"
         a = plot_errors(episodes, args.plot_dir / f"{stem}_error.png",
                         title=f"{args.scenario} / {args.policy}: position error per robot")
-        b = plot_terrain(episodes[-1], args.plot_dir / f"{stem}_terrain.png")
+        last, summary, n = episodes[-1], data["summary"], len(episodes)
+        b = plot_terrain(last, args.plot_dir / f"{stem}_terrain.png", title=(
+            f"{args.scenario} / {args.policy}: episode seed {last['seed']} (the last of {n}), "
+            f"final coverage {last['coverage']:.3f}, map RMSE {last['map_rmse_m']:.3f} m\n"
+            f"mean over the {n} episode{'s' if n > 1 else ''}: coverage "
+            f"{summary['coverage']['mean']:.3f}, map RMSE "
+            f"{summary['map_rmse_m']['mean']:.3f} m"))
         print(f"wrote {a} and {b}")
     return 0
 
