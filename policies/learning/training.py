@@ -490,7 +490,7 @@ def train(cfg: TrainConfig) -> dict[str, Any]:
             algo = getattr(sb3, cfg.algo.upper())
             try:
                 model = algo.load(str(ckpt), env=venv, device="cpu", tensorboard_log=tb)
-            except (ValueError, KeyError, zipfile.BadZipFile, RuntimeError) as err:
+            except (ValueError, KeyError, AssertionError, zipfile.BadZipFile, RuntimeError) as err:
                 reason = str(err).removeprefix("Error: ").splitlines()[0]
                 raise ValueError(f"resume: cannot load {str(ckpt)!r} as a {cfg.algo.upper()} "
                                  f"model: {reason}") from None

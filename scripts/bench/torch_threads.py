@@ -2,7 +2,8 @@
 
 Runs ``python -m benchmarl.run algorithm=ALGO task=coop_loc/SCENARIO
 experiment=coop_loc_short`` once per setting per round (settings alternate within each
-round, so that the machine's load hits them alike), with ``COOP_LOC_TORCH_THREADS`` set to
+round, so that the machine's load hits them alike; ``--override`` adds hydra overrides),
+with ``COOP_LOC_TORCH_THREADS`` set to
 each of ``--threads`` (0: torch's default, one thread per core), and prints the run's
 own total time (BenchMARL's ``timers/total_time``: collection, training and evaluation,
 without the imports), median over the rounds, and its ratio to the best setting::
@@ -26,7 +27,8 @@ from coop_loc_env.cli import ScriptParser, run_script
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def one_run(algo: str, scenario: str, threads: int, workdir: Path) -> float:
+def one_run(algo: str, scenario: str, threads: int, workdir: Path,
+            overrides: list[str] | tuple = ()) -> float:
     """The BenchMARL total time (s) of one short run with ``threads``."""
     env = {k: v for k, v in os.environ.items()
            if k not in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")}
@@ -35,7 +37,7 @@ def one_run(algo: str, scenario: str, threads: int, workdir: Path) -> float:
     out = workdir / f"t{threads}_{time.monotonic_ns()}"
     cmd = [sys.executable, "-m", "benchmarl.run", f"algorithm={algo}",
            f"task=coop_loc/{scenario}", "experiment=coop_loc_short",
-           f"hydra.run.dir={out}", f"experiment.save_folder={out}"]
+           f"hydra.run.dir={out}", f"experiment.save_folder={out}", *overrides]
     done = subprocess.run(cmd, env=env, capture_output=True, text=True)
     if done.returncode != 0:
         raise SystemExit(f"error: {' '.join(cmd)} failed: {done.stderr.strip()[-300:]}")
@@ -51,6 +53,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--scenario", default="rendezvous")
     p.add_argument("--threads", default="0,1,2", help="settings, 0 = torch's default")
     p.add_argument("--rounds", type=int, default=2)
+    p.add_argument("--override", action="append", default=[], metavar="KEY=VALUE",
+                   help="hydra override on top of the preset, repeatable (e.g. "
+                        "experiment.max_n_frames=2000)")
     args = p.parse_args(argv)
     settings = [int(t) for t in args.threads.split(",")]
     times: dict[int, list[float]] = {t: [] for t in settings}
@@ -59,7 +64,7 @@ def main(argv: list[str] | None = None) -> int:
         for r in range(args.rounds):
             order = settings if r % 2 == 0 else settings[::-1]
             for t in order:
-                times[t].append(one_run(args.algo, args.scenario, t, Path(tmp)))
+                times[t].append(one_run(args.algo, args.scenario, t, Path(tmp), args.override))
                 print(f"round {r + 1}, threads {t}: {times[t][-1]:.1f} s", flush=True)
     print(f"{os.cpu_count()} CPUs; load average at the end {os.getloadavg()[0]:.1f}")
     medians = {t: statistics.median(v) for t, v in times.items()}
