@@ -20,7 +20,7 @@ import time
 
 import numpy as np
 
-from coop_loc_env.cli import ScriptParser, run_script
+from coop_loc_env.cli import ScriptParser, require, run_script
 
 
 class _Stop(Exception):
@@ -130,6 +130,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: need --minutes > 0 and --episodes >= 2, got {args.minutes}, "
               f"{args.episodes}", file=sys.stderr)
         return 2
+    require("torch", "torchrl", "benchmarl", "hydra", extra="benchmarl")
     import coop_loc_env
     from policies.episode import run_episode
     from policies.experiments.compare import mean_ci

@@ -17,7 +17,7 @@ import time
 
 import numpy as np
 
-from coop_loc_env.cli import ScriptParser, run_script
+from coop_loc_env.cli import ScriptParser, require, run_script
 
 
 def _bare(env, steps: int, rng: np.random.Generator) -> float:
@@ -59,6 +59,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--steps", type=int, default=400)
     p.add_argument("--reps", type=int, default=5)
     args = p.parse_args(argv)
+    require("torch", "tensordict", "torchrl", extra="torchrl")
     if args.steps < 1 or args.reps < 1:
         print(f"error: --steps and --reps must be >= 1, got {args.steps}, {args.reps}",
               file=sys.stderr)

@@ -49,10 +49,12 @@ CASES = [
      "render"),
     ("replay_logs.py", ["tests/data/mrclam_excerpt"], "tqdm", "render"),
     ("bench/torchrl_step.py", ["--steps", "5", "--reps", "1"], "torchrl", "torchrl"),
+    ("bench/torchrl_step.py", ["--steps", "5", "--reps", "1"], "tensordict", "torchrl"),
     ("bench/benchmarl_mappo.py", ["--minutes", "0.01", "--episodes", "2"], "benchmarl",
      "benchmarl"),
     # torch last: it cannot be imported again once dropped from sys.modules
     ("bench/inference.py", [], "torch", "train"),
+    ("bench/torchrl_step.py", ["--steps", "5", "--reps", "1"], "torch", "torchrl"),
     ("train.py", ["--out", "{tmp}/run", "--timesteps", "100"], "torch", "train"),
 ]
 
