@@ -31,6 +31,9 @@ overrides as in training (the observation size depends on some of them).
 see docs/scaling.md) and writes the checkpoint ``DIR/checkpoint``, TensorBoard
 logs in ``DIR/tb``, ``DIR/train_config.json`` and ``DIR/train_summary.json``.
 ``scripts/evaluate.py --policy DIR`` evaluates either kind of run.
+
+Torch runs on the project's thread count (one thread; ``COOP_LOC_TORCH_THREADS=N``
+overrides it, ``0`` leaves torch's default: see docs/scaling.md).
 """
 
 from __future__ import annotations
