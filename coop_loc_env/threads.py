@@ -3,8 +3,9 @@ BenchMARL entry points, chosen in one place.
 
 The networks here are small (a few layers of 64-256 units) and the env steps on the
 CPU between forward passes, so torch's default (one thread per core) mostly makes the
-threads wait for each other and for the env: on 2 cores a BenchMARL run took 1.4x-5x
-as long with 2 threads as with 1 (docs/scaling.md). :data:`TORCH_THREADS` is the
+threads wait for each other and for the env: on a shared 2-core machine a short BenchMARL
+run took 2.1x as long with torch's default of 2 threads as with 1 (docs/scaling.md,
+``python scripts/bench/torch_threads.py``). :data:`TORCH_THREADS` is the
 project's choice; the environment variable :data:`THREADS_ENV` overrides it
 (``COOP_LOC_TORCH_THREADS=4``), and ``COOP_LOC_TORCH_THREADS=0`` leaves torch's own
 setting alone.
