@@ -27,7 +27,7 @@ COMMANDS=(
   "evaluate --compare|python scripts/evaluate.py --compare fsm,random --episodes 2 --max-cycles 20 --plot-dir \$OUT --no-progress"
   "render_episode|python scripts/render_episode.py --policy fsm --max-cycles 20 --out \$OUT/episode.gif"
   "plot_trajectories|python scripts/plot_trajectories.py --scenario rendezvous --policies gather --set max_cycles=40 --out \$OUT/traj.png"
-  "reproduce_madhavan|python scripts/reproduce_madhavan.py --duration 5 --json \$OUT/madhavan.json --plot \$OUT/madhavan.png"
+  "reproduce_madhavan|python scripts/reproduce_madhavan.py --json \$OUT/madhavan.json --plot \$OUT/madhavan.png"
   "replay_logs|python scripts/replay_logs.py tests/data/mrclam_excerpt --duration 20 --no-progress --plot \$OUT/replay.png"
   "train (sb3)|python scripts/train.py --scenario outdoor_terrain --timesteps 1000 --n-envs 1 --eval-freq 0 --no-progress --out \$OUT/ppo"
   "evaluate the sb3 run|test -f \$OUT/ppo/final_model.zip || exit 99; python scripts/evaluate.py --policy \$OUT/ppo --episodes 1 --max-cycles 20 --no-progress"
