@@ -98,6 +98,8 @@ def parse_value(raw: str) -> Any:
         value = yaml.safe_load(raw)
     except yaml.YAMLError:
         return raw
+    if isinstance(value, bool) and raw.strip().lower() not in ("true", "false"):
+        return raw  # YAML 1.1 reads yes/no/on/off as booleans: keep such words as words
     return raw if value is None else value
 
 

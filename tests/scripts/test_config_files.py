@@ -74,6 +74,7 @@ def test_set_values_are_python_literals_or_yaml():
         "team": [{"estimator": "mle"}], "extras": {"mcl_x": None}}
     assert parse_value("true") is True and parse_value("False") is False
     assert parse_value("[1, 2") == "[1, 2"  # neither: the string itself
+    assert parse_value("off") == "off" and parse_value("yes") == "yes"  # words, not YAML 1.1 bools
     cfg = coop_loc_env.make_config("rendezvous", **parse_overrides(["team=[{estimator: ekf}]"]))
     assert set(cfg.estimators) == {"ekf"}
 
