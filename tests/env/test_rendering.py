@@ -124,3 +124,17 @@ def test_terrain_plot_says_which_episode_and_names_every_mark(tmp_path, monkeypa
         assert label in labels
     assert fig.axes[-1].get_ylabel() == "elevation (m), both panels"  # the colorbar
     assert fig.axes[0].get_xlim() == (0.0, 40.0)  # marks at the border do not widen it
+
+
+def test_large_teams_list_only_the_gps_robots():
+    from coop_loc_env.rendering import LEGEND_ROBOTS, Renderer
+
+    for n, each in ((LEGEND_ROBOTS, True), (LEGEND_ROBOTS + 1, False)):
+        env = coop_loc_env.parallel_env("rendezvous", n_robots=n, max_cycles=5)
+        env.reset(seed=0)
+        labels = [p.get_label() for p in Renderer(env)._robot_key()]
+        if each:
+            assert labels == [f"robot_{i}: {'no GPS' if i % 2 else 'GPS'}" for i in range(n)]
+        else:
+            assert labels == ["GPS: robots 0, 2, 4, 6, 8 (5 of 9)"]
+    assert LEGEND_ROBOTS == 8
