@@ -33,7 +33,7 @@ COMMANDS=(
   "evaluate the sb3 run|test -f \$OUT/ppo/final_model.zip || exit 99; python scripts/evaluate.py --policy \$OUT/ppo --episodes 1 --max-cycles 20 --no-progress"
   "plot_training|test -f \$OUT/ppo/train_summary.json || exit 99; python scripts/plot_training.py --run \$OUT/ppo --out \$OUT/training.png"
   "train (rllib)|python scripts/train.py --backend rllib --scenario rendezvous --timesteps 1000 --num-env-runners 0 --out \$OUT/rllib"
-  "evaluate the rllib run|test -d \$OUT/rllib/checkpoint || exit 99; python scripts/evaluate.py --policy \$OUT/rllib --episodes 1 --max-cycles 20 --no-progress"
+  "evaluate the rllib run|test -d \$OUT/rllib/checkpoint || exit 99; python scripts/evaluate.py --scenario rendezvous --policy \$OUT/rllib --episodes 1 --max-cycles 20 --no-progress"
   "torchrl env|python scripts/bench/torchrl_step.py --scenario rendezvous --steps 20 --reps 1"
   "benchmarl one-liner|python -c 'import benchmarl' 2>/dev/null || exit 99; python -m benchmarl.run algorithm=mappo task=coop_loc/rendezvous experiment=coop_loc_short experiment.max_n_frames=200 experiment.on_policy_collected_frames_per_batch=200 experiment.on_policy_minibatch_size=100 experiment.evaluation_interval=200 task.max_cycles=50 hydra.run.dir=\$OUT/benchmarl"
 )
