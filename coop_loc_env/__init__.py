@@ -112,8 +112,13 @@ def torchrl_env(
     that steps the team as one batch: group ``robot`` with ``observation``, ``action``,
     ``reward``, per-robot ``done``/``terminated``/``truncated`` and ``mask``, and the scalar
     infos under ``(robot, info)`` (``info_keys=[...]`` picks them). Any config field is
-    overridable by keyword. Needs the ``torchrl`` extra.
+    overridable by keyword. Sets torch's thread count to the project's
+    (:mod:`coop_loc_env.threads`; ``COOP_LOC_TORCH_THREADS=0`` leaves torch's own).
+    Needs the ``torchrl`` extra.
     """
+    from coop_loc_env.threads import set_torch_threads
+
+    set_torch_threads()
     if num_envs is not None:
         from coop_loc_env.torchrl_vector import make_torchrl_vector_env
 

@@ -47,6 +47,9 @@ def script_main():
 # parameter of the test.
 SLOW_TESTS = frozenset({
     "test_bench_vector_env.py::test_every_side_steps_its_worlds",
+    "test_missing_extras.py::test_every_script_names_the_extra_of_a_missing_package",
+    "test_benchmarl.py::test_the_one_line_command_runs_with_the_short_preset",
+    "test_torch_threads.py::test_the_torchrl_and_benchmarl_entry_points_set_it",
     "test_benchmarl.py::test_a_tiny_mappo_run_on_rendezvous",
     "test_camera_pipeline.py::test_teams_without_cameras_read_nothing",
     "test_compare.py::test_evaluate_compare_prints_one_table_and_saves_plot_and_json",

@@ -16,9 +16,17 @@ or from the command line (the package's hydra plugin puts its task YAML on Bench
 search path; nothing is copied into site-packages)::
 
     python -m benchmarl.run algorithm=mappo task=coop_loc/rendezvous
+    python -m benchmarl.run algorithm=mappo task=coop_loc/rendezvous experiment=coop_loc_short
+
+(``experiment=coop_loc_short``: a run of about a minute on 2 cores). Every task's
+``defaults:`` list makes BenchMARL log to CSV files only (its default adds wandb;
+``experiment.loggers=[csv,wandb]`` brings it back) and adds a hydra callback that stops
+the run with one line if a logger's package is missing. The env sets torch's thread
+count to the project's (:mod:`coop_loc_env.threads`).
 
 Each task's YAML (``coop_loc_env/benchmarl/conf/task/coop_loc/<scenario>.yaml``) holds
-:class:`~coop_loc_env.config.ScenarioConfig` overrides (``team`` as a list of dicts).
+:class:`~coop_loc_env.config.ScenarioConfig` overrides (``team`` as a list of dicts) and
+its hydra ``defaults:`` list.
 The env is the batched TorchRL env (:mod:`coop_loc_env.torchrl_vector`, group ``robot``):
 BenchMARL's ``num_envs`` worlds in one env with ``batch_size=[num_envs]``, as its VMAS
 tasks (no ``SerialEnv`` of copies);
@@ -49,6 +57,7 @@ from torchrl.envs import EnvBase
 from coop_loc_env.env import CoopLocParallelEnv
 from coop_loc_env.native_torchrl import DEFAULT_INFO_KEYS, GROUP, CoopLocTorchRLEnv
 from coop_loc_env.scenarios import make_config
+from coop_loc_env.threads import set_torch_threads
 from coop_loc_env.torchrl_vector import CoopLocTorchRLVectorEnv, make_torchrl_vector_env
 
 #: BenchMARL's environment name of these tasks (``task=coop_loc/<scenario>``).
@@ -79,6 +88,7 @@ class CoopLocClass(TaskClass):
             )
         config = copy.deepcopy(dict(self.config))
         scenario = self.scenario
+        set_torch_threads()  # the project's torch threads for this run (coop_loc_env.threads)
         probe = CoopLocParallelEnv(scenario=scenario, **config)  # its estimators' infos
         probe.reset(seed=0)
         extra = [k for entries in probe.extra_infos().values() for k in entries]
@@ -167,6 +177,7 @@ class CoopLocTask(Task):
         if path is None:
             path = str(CONF_DIR / "task" / ENV_NAME / f"{self.name.lower()}.yaml")
         config = _read_yaml_config(path)
+        config.pop("defaults", None)  # hydra's defaults list: experiment settings, not the env's
         return self.get_task(config=config)
 
 

@@ -47,6 +47,7 @@ import dataclasses
 import json
 import re
 import time
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -54,6 +55,7 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
+from coop_loc_env.threads import set_torch_threads
 from policies.episode import run_episode
 from policies.learning.imitation import (
     behaviour_clone,
@@ -160,13 +162,17 @@ class TrainConfig:
         if isinstance(self.dagger_rounds, bool) or not isinstance(self.dagger_rounds, int) or (
                 self.dagger_rounds < 0):
             raise ValueError(f"dagger_rounds must be an integer >= 0, got {self.dagger_rounds!r}")
+        if self.resume:
+            check_checkpoint(self.resume)
         if self.dagger_rounds and self.bc_from is None:
             raise ValueError("dagger_rounds needs bc_from (the teacher that labels the states)")
         if self.bc_from is not None:
             if self.algo.upper() != "PPO":
                 raise ValueError(f"bc_from needs algo PPO, got {self.algo!r}")
             if self.resume:
-                raise ValueError("bc_from and resume exclude each other")
+                raise ValueError("bc_from and resume exclude each other (a resumed run was "
+                                 "cloned when it started): drop --bc-from, or use "
+                                 "--bc-from none")
             make_teacher(self.bc_from)  # fail early on a bad spec
             for key in ("bc_episodes", "bc_epochs", "dagger_epochs"):
                 value = getattr(self, key)
@@ -415,6 +421,27 @@ def find_checkpoint(path: str | Path) -> Path:
     raise ValueError(f"resume: no checkpoint found at {str(path)!r}")
 
 
+def check_checkpoint(path: str | Path) -> Path:
+    """The checkpoint :func:`find_checkpoint` picks, checked to be a zip archive (what
+    stable-baselines3 saves); raises ``ValueError`` saying what is wrong."""
+    if not Path(path).exists():
+        raise ValueError(f"resume: {str(path)!r} does not exist (give a checkpoint .zip or "
+                         f"a training run's DIR)")
+    ckpt = find_checkpoint(path)
+    if not zipfile.is_zipfile(ckpt):
+        raise ValueError(f"resume: {str(ckpt)!r} is not a stable-baselines3 checkpoint (not a "
+                         f"zip archive)")
+    return ckpt
+
+
+def estimate_cloning_s(cfg: TrainConfig) -> float:
+    """Seconds :func:`warm_start` will spend collecting demonstrations, from the time one
+    teacher episode takes here (fitting the clone comes on top)."""
+    probe = collect_demonstrations(cfg.env_fn(), make_teacher(cfg.bc_from), 1, BC_SEED,
+                                   gamma=cfg.gamma)
+    return probe["wall_s"] * cfg.bc_episodes * (1 + cfg.dagger_rounds)
+
+
 def _vecnormalize_of(ckpt: Path) -> Path | None:
     """The reward-normalization statistics saved with a checkpoint, if any."""
     steps = re.findall(r"_(\d+)_steps", ckpt.name)
@@ -465,10 +492,9 @@ def train(cfg: TrainConfig) -> dict[str, Any]:
     evaluation records).
     """
     import stable_baselines3 as sb3
-    import torch
 
     cfg.validate()
-    torch.set_num_threads(1)
+    set_torch_threads()  # small networks: more threads wait (coop_loc_env.threads)
     t0 = time.perf_counter()
     deadline = None if cfg.max_wall_s is None else t0 + cfg.max_wall_s
     out = Path(cfg.out)
@@ -486,7 +512,12 @@ def train(cfg: TrainConfig) -> dict[str, Any]:
 
                 venv = VecNormalize.load(str(stats), venv.venv)
             algo = getattr(sb3, cfg.algo.upper())
-            model = algo.load(str(ckpt), env=venv, device="cpu", tensorboard_log=tb)
+            try:
+                model = algo.load(str(ckpt), env=venv, device="cpu", tensorboard_log=tb)
+            except (ValueError, KeyError, AssertionError, zipfile.BadZipFile, RuntimeError) as err:
+                reason = str(err).removeprefix("Error: ").splitlines()[0]
+                raise ValueError(f"resume: cannot load {str(ckpt)!r} as a {cfg.algo.upper()} "
+                                 f"model: {reason}") from None
             reset = False
         else:
             model = make_model(cfg, venv, tb)

@@ -38,7 +38,6 @@ Run ``python scripts/bench/mcl_team.py --help`` for the options.
 
 from __future__ import annotations
 
-import argparse
 import importlib.util
 import sys
 import time
@@ -47,6 +46,7 @@ from pathlib import Path
 import numpy as np
 
 import coop_loc_env
+from coop_loc_env.cli import ScriptParser, run_script
 
 __all__ = ["bench_mcl_team", "table_accuracy", "table_memory_mb", "timed_steps"]
 
@@ -257,7 +257,7 @@ def ppo_hallway_steps_per_second(timesteps: int = 4096, seed: int = 0) -> float:
 
 def main(argv: list[str] | None = None) -> None:
     """Print :func:`bench_mcl_team`'s figures."""
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = ScriptParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--steps", type=int, default=60, help="timed env steps per case")
     parser.add_argument("--no-training", action="store_true", help="skip the PPO figure")
     parser.add_argument("--timesteps", type=int, default=4096, help="timed PPO agent steps")
@@ -278,4 +278,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(run_script(main))
