@@ -246,7 +246,7 @@ def _train_rllib(cfg: TrainConfig, args: argparse.Namespace) -> int:
 
     summary = train_rllib(run_from_train_config(cfg, args.num_env_runners, args.address))
     print(f"trained {summary['timesteps']} agent steps with RLlib in {summary['wall_s']:.0f} s "
-          f"({summary['steps_per_s']:.0f} steps/s, {summary['vec_env']} env), "
+          f"({summary['steps_per_s']:.0f} steps/s), "
           f"{summary['total_wall_s']:.0f} s in all; "
           f"checkpoint: {summary['checkpoint']}")
     return 0
