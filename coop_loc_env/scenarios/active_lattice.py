@@ -102,6 +102,25 @@ class ActiveLattice(Scenario):
         env.map_seed = seed
 
 
+def prepare_map_tables(cfg: ScenarioConfig, world) -> None:
+    """Build the drawn map's MCL tables the fast way before the filters ask for them: its
+    symmetries about the world's centre (the lattice's centre by construction) and its
+    sonar range table (compiled, :mod:`estimators.mcl.range_cast`)."""
+    from coop_loc_env.backends.mcl import SYMMETRY_OVERLAP, known_map, map_resolution
+    from estimators.mcl.map_symmetry import seed_symmetries
+    from estimators.mcl.range_cast import prepare_range_table
+
+    if cfg.estimator != "mcl":
+        return
+    grid = known_map(world, "sonar", map_resolution(cfg))
+    w, h = cfg.world_size
+    seed_symmetries(grid, (w / 2, h / 2), SYMMETRY_OVERLAP)
+    tuned = {**cfg.extras.get("mcl", {}), **cfg.extras.get("mcl_sonar", {})}
+    cone = 0.5 * np.deg2rad(cfg.sonar_fov_deg) / cfg.sonar_beams
+    prepare_range_table(grid, cfg.sonar_max_range, tuned.get("beam_lookup_bins") or 256, cone,
+                        tuned.get("beam_rays_per_cone", 3))
+
+
 def install_map(env, lmap: LatticeMap, poses: np.ndarray, rng: np.random.Generator) -> None:
     """Put ``lmap`` into ``env``: its world, sensors, estimators, mapper and observation
     builder (kept for the next reset on the same map; the per-map tables they read, such
@@ -120,6 +139,7 @@ def install_map(env, lmap: LatticeMap, poses: np.ndarray, rng: np.random.Generat
     parts = getattr(env, "_lattice_parts", None)
     if parts is None or parts["map"] is not lmap:
         world = World(cfg)
+        prepare_map_tables(cfg, world)
         backends = make_backends(cfg, world)
         old = env.observations
         parts = {

@@ -96,7 +96,7 @@ def check_params(lattice_size: int, symmetry: int, decoys: int, map_seed: int | 
 def world_edge(lattice_size: int) -> float:
     """The world edge (m) of a ``lattice_size`` lattice: ``FRAME``, or more for large ones
     (a whole number of raster cells, even, so the centre lies on a cell corner)."""
-    need = (lattice_size - 1) * PITCH + CORRIDOR + 2 * (SPUR + BAY_DEPTH + PITCH / 2)
+    need = (lattice_size - 1) * PITCH + CORRIDOR + 2 * (SPUR + RES)  # one solid cell round
     cells = int(np.ceil(max(FRAME, need) / RES))
     return (cells + cells % 2) * RES
 

@@ -74,6 +74,8 @@ CLOSE = 0.5  # m: a return nearer than this ahead makes the robot turn in place
 MODE_RADIUS = 2.0  # m: mode extraction radius (as the dict observation's)
 MODE_HEADING_TOL = math.pi / 4
 MEET_MODES = ("trusted", "all", "off")
+SELECT_MODES = ("utility", "nearest")
+SWITCH_M = 2.0  # m: with select="nearest", a new target must be this much nearer
 
 
 class _Robot:
@@ -133,6 +135,10 @@ class HypothesisPolicy(CorridorPolicy):
         distinct: m, the :func:`distinctive_cells` value of a distinctive place.
         verify_rms: m, the largest RMS scan mismatch there that confirms the belief.
         meet_gain: weight of the gain of meeting a trusted teammate (0: off).
+        select: ``"utility"`` (gain less path cost, far targets) or ``"nearest"`` (the
+            nearest place, by path and turn, whose gain reaches ``nearest_gain`` times
+            the best gain: greedy hypothesis testing).
+        nearest_gain: with ``select="nearest"``, the share of the best gain a place needs.
     """
 
     name = "hypothesis"
@@ -143,7 +149,8 @@ class HypothesisPolicy(CorridorPolicy):
                  dwell: int = 8, lookahead: float = 1.5, assign_penalty: float = 0.2,
                  forget: int = 40, switch_margin: float = 0.05, meet: str = "trusted",
                  sighting_hold: int = 6, verify: bool = False, distinct: float = 1.0,
-                 verify_rms: float = 0.8, meet_gain: float = 0.0) -> None:
+                 verify_rms: float = 0.8, meet_gain: float = 0.0, select: str = "utility",
+                 nearest_gain: float = 0.5) -> None:
         super().__init__(1.0)
         for key, value in (("min_weight", min_weight), ("min_cover", min_cover),
                            ("localized_weight", localized_weight)):
@@ -172,6 +179,11 @@ class HypothesisPolicy(CorridorPolicy):
         self.verify, self.distinct = bool(verify), float(distinct)
         self.verify_rms = float(verify_rms)
         self.meet_gain = float(meet_gain)
+        if select not in SELECT_MODES:
+            raise ValueError(f"select must be one of {SELECT_MODES}, got {select!r}")
+        if not 0 < nearest_gain <= 1:
+            raise ValueError(f"nearest_gain must be in (0, 1], got {nearest_gain!r}")
+        self.select, self.nearest_gain = select, float(nearest_gain)
 
     # ------------------------------------------------------------------ setup
     def reset(self, env, seed: int | None = None) -> None:
@@ -323,14 +335,24 @@ class HypothesisPolicy(CorridorPolicy):
         for p in st.visited:
             utility[np.hypot(*(cand - p).T) < VISITED_M] = -np.inf
         reach = self.env.config.detector_range
-        for other_lead, other_target in targets:
+        for other_lead, other_target in self._teammate_targets(i, targets):
             if np.hypot(*(other_lead[:2] - lead[:2])) < reach:
                 utility[np.hypot(*(cand - other_target).T) < ASSIGN_M] -= self.assign_penalty
         utility[~np.isfinite(cost)] = -np.inf
+        if self.select == "nearest":  # the nearest place that tells the modes apart well
+            ok = np.isfinite(utility) & (utility > -np.inf)
+            good = ok & (gain >= max(0.02, self.nearest_gain * float(gain[ok].max(initial=0))))
+            if good.any():
+                # the penalties (visited places, teammates' targets) stay: a penalized
+                # place is skipped while an unpenalized good one remains
+                penalty = gain - self.cost_weight * (cost + self.turn_cost * turn) - utility
+                near = np.where(good, cost + self.turn_cost * turn + 100.0 * penalty, np.inf)
+                utility = np.where(good, -near, -np.inf)
         best = int(np.argmax(utility))
         if keep and st.target is not None:
             now = int(np.argmin(np.hypot(*(cand - st.target).T)))
-            if utility[best] < utility[now] + self.switch_margin:
+            margin = self.switch_margin if self.select == "utility" else SWITCH_M
+            if utility[best] < utility[now] + margin:
                 return
         st.dwell = 0
         if not np.isfinite(utility[best]) or gain[best] < 0.02:
@@ -339,6 +361,11 @@ class HypothesisPolicy(CorridorPolicy):
         st.target = cand[best].copy()
         st.planned_gain = float(gain[best])
         st.tree = plan.distances(int(plan.free_index[best]))[1]
+
+    def _teammate_targets(self, i: int, targets: list) -> list:
+        """``(lead pose, target)`` of the teammates whose places robot ``i``'s plan avoids:
+        those chosen earlier in this step."""
+        return targets
 
     def _meet_gain(self, lead: np.ndarray, poses: np.ndarray, w: np.ndarray, cand: np.ndarray,
                    mates: np.ndarray) -> np.ndarray:

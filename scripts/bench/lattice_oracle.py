@@ -1,0 +1,140 @@
+"""The lattice oracle: a reference that knows the true poses and the bay, for ``active_lattice``.
+
+Not a baseline (it reads the truth, which no policy may): it bounds what choosing
+where to drive can buy on a symmetric lattice. The robot nearest the bay (by path,
+from its TRUE pose) drives the shortest path to it and waits there; every other robot
+drives the shortest path to that robot (its true position), so a detection passes
+the belief on. Everything else -- the estimator, detections, the time-to-localize
+measure -- is the scenario's. It runs next to the policies given, on the same seeds
+(the same maps), and prints the comparison table and the paired differences, like
+``scripts/evaluate.py --compare``::
+
+    python scripts/bench/lattice_oracle.py --episodes 40 --seed 300000 \\
+        --compare corridor,hypothesis,split
+    python scripts/bench/lattice_oracle.py --set lattice_size=7 --set decoys=2
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from estimators.geometry import wrap_angle
+from policies.experiments.compare import (
+    compare,
+    format_compare_table,
+    format_paired,
+    parse_policy_list,
+)
+from policies.experiments.report import write_json
+from policies.experiments.runner import parse_overrides
+from policies.scripted.corridor import CorridorPolicy
+from policies.scripted.hypothesis import _plan_grid, toward
+from policies.scripted.registry import register_policy
+
+ORACLE = "lattice_oracle"
+AT_BAY_M = 1.0  # m: the robot sent to the bay waits once it is this near its centre
+LOOKAHEAD_M = 1.5  # m along the path of the point steered to
+
+
+class LatticeOraclePolicy(CorridorPolicy):
+    """The nearest robot to the true bay drives there; the others drive to it (module doc)."""
+
+    name = ORACLE
+
+    def reset(self, env, seed: int | None = None) -> None:
+        super().reset(env, seed)
+        lattice = getattr(env, "lattice", None)
+        if lattice is None:
+            raise ValueError(f"{ORACLE} needs the active_lattice scenario, got {env.scenario!r}")
+        grid = env.backends[0].particle_filter(0).grid
+        cfg = env.config
+        self.plan = _plan_grid(grid, cfg.world_size, cfg.robot_radius + 0.25)
+        self.bay_cell = int(self.plan.cell_of(np.asarray(lattice.bay)))
+        dist, self.bay_tree = self.plan.distances(self.bay_cell)
+        cells = self.plan.cell_of(env.world.poses[:, :2])
+        self.scout = int(np.argmin(dist[cells]))  # nearest to the bay by path
+
+    def act(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        poses = self.env.world.poses  # the truth: a reference, not a policy
+        index = self.env.agent_name_mapping
+        scout_cell = int(self.plan.cell_of(poses[self.scout, :2]))
+        out = {}
+        for agent in self.env.agents:
+            i = index[agent]
+            if i == self.scout:
+                if math.hypot(*(poses[i, :2] - self.plan.centres[self.bay_cell])) < AT_BAY_M:
+                    out[agent] = np.zeros(2, dtype=np.float32)
+                    continue
+                tree = self.bay_tree
+            else:
+                tree = self.plan.distances(scout_cell)[1]
+            out[agent] = self._drive(i, poses[i], tree)
+        return out
+
+    def _drive(self, i: int, pose: np.ndarray, tree: np.ndarray) -> np.ndarray:
+        plan = self.plan
+        cell = int(plan.cell_of(pose[:2]))
+        point, prev, walked = plan.centres[cell], plan.centres[cell], 0.0
+        for _ in range(int(LOOKAHEAD_M / plan.cell) * 2 + 2):
+            nxt = int(tree[cell])
+            if nxt < 0:
+                break
+            walked += float(np.hypot(*(plan.centres[nxt] - prev)))
+            prev, cell, point = plan.centres[nxt], nxt, plan.centres[nxt]
+            if walked >= LOOKAHEAD_M:
+                break
+        d = point - pose[:2]
+        if not np.any(d):
+            return np.zeros(2, dtype=np.float32)
+        err = float(wrap_angle(math.atan2(d[1], d[0]) - pose[2]))
+        return toward(self._view(i), err, self.speed)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--scenario", default="active_lattice")
+    p.add_argument("--episodes", type=int, default=40)
+    p.add_argument("--seed", type=int, default=300_000)
+    p.add_argument("--compare", default="corridor", metavar="A,B,...",
+                   help="policies run beside the oracle on the same seeds")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
+    p.add_argument("--json", type=Path, default=None)
+    args = p.parse_args(argv)
+    try:
+        if args.episodes < 1:
+            raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
+        if args.scenario != "active_lattice":
+            raise ValueError(f"--scenario must be active_lattice, got {args.scenario!r}")
+        register_oracle()
+        specs = [ORACLE, *parse_policy_list(args.compare)]
+        data = compare(args.scenario, specs, args.episodes, args.seed,
+                       parse_overrides(args.overrides), progress=False)
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    print(format_compare_table(data, ("time_to_localize_s", "localized_fraction",
+                                      "localized_at_end", "collisions")))
+    print(format_paired(data, ORACLE))
+    if args.json is not None:
+        write_json(data, args.json)
+        print(f"wrote {args.json}")
+    return 0
+
+
+def register_oracle() -> None:
+    """Register ``lattice_oracle`` as a policy name (once), for ``compare`` and
+    ``scripts/evaluate.py`` run from this module."""
+    from policies.scripted.registry import policy_names
+
+    if ORACLE not in policy_names():
+        register_policy(ORACLE, lambda _arg: LatticeOraclePolicy(1.0),
+                        "drives the nearest robot to the true bay (reference: reads the truth)")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
