@@ -87,6 +87,8 @@ class _Robot:
         self.trusted: bool | None = None  # confident on its own readings (None: not confident)
         self.verify_failed = False  # its scan at a distinctive place did not match
         self.last_sighting = -(10**9)  # step of its last detection (as observer or target)
+        self.resolved = False  # tested a place since its heaviest mode last jumped (copies)
+        self.top: np.ndarray | None = None  # the filter's heaviest mode at the last step
 
     def clear(self) -> None:
         self.lead: np.ndarray | None = None  # lead mode pose (x, y, heading)
@@ -139,6 +141,10 @@ class HypothesisPolicy(CorridorPolicy):
             nearest place, by path and turn, whose gain reaches ``nearest_gain`` times
             the best gain: greedy hypothesis testing).
         nearest_gain: with ``select="nearest"``, the share of the best gain a place needs.
+        copies: a mode that lies on a symmetric copy of the heaviest one (under a turn
+            that maps the known map onto itself, :func:`estimators.mcl.map_symmetry.
+            map_symmetries`) weighs as much as it: the filter keeps such copies, with
+            little mass, exactly while the robot's own scans cannot reject them.
     """
 
     name = "hypothesis"
@@ -150,7 +156,7 @@ class HypothesisPolicy(CorridorPolicy):
                  forget: int = 40, switch_margin: float = 0.05, meet: str = "trusted",
                  sighting_hold: int = 6, verify: bool = False, distinct: float = 1.0,
                  verify_rms: float = 0.8, meet_gain: float = 0.0, select: str = "utility",
-                 nearest_gain: float = 0.5) -> None:
+                 nearest_gain: float = 0.5, copies: bool = False) -> None:
         super().__init__(1.0)
         for key, value in (("min_weight", min_weight), ("min_cover", min_cover),
                            ("localized_weight", localized_weight)):
@@ -184,6 +190,9 @@ class HypothesisPolicy(CorridorPolicy):
         if not 0 < nearest_gain <= 1:
             raise ValueError(f"nearest_gain must be in (0, 1], got {nearest_gain!r}")
         self.select, self.nearest_gain = select, float(nearest_gain)
+        if not isinstance(copies, bool):
+            raise ValueError(f"copies must be True or False, got {copies!r}")
+        self.copies = copies
 
     # ------------------------------------------------------------------ setup
     def reset(self, env, seed: int | None = None) -> None:
@@ -209,6 +218,12 @@ class HypothesisPolicy(CorridorPolicy):
                 by_grid[key] = _plan_grid(grid, cfg.world_size, clearance)
             self.plans[g] = by_grid[key]
         self.state = {g: _Robot() for g in self.models}
+        self.symmetries: dict[int, tuple] = {}
+        if self.copies:
+            from coop_loc_env.backends.mcl import SYMMETRY_OVERLAP
+            from estimators.mcl.map_symmetry import map_symmetries
+
+            self.symmetries = {g: map_symmetries(grids[g], SYMMETRY_OVERLAP) for g in grids}
         self.distinctive: dict[int, np.ndarray] = {}  # robot -> its map's distinctive cells
         for g in self.models:
             table, angles, max_range = self.models[g]
@@ -255,6 +270,17 @@ class HypothesisPolicy(CorridorPolicy):
             rows = particle_modes(flat, wt, ends, org, self.n_modes, MODE_RADIUS,
                                   MODE_HEADING_TOL, (0.0, 0.0, w, h))
             for g, m in zip(robots.tolist(), rows, strict=True):
+                if self.symmetries.get(g) and g in self.state:
+                    st = self.state[g]
+                    top = None if not len(m) or m[0, 0] <= 0 else np.array(
+                        [m[0, 1], m[0, 2], math.atan2(m[0, 4], m[0, 3])])
+                    if top is None or st.top is None or (
+                            math.hypot(*(top[:2] - st.top[:2])) > TRACK_M
+                            or abs(wrap_angle(top[2] - st.top[2])) > TRACK_RAD):
+                        st.resolved = False  # a new main mode: its copies are untested
+                    st.top = top
+                    if not st.resolved:
+                        m = _raise_copies(m, self.symmetries[g])
                 out[g] = m[m[:, 0] >= self.min_weight]
         return out
 
@@ -287,6 +313,7 @@ class HypothesisPolicy(CorridorPolicy):
             st.dwell += 1
             if st.dwell >= self.dwell:
                 st.visited.append(st.target.copy())
+                st.resolved = True  # its scans have seen a place where the modes differ
                 replan = True
         if not replan and len(poses) != st.n_modes:  # a hypothesis died or appeared
             gain = self._gain(i, lead, poses, m[:, 0] / m[:, 0].sum(), st.target[None])[0] \
@@ -488,6 +515,33 @@ class HypothesisPolicy(CorridorPolicy):
         d = point - pose[:2]
         err = float(wrap_angle(math.atan2(d[1], d[0]) - pose[2]))
         return toward(view, err, self.speed)
+
+
+def _raise_copies(m: np.ndarray, symmetries) -> np.ndarray:
+    """Modes ``m`` (heaviest first) with each symmetric copy of the heaviest raised to its
+    weight, renormalized over the raised mass, heaviest first."""
+    from estimators.mcl.map_symmetry import symmetric_copies
+
+    m = m[m[:, 0] > 0].copy()
+    if len(m) < 2:
+        return m
+    top = np.array([m[0, 1], m[0, 2], math.atan2(m[0, 4], m[0, 3])])
+    heads = np.arctan2(m[:, 4], m[:, 3])
+    raised = False
+    for sym in symmetries:
+        c = symmetric_copies(top, sym)
+        d = np.hypot(m[:, 1] - c[0], m[:, 2] - c[1])
+        ok = (d < TRACK_M) & (np.abs(wrap_angle(heads - c[2])) < TRACK_RAD)
+        ok[0] = False
+        if ok.any():
+            k = int(np.argmin(np.where(ok, d, np.inf)))
+            m[k, 0] = max(m[k, 0], m[0, 0])
+            raised = True
+    if not raised:
+        return m
+    total = m[:, 0].sum()
+    m[:, 0] *= min(1.0, 1.0 / total) if total > 0 else 1.0
+    return m[np.argsort(-m[:, 0], kind="stable")]
 
 
 def toward(view, err: float, speed: float = 1.0) -> np.ndarray:

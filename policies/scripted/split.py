@@ -32,6 +32,7 @@ class SplitPolicy(HypothesisPolicy):
     def __init__(self, **kwargs) -> None:
         kwargs.setdefault("select", "nearest")
         kwargs.setdefault("assign_penalty", SPLIT_PENALTY)
+        kwargs.setdefault("copies", True)
         super().__init__(**kwargs)
 
     def _teammate_targets(self, i: int, targets: list) -> list:

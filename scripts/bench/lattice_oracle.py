@@ -1,10 +1,10 @@
 """The lattice oracle: a reference that knows the true poses and the bay, for ``active_lattice``.
 
 Not a baseline (it reads the truth, which no policy may): it bounds what choosing
-where to drive can buy on a symmetric lattice. The robot nearest the bay (by path,
-from its TRUE pose) drives the shortest path to it and waits there; every other robot
-drives the shortest path to that robot (its true position), so a detection passes
-the belief on. Everything else -- the estimator, detections, the time-to-localize
+where to drive can buy on a symmetric lattice. Every robot drives the shortest path
+to the bay from its TRUE pose (so the nearest gets there first), and once it has
+passed within ``AT_BAY_M`` of it, follows the corridors (as ``corridor``), which keeps
+the team from crowding the bay. Everything else -- the estimator, detections, the time-to-localize
 measure -- is the scenario's. It runs next to the policies given, on the same seeds
 (the same maps), and prints the comparison table and the paired differences, like
 ``scripts/evaluate.py --compare``::
@@ -32,17 +32,17 @@ from policies.experiments.compare import (
 )
 from policies.experiments.report import write_json
 from policies.experiments.runner import parse_overrides
-from policies.scripted.corridor import CorridorPolicy
+from policies.scripted.corridor import CorridorPolicy, follow
 from policies.scripted.hypothesis import _plan_grid, toward
 from policies.scripted.registry import register_policy
 
 ORACLE = "lattice_oracle"
-AT_BAY_M = 1.0  # m: the robot sent to the bay waits once it is this near its centre
+AT_BAY_M = 1.0  # m: a robot this near the bay's centre has been there
 LOOKAHEAD_M = 1.5  # m along the path of the point steered to
 
 
 class LatticeOraclePolicy(CorridorPolicy):
-    """The nearest robot to the true bay drives there; the others drive to it (module doc)."""
+    """Every robot drives to the true bay, then follows the corridors (module doc)."""
 
     name = ORACLE
 
@@ -55,25 +55,21 @@ class LatticeOraclePolicy(CorridorPolicy):
         cfg = env.config
         self.plan = _plan_grid(grid, cfg.world_size, cfg.robot_radius + 0.25)
         self.bay_cell = int(self.plan.cell_of(np.asarray(lattice.bay)))
-        dist, self.bay_tree = self.plan.distances(self.bay_cell)
-        cells = self.plan.cell_of(env.world.poses[:, :2])
-        self.scout = int(np.argmin(dist[cells]))  # nearest to the bay by path
+        self.bay_tree = self.plan.distances(self.bay_cell)[1]
+        self.been = np.zeros(cfg.n_robots, dtype=bool)
 
     def act(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         poses = self.env.world.poses  # the truth: a reference, not a policy
         index = self.env.agent_name_mapping
-        scout_cell = int(self.plan.cell_of(poses[self.scout, :2]))
+        bay = self.plan.centres[self.bay_cell]
         out = {}
         for agent in self.env.agents:
             i = index[agent]
-            if i == self.scout:
-                if math.hypot(*(poses[i, :2] - self.plan.centres[self.bay_cell])) < AT_BAY_M:
-                    out[agent] = np.zeros(2, dtype=np.float32)
-                    continue
-                tree = self.bay_tree
+            self.been[i] |= math.hypot(*(poses[i, :2] - bay)) < AT_BAY_M
+            if self.been[i]:
+                out[agent] = follow(self._view(i), self.speed, self.gain)
             else:
-                tree = self.plan.distances(scout_cell)[1]
-            out[agent] = self._drive(i, poses[i], tree)
+                out[agent] = self._drive(i, poses[i], self.bay_tree)
         return out
 
     def _drive(self, i: int, pose: np.ndarray, tree: np.ndarray) -> np.ndarray:
