@@ -76,6 +76,8 @@ MODE_HEADING_TOL = math.pi / 4
 MEET_MODES = ("trusted", "all", "off")
 SELECT_MODES = ("utility", "nearest")
 SWITCH_M = 2.0  # m: with select="nearest", a new target must be this much nearer
+RESOLVE_WEIGHT = 0.8  # copies: the main mode must weigh this (when the filter keeps copies) ...
+RESOLVE_STEPS = 12  # ... and continue this many steps without a copy to be believed alone
 
 
 class _Robot:
@@ -87,8 +89,10 @@ class _Robot:
         self.trusted: bool | None = None  # confident on its own readings (None: not confident)
         self.verify_failed = False  # its scan at a distinctive place did not match
         self.last_sighting = -(10**9)  # step of its last detection (as observer or target)
-        self.resolved = False  # tested a place since its heaviest mode last jumped (copies)
+        self.resolved = False  # the filter dropped the copies of its main mode (copies)
         self.top: np.ndarray | None = None  # the filter's heaviest mode at the last step
+        self.top_steps = 0  # steps the heaviest mode has continued
+        self.copy_steps = 0  # steps since a symmetric copy of it was last seen
 
     def clear(self) -> None:
         self.lead: np.ndarray | None = None  # lead mode pose (x, y, heading)
@@ -271,18 +275,29 @@ class HypothesisPolicy(CorridorPolicy):
                                   MODE_HEADING_TOL, (0.0, 0.0, w, h))
             for g, m in zip(robots.tolist(), rows, strict=True):
                 if self.symmetries.get(g) and g in self.state:
-                    st = self.state[g]
-                    top = None if not len(m) or m[0, 0] <= 0 else np.array(
-                        [m[0, 1], m[0, 2], math.atan2(m[0, 4], m[0, 3])])
-                    if top is None or st.top is None or (
-                            math.hypot(*(top[:2] - st.top[:2])) > TRACK_M
-                            or abs(wrap_angle(top[2] - st.top[2])) > TRACK_RAD):
-                        st.resolved = False  # a new main mode: its copies are untested
-                    st.top = top
-                    if not st.resolved:
-                        m = _raise_copies(m, self.symmetries[g])
+                    m = self._copies(self.state[g], m, self.symmetries[g])
                 out[g] = m[m[:, 0] >= self.min_weight]
         return out
+
+    def _copies(self, st: _Robot, m: np.ndarray, symmetries) -> np.ndarray:
+        """``m`` with the symmetric copies of the main mode raised (:func:`_raise_copies`)
+        until the filter has held its main mode ``RESOLVE_STEPS`` steps, at least
+        ``RESOLVE_WEIGHT``, without keeping any copy of it (its scans rejected them); a
+        jump of the main mode starts over."""
+        top = None if not len(m) or m[0, 0] <= 0 else np.array(
+            [m[0, 1], m[0, 2], math.atan2(m[0, 4], m[0, 3])])
+        if top is None or st.top is None or (
+                math.hypot(*(top[:2] - st.top[:2])) > TRACK_M
+                or abs(wrap_angle(top[2] - st.top[2])) > TRACK_RAD):
+            st.resolved, st.top_steps, st.copy_steps = False, 0, 0
+        st.top = top
+        st.top_steps += 1
+        raised, found = _raise_copies(m, symmetries)
+        st.copy_steps = 0 if found else st.copy_steps + 1
+        if (not st.resolved and len(m) and m[0, 0] >= RESOLVE_WEIGHT
+                and min(st.top_steps, st.copy_steps) >= RESOLVE_STEPS):
+            st.resolved = True
+        return m if st.resolved else raised
 
     def _robot(self, i: int, view, modes: dict[int, np.ndarray], live: list[int],
                targets: list) -> np.ndarray:
@@ -313,7 +328,6 @@ class HypothesisPolicy(CorridorPolicy):
             st.dwell += 1
             if st.dwell >= self.dwell:
                 st.visited.append(st.target.copy())
-                st.resolved = True  # its scans have seen a place where the modes differ
                 replan = True
         if not replan and len(poses) != st.n_modes:  # a hypothesis died or appeared
             gain = self._gain(i, lead, poses, m[:, 0] / m[:, 0].sum(), st.target[None])[0] \
@@ -517,14 +531,15 @@ class HypothesisPolicy(CorridorPolicy):
         return toward(view, err, self.speed)
 
 
-def _raise_copies(m: np.ndarray, symmetries) -> np.ndarray:
+def _raise_copies(m: np.ndarray, symmetries) -> tuple[np.ndarray, bool]:
     """Modes ``m`` (heaviest first) with each symmetric copy of the heaviest raised to its
-    weight, renormalized over the raised mass, heaviest first."""
+    weight, renormalized over the raised mass, heaviest first; and whether any copy was
+    there."""
     from estimators.mcl.map_symmetry import symmetric_copies
 
     m = m[m[:, 0] > 0].copy()
     if len(m) < 2:
-        return m
+        return m, False
     top = np.array([m[0, 1], m[0, 2], math.atan2(m[0, 4], m[0, 3])])
     heads = np.arctan2(m[:, 4], m[:, 3])
     raised = False
@@ -538,10 +553,10 @@ def _raise_copies(m: np.ndarray, symmetries) -> np.ndarray:
             m[k, 0] = max(m[k, 0], m[0, 0])
             raised = True
     if not raised:
-        return m
+        return m, False
     total = m[:, 0].sum()
     m[:, 0] *= min(1.0, 1.0 / total) if total > 0 else 1.0
-    return m[np.argsort(-m[:, 0], kind="stable")]
+    return m[np.argsort(-m[:, 0], kind="stable")], True
 
 
 def toward(view, err: float, speed: float = 1.0) -> np.ndarray:

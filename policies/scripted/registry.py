@@ -104,7 +104,8 @@ def _hypothesis(arg: str) -> Policy:
     if arg and arg not in SELECT_MODES:
         raise ValueError(f"policy 'hypothesis:{arg}': the argument must be one of "
                          f"{SELECT_MODES} (how targets are chosen)")
-    return HypothesisPolicy(select=arg) if arg else HypothesisPolicy()
+    # the greedy variant also weighs the symmetric copies the filter keeps of its main mode
+    return HypothesisPolicy(select=arg, copies=arg == "nearest") if arg else HypothesisPolicy()
 
 
 def _split(arg: str) -> Policy:
@@ -123,7 +124,8 @@ register_policy("corridor", _corridor,
 register_policy("hypothesis", _hypothesis,
                 "hypothesis elimination with far targets: drive where the belief's modes "
                 "predict different readings (MCL), localized robots meet the lost ones; "
-                "hypothesis:nearest drives to the nearest such place (greedy)")
+                "hypothesis:nearest drives to the nearest such place (greedy), counting the "
+                "map's symmetric copies of the main mode")
 register_policy("split", _split,
                 "team hypothesis testing: lost robots split over different places that tell "
                 "their modes apart (nearest first), localized robots meet the lost ones")

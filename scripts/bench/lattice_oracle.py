@@ -23,11 +23,13 @@ from pathlib import Path
 
 import numpy as np
 
+from coop_loc_env.scenarios import make_config
 from estimators.geometry import wrap_angle
 from policies.experiments.compare import (
     compare,
     format_compare_table,
     format_paired,
+    mean_ci,
     parse_policy_list,
 )
 from policies.experiments.report import write_json
@@ -37,6 +39,10 @@ from policies.scripted.hypothesis import _plan_grid, toward
 from policies.scripted.registry import register_policy
 
 ORACLE = "lattice_oracle"
+ACCURACY_AT_S = 30.0  # s: the horizon of the accuracy figure
+#: the ratios the headroom is judged by: (policy, against)
+HEADROOM_PAIRS = ((ORACLE, "corridor"), ("hypothesis", "corridor"), ("split", "hypothesis"),
+                  ("split", "corridor"))
 AT_BAY_M = 1.0  # m: a robot this near the bay's centre has been there
 LOOKAHEAD_M = 1.5  # m along the path of the point steered to
 
@@ -100,6 +106,8 @@ def main(argv: list[str] | None = None) -> int:
                    help="policies run beside the oracle on the same seeds")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     p.add_argument("--json", type=Path, default=None)
+    p.add_argument("--plot-dir", type=Path, default=None,
+                   help="write the localized-over-time curve here")
     args = p.parse_args(argv)
     try:
         if args.episodes < 1:
@@ -116,10 +124,56 @@ def main(argv: list[str] | None = None) -> int:
     print(format_compare_table(data, ("time_to_localize_s", "localized_fraction",
                                       "localized_at_end", "collisions")))
     print(format_paired(data, ORACLE))
+    print(format_headroom(data))
+    if args.plot_dir is not None:
+        from policies.experiments.localization_curves import plot_localized_curve
+
+        args.plot_dir.mkdir(parents=True, exist_ok=True)
+        dt = make_config(args.scenario, **parse_overrides(args.overrides)).dt
+        path = args.plot_dir / "active_lattice_localized.png"
+        print(f"wrote {plot_localized_curve(data, path, dt)}")
     if args.json is not None:
         write_json(data, args.json)
         print(f"wrote {args.json}")
     return 0
+
+
+def paired_ratio(report: dict, a: str, b: str, n_boot: int = 4000, seed: int = 0
+                 ) -> tuple[float, float, float]:
+    """``(ratio, low, high)``: mean time to localize of ``a`` over ``b``'s on the same
+    episodes, with a 95 % bootstrap interval resampling the episode pairs."""
+    ta = np.array([r["time_to_localize_s"] for r in report["episodes"][a]], dtype=float)
+    tb = np.array([r["time_to_localize_s"] for r in report["episodes"][b]], dtype=float)
+    rng = np.random.default_rng(seed)
+    idx = rng.integers(0, len(ta), (n_boot, len(ta)))
+    boots = ta[idx].mean(axis=1) / tb[idx].mean(axis=1)
+    return float(ta.mean() / tb.mean()), *(float(q) for q in np.quantile(boots, [0.025, 0.975]))
+
+
+def accuracy_at(report: dict, spec: str, seconds: float = ACCURACY_AT_S
+                ) -> tuple[float, float, float]:
+    """``(mean, low, high)``: the fraction of a policy's robots localized by ``seconds``
+    (per episode, then the mean over episodes with its 95 % Student-t interval)."""
+    per = [float(np.mean(np.asarray(r["robot_localized"], bool)
+                         & (np.asarray(r["robot_times_to_localize_s"], float) <= seconds)))
+           for r in report["episodes"][spec]]
+    return mean_ci(np.array(per), bounds=(0.0, 1.0))
+
+
+def format_headroom(report: dict) -> str:
+    """Ratios of the mean times to localize (paired bootstrap intervals) of every pair in
+    :data:`HEADROOM_PAIRS` present, and each policy's accuracy at ``ACCURACY_AT_S``."""
+    specs = report["policies"]
+    lines = [f"localized by {ACCURACY_AT_S:g} s (mean [95 % CI] over episodes):"]
+    for spec in specs:
+        m, lo, hi = accuracy_at(report, spec)
+        lines.append(f"  {spec}: {m:.3f} [{lo:.3f}, {hi:.3f}]")
+    lines.append("mean time to localize, ratio (paired bootstrap 95 % CI):")
+    for a, b in HEADROOM_PAIRS:
+        if a in specs and b in specs:
+            r, lo, hi = paired_ratio(report, a, b)
+            lines.append(f"  {a} / {b}: {r:.3f} [{lo:.3f}, {hi:.3f}]")
+    return "\n".join(lines)
 
 
 def register_oracle() -> None:

@@ -14,7 +14,12 @@ import pytest
 import coop_loc_env
 from estimators.mcl.map_symmetry import MapSymmetry
 from policies.learning.loader import make_policy
-from policies.scripted.hypothesis import ASSIGN_M, HypothesisPolicy, _raise_copies
+from policies.scripted.hypothesis import (
+    ASSIGN_M,
+    RESOLVE_STEPS,
+    HypothesisPolicy,
+    _raise_copies,
+)
 from policies.scripted.split import SPLIT_PENALTY, SplitPolicy
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -80,6 +85,7 @@ def test_bad_oracle_input_exits_2(capsys):
 
 def test_registry_arguments():
     assert make_policy("hypothesis:nearest").select == "nearest"
+    assert make_policy("hypothesis:nearest").copies and not make_policy("hypothesis").copies
     assert make_policy("hypothesis").select == "utility"
     assert isinstance(make_policy("split"), SplitPolicy)
     with pytest.raises(ValueError, match="hypothesis:far"):
@@ -99,15 +105,16 @@ def test_copies_of_the_main_mode_weigh_as_much():
                   [0.02, 10.2, 15.1, 0.0, 1.0, 0.3],  # the copy, kept with little mass
                   [0.05, 3.0, 3.0, 1.0, 0.0, 0.3],  # elsewhere: unchanged but renormalized
                   [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]])
-    out = _raise_copies(m, (quarter,))
-    assert len(out) == 3
+    out, found = _raise_copies(m, (quarter,))
+    assert found and len(out) == 3
     assert out[0, 0] == pytest.approx(out[1, 0]) and {round(out[0, 1]), round(out[1, 1])} == {
         15, 10}
     assert out[:, 0].sum() == pytest.approx(1.0)
     assert out[2, 0] == pytest.approx(0.05 / 1.85)
     # a mode turned the wrong way is no copy
     m[1, 3:5] = (0.0, -1.0)
-    assert _raise_copies(m, (quarter,))[0, 0] == pytest.approx(0.9)
+    out, found = _raise_copies(m, (quarter,))
+    assert not found and out[0, 0] == pytest.approx(0.9)
 
 
 def test_split_avoids_every_teammates_current_place():
@@ -165,3 +172,33 @@ def test_nearest_picks_a_nearer_place_than_utility():
         costs[select] = plan.distances(int(plan.cell_of(poses[0][:2])))[0][
             int(plan.cell_of(st.target))]
     assert costs["nearest"] < costs["utility"]
+
+
+def _mode_rows(top_weight: float, copy: bool) -> np.ndarray:
+    rows = [[top_weight, 15.0, 10.0, 1.0, 0.0, 0.3]]
+    if copy:
+        rows.append([0.005, 10.0, 15.0, 0.0, 1.0, 0.3])  # its quarter-turn copy
+    rows.append([0.03, 3.0, 3.0, 1.0, 0.0, 0.3])
+    return np.array(rows)
+
+
+@pytest.mark.parametrize("weight,quiet_steps,alone", [
+    (0.85, RESOLVE_STEPS, True),  # held, heavy enough, no copy long enough: believed alone
+    (0.85, RESOLVE_STEPS - 1, False),  # one step short
+    (0.75, 3 * RESOLVE_STEPS, False),  # too light (the filter keeps no copies below that)
+])
+def test_copies_count_until_the_filter_drops_them(weight, quiet_steps, alone):
+    from policies.scripted.hypothesis import _Robot
+
+    quarter = MapSymmetry(math.pi / 2, (10.0, 10.0), 0.9)
+    policy, st = HypothesisPolicy(copies=True), _Robot()
+    assert policy._copies(st, _mode_rows(weight, True), (quarter,))[0, 0] < 0.5  # raised
+    for _ in range(quiet_steps):
+        policy._copies(st, _mode_rows(weight, False), (quarter,))
+    out = policy._copies(st, _mode_rows(weight, True), (quarter,))  # a copy comes back
+    assert bool(out[0, 0] == pytest.approx(weight)) is alone
+    # the main mode jumps: its copies count again
+    jumped = _mode_rows(weight, True)
+    jumped[0, 1:3] = (5.0, 5.0)
+    assert policy._copies(st, jumped, (quarter,))[0, 0] <= weight
+    assert not st.resolved
