@@ -76,8 +76,6 @@ MODE_HEADING_TOL = math.pi / 4
 MEET_MODES = ("trusted", "all", "off")
 SELECT_MODES = ("utility", "nearest")
 SWITCH_M = 2.0  # m: with select="nearest", a new target must be this much nearer
-RESOLVE_WEIGHT = 0.8  # copies: the main mode must weigh this (when the filter keeps copies) ...
-RESOLVE_STEPS = 12  # ... and continue this many steps without a copy to be believed alone
 
 
 class _Robot:
@@ -89,10 +87,8 @@ class _Robot:
         self.trusted: bool | None = None  # confident on its own readings (None: not confident)
         self.verify_failed = False  # its scan at a distinctive place did not match
         self.last_sighting = -(10**9)  # step of its last detection (as observer or target)
-        self.resolved = False  # the filter dropped the copies of its main mode (copies)
+        self.resolved = False  # tested a place since its main mode last jumped (copies)
         self.top: np.ndarray | None = None  # the filter's heaviest mode at the last step
-        self.top_steps = 0  # steps the heaviest mode has continued
-        self.copy_steps = 0  # steps since a symmetric copy of it was last seen
 
     def clear(self) -> None:
         self.lead: np.ndarray | None = None  # lead mode pose (x, y, heading)
@@ -281,23 +277,17 @@ class HypothesisPolicy(CorridorPolicy):
 
     def _copies(self, st: _Robot, m: np.ndarray, symmetries) -> np.ndarray:
         """``m`` with the symmetric copies of the main mode raised (:func:`_raise_copies`)
-        until the filter has held its main mode ``RESOLVE_STEPS`` steps, at least
-        ``RESOLVE_WEIGHT``, without keeping any copy of it (its scans rejected them); a
-        jump of the main mode starts over."""
+        until the robot has tested a place (reached a target and waited ``dwell`` steps
+        there: its scans have seen where the modes differ); a jump of the main mode
+        starts over."""
         top = None if not len(m) or m[0, 0] <= 0 else np.array(
             [m[0, 1], m[0, 2], math.atan2(m[0, 4], m[0, 3])])
         if top is None or st.top is None or (
                 math.hypot(*(top[:2] - st.top[:2])) > TRACK_M
                 or abs(wrap_angle(top[2] - st.top[2])) > TRACK_RAD):
-            st.resolved, st.top_steps, st.copy_steps = False, 0, 0
+            st.resolved = False
         st.top = top
-        st.top_steps += 1
-        raised, found = _raise_copies(m, symmetries)
-        st.copy_steps = 0 if found else st.copy_steps + 1
-        if (not st.resolved and len(m) and m[0, 0] >= RESOLVE_WEIGHT
-                and min(st.top_steps, st.copy_steps) >= RESOLVE_STEPS):
-            st.resolved = True
-        return m if st.resolved else raised
+        return m if st.resolved else _raise_copies(m, symmetries)[0]
 
     def _robot(self, i: int, view, modes: dict[int, np.ndarray], live: list[int],
                targets: list) -> np.ndarray:
@@ -328,6 +318,7 @@ class HypothesisPolicy(CorridorPolicy):
             st.dwell += 1
             if st.dwell >= self.dwell:
                 st.visited.append(st.target.copy())
+                st.resolved = True  # its scans have seen a place where the modes differ
                 replan = True
         if not replan and len(poses) != st.n_modes:  # a hypothesis died or appeared
             gain = self._gain(i, lead, poses, m[:, 0] / m[:, 0].sum(), st.target[None])[0] \

@@ -14,12 +14,7 @@ import pytest
 import coop_loc_env
 from estimators.mcl.map_symmetry import MapSymmetry
 from policies.learning.loader import make_policy
-from policies.scripted.hypothesis import (
-    ASSIGN_M,
-    RESOLVE_STEPS,
-    HypothesisPolicy,
-    _raise_copies,
-)
+from policies.scripted.hypothesis import ASSIGN_M, HypothesisPolicy, _raise_copies
 from policies.scripted.split import SPLIT_PENALTY, SplitPolicy
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -174,31 +169,25 @@ def test_nearest_picks_a_nearer_place_than_utility():
     assert costs["nearest"] < costs["utility"]
 
 
-def _mode_rows(top_weight: float, copy: bool) -> np.ndarray:
-    rows = [[top_weight, 15.0, 10.0, 1.0, 0.0, 0.3]]
+def _mode_rows(top_weight: float, copy: bool, x: float = 15.0) -> np.ndarray:
+    rows = [[top_weight, x, 10.0, 1.0, 0.0, 0.3]]
     if copy:
-        rows.append([0.005, 10.0, 15.0, 0.0, 1.0, 0.3])  # its quarter-turn copy
+        rows.append([0.005, 10.0, x, 0.0, 1.0, 0.3])  # its quarter-turn copy
     rows.append([0.03, 3.0, 3.0, 1.0, 0.0, 0.3])
     return np.array(rows)
 
 
-@pytest.mark.parametrize("weight,quiet_steps,alone", [
-    (0.85, RESOLVE_STEPS, True),  # held, heavy enough, no copy long enough: believed alone
-    (0.85, RESOLVE_STEPS - 1, False),  # one step short
-    (0.75, 3 * RESOLVE_STEPS, False),  # too light (the filter keeps no copies below that)
-])
-def test_copies_count_until_the_filter_drops_them(weight, quiet_steps, alone):
+def test_copies_count_until_a_place_is_tested():
     from policies.scripted.hypothesis import _Robot
 
     quarter = MapSymmetry(math.pi / 2, (10.0, 10.0), 0.9)
     policy, st = HypothesisPolicy(copies=True), _Robot()
-    assert policy._copies(st, _mode_rows(weight, True), (quarter,))[0, 0] < 0.5  # raised
-    for _ in range(quiet_steps):
-        policy._copies(st, _mode_rows(weight, False), (quarter,))
-    out = policy._copies(st, _mode_rows(weight, True), (quarter,))  # a copy comes back
-    assert bool(out[0, 0] == pytest.approx(weight)) is alone
+    for _ in range(3):  # the filter is sure (0.95), but its copy is still kept
+        assert policy._copies(st, _mode_rows(0.95, True), (quarter,))[0, 0] < 0.5
+    st.resolved = True  # (set when a target is reached and the dwell is over)
+    assert policy._copies(st, _mode_rows(0.95, True), (quarter,))[0, 0] == pytest.approx(0.95)
     # the main mode jumps: its copies count again
-    jumped = _mode_rows(weight, True)
-    jumped[0, 1:3] = (5.0, 5.0)
-    assert policy._copies(st, jumped, (quarter,))[0, 0] <= weight
+    assert policy._copies(st, _mode_rows(0.95, True, x=16.0), (quarter,))[0, 0] == \
+        pytest.approx(0.95)  # within TRACK_M: the same mode
+    assert policy._copies(st, _mode_rows(0.95, True, x=18.0), (quarter,))[0, 0] < 0.5
     assert not st.resolved
