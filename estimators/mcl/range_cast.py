@@ -84,18 +84,23 @@ def _rows(ranges: np.ndarray, free: np.ndarray, nx: int, res: float, ox: float, 
     rows = np.zeros((n_cells * nb, 4), dtype=np.int16)
     cs, sn = np.cos(phi), np.sin(phi)
     vals = np.empty(4, dtype=np.float32)
+    cone = np.empty((nb, shifts.size), dtype=np.int64)  # the bins of each bin's cone rays
+    for b in range(nb):
+        for k in range(shifts.size):
+            cone[b, k] = (b + shifts[k]) % nb
     for f in range(free.size):
         cell = free[f]
         px = (cell % nx + 0.5) * res + ox
         py = (cell // nx + 0.5) * res + oy
+        ray = ranges[f]
         for b in range(nb):
-            best = 0
-            r = np.inf
-            for k in range(shifts.size):
-                v = ranges[f, (b + shifts[k]) % nb]
+            best = cone[b, 0]
+            r = ray[best]
+            for k in range(1, shifts.size):
+                v = ray[cone[b, k]]
                 if v < r:
                     r = v
-                    best = (b + shifts[k]) % nb
+                    best = cone[b, k]
             cos, sin = cs[best], sn[best]
             hx = (px + r * cos - ox) / res
             hy = (py + r * sin - oy) / res
