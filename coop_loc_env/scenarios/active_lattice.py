@@ -25,6 +25,7 @@ docs/learning.md (``scripts/bench/lattice_reset.py``).
 from __future__ import annotations
 
 import dataclasses
+import weakref
 from dataclasses import dataclass
 from typing import Any
 
@@ -102,6 +103,10 @@ class ActiveLattice(Scenario):
         env.map_seed = seed
 
 
+#: Per env, the parts built for its current map (kept while the env lives).
+_PARTS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
 def prepare_map_tables(cfg: ScenarioConfig, world) -> None:
     """Build the drawn map's MCL tables the fast way before the filters ask for them: its
     symmetries about the world's centre (the lattice's centre by construction) and its
@@ -136,7 +141,7 @@ def install_map(env, lmap: LatticeMap, poses: np.ndarray, rng: np.random.Generat
 
     cfg = dataclasses.replace(env.config, obstacles=lmap.obstacles,
                               start_poses=tuple(map(tuple, poses.tolist())))
-    parts = getattr(env, "_lattice_parts", None)
+    parts = _PARTS.get(env)
     if parts is None or parts["map"] is not lmap:
         world = World(cfg)
         prepare_map_tables(cfg, world)
@@ -151,7 +156,7 @@ def install_map(env, lmap: LatticeMap, poses: np.ndarray, rng: np.random.Generat
             "observations": ObservationBuilder(cfg, old.belief_size,
                                                tuple(backends[0].feature_names), world),
         }
-        env._lattice_parts = parts
+        _PARTS[env] = parts
     world = parts["world"]
     world.cfg = cfg
     world.reset(rng)

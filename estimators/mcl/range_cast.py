@@ -146,7 +146,7 @@ def build_range_table(grid: OccupancyGrid, max_range: float, n_bins: int = 256,
     free = np.flatnonzero(~occ.ravel())
     phi = -math.pi + (np.arange(n_bins) + 0.5) * bw
     ranges = _cast_all(occ, free, res, ox, oy, phi, float(max_range))
-    max_slope = beam_table._MAX_SLOPE
+    max_slope = beam_table.MAX_SLOPE
     scales = np.array([1.0, max_slope, max_slope, max_slope * max_range]) / 32767.0
     scales[0] *= max_range
     rows = _rows(ranges, free, nx, res, ox, oy, phi, np.rint(shifts).astype(np.int64),
@@ -164,13 +164,11 @@ def prepare_range_table(grid: OccupancyGrid, max_range: float, n_bins: int = 256
                         cone_half_width: float = 0.0, rays_per_cone: int = 1) -> bool:
     """Build ``grid``'s table (:func:`build_range_table`) into ``range_table``'s cache unless
     it is there; whether the table is cached now."""
-    rays = int(rays_per_cone) if cone_half_width > 0 else 1
-    cone = float(cone_half_width) if rays > 1 else 0.0
-    key = (*beam_table._grid_key(grid), float(max_range), int(n_bins), cone, rays)
-    if key in beam_table._TABLES:
+    key = beam_table.table_key(grid, max_range, n_bins, cone_half_width, rays_per_cone)
+    if beam_table.cached_table(key) is not None:
         return True
     table = build_range_table(grid, max_range, n_bins, cone_half_width, rays_per_cone)
     if table is None:
         return False
-    beam_table._remember(beam_table._TABLES, key, table)
+    beam_table.remember_table(key, table)
     return True

@@ -215,7 +215,7 @@ class HypothesisPolicy(CorridorPolicy):
         for g, grid in grids.items():
             key = id(grid)
             if key not in by_grid:
-                by_grid[key] = _plan_grid(grid, cfg.world_size, clearance)
+                by_grid[key] = plan_grid(grid, cfg.world_size, clearance)
             self.plans[g] = by_grid[key]
         self.state = {g: _Robot() for g in self.models}
         self.symmetries: dict[int, tuple] = {}
@@ -617,7 +617,7 @@ def _distinctive(plan: PlanGrid, table, angles, max_range: float, threshold: flo
     return hit
 
 
-def _plan_grid(grid, world_size, clearance: float) -> PlanGrid:
+def plan_grid(grid, world_size, clearance: float) -> PlanGrid:
     """A :class:`PlanGrid` of ``grid`` (cached per map, clearance and world size)."""
     key = (id(grid), tuple(world_size), float(clearance))
     plan = _PLAN_CACHE.get(key)

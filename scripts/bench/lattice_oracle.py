@@ -35,7 +35,7 @@ from policies.experiments.compare import (
 from policies.experiments.report import write_json
 from policies.experiments.runner import parse_overrides
 from policies.scripted.corridor import CorridorPolicy, follow
-from policies.scripted.hypothesis import _plan_grid, toward
+from policies.scripted.hypothesis import plan_grid, toward
 from policies.scripted.registry import register_policy
 
 ORACLE = "lattice_oracle"
@@ -59,7 +59,7 @@ class LatticeOraclePolicy(CorridorPolicy):
             raise ValueError(f"{ORACLE} needs the active_lattice scenario, got {env.scenario!r}")
         grid = env.backends[0].particle_filter(0).grid
         cfg = env.config
-        self.plan = _plan_grid(grid, cfg.world_size, cfg.robot_radius + 0.25)
+        self.plan = plan_grid(grid, cfg.world_size, cfg.robot_radius + 0.25)
         self.bay_cell = int(self.plan.cell_of(np.asarray(lattice.bay)))
         self.bay_tree = self.plan.distances(self.bay_cell)[1]
         self.been = np.zeros(cfg.n_robots, dtype=bool)

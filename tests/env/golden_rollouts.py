@@ -32,6 +32,7 @@ CASES: dict[str, tuple[str, dict, int, int]] = {
     "ekf_rendezvous": ("rendezvous", {}, 4, 25),
     "mcl_hallway": ("symmetric_hallway", {"n_robots": 3, "n_particles": 300}, 5, 25),
     "mcl_active_hallway": ("active_hallway", {"n_particles": 300}, 6, 20),
+    "mcl_active_lattice": ("active_lattice", {"n_particles": 300}, 11, 20),
     "mcl_hexagon": ("hexagon", {"n_robots": 4, "n_particles": 300}, 7, 15),
     "mcl_outdoor": ("outdoor_terrain", {"estimator": "mcl", "n_particles": 300}, 8, 25),
     "mle_circuit": ("circuit", {}, 2, 30),
