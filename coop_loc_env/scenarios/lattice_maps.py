@@ -10,9 +10,10 @@ corridors is solid). The map is built on a raster of ``RES`` m cells
   turns; 4: quarter turns) about the centre: a choice made for one sector is
   rotated onto the others, so the lattice looks the same after those turns.
   Corridors are removed only while every junction stays reachable.
-* **The bay** (one per map): a corridor widened by ``BAY_DEPTH`` m on one side along
-  its whole length between two junctions, at one place only: it breaks the symmetry.
-* **Decoys** (``decoys``, 4-fold maps only): the same widening at a place *and* at its
+* **The bay** (one per map): a plaza, the solid block between four neighbouring
+  junctions opened with the corridors around it (``PLAZA`` m square), at one place
+  only: it breaks the symmetry. A sonar robot sees it from the corridors next to it.
+* **Decoys** (``decoys``, 4-fold maps only): the same plaza at a place *and* at its
   half-turn copy, which leaves the map 2-fold symmetric: seeing one halves the
   hypotheses, where the bay picks one.
 
@@ -32,7 +33,7 @@ PITCH = 5.0  # m between neighbouring junctions
 CORRIDOR = 2.5  # m, corridor width
 RES = 0.625  # m, raster cell: 8 per pitch, 4 per corridor width
 FRAME = 40.0  # m: smallest world edge, so lattices up to 7 x 7 share one frame
-BAY_DEPTH = 1.25  # m the bay and the decoys widen their corridor by
+PLAZA = PITCH + CORRIDOR  # m, edge of the open square of the bay and of each decoy
 SPUR = 2.5  # m, length of a dead-end spur beyond an outer junction
 REMOVE_P = 0.35  # chance an orbit of corridors is removed (while all junctions stay linked)
 SPUR_P = 0.4  # chance an orbit of outer junctions grows a spur
@@ -41,7 +42,6 @@ STARTS = ("together", "scattered")
 
 _C = int(round(CORRIDOR / RES))  # 4 cells
 _P = int(round(PITCH / RES))  # 8 cells
-_B = int(round(BAY_DEPTH / RES))  # 2 cells
 _S = int(round(SPUR / RES))  # 4 cells
 
 
@@ -55,8 +55,8 @@ class LatticeMap:
             ``[ix, ix + 1) * RES`` in x and the same in y.
         obstacles: the solid rectangles covering every other cell.
         junctions: ``(size * size, 2)`` junction centres (m).
-        bay: ``(2,)`` centre of the bay (m).
-        decoys: ``(k, 2)`` centres of the decoy widenings (both copies of each).
+        bay: ``(2,)`` centre of the bay's plaza (m).
+        decoys: ``(k, 2)`` centres of the decoy plazas (both copies of each).
         symmetry: the order of the turns the lattice (without the features) is symmetric under.
     """
 
@@ -164,38 +164,6 @@ def _rectangles(solid: np.ndarray) -> list[tuple[int, int, int, int]]:
     return out
 
 
-def _widen_cells(a, b, side: int, depth: int, org: int) -> tuple[slice, slice]:
-    """Raster slices of the widening of corridor ``a``-``b`` on ``side`` (+1 / -1: toward
-    larger / smaller coordinates across it), between the two junction squares."""
-    (i0, j0), (i1, j1) = sorted((a, b))
-    half = _C // 2
-    if j0 == j1:  # along x
-        x0, x1 = org + i0 * _P + half, org + i1 * _P - half
-        y = org + j0 * _P
-        ys = slice(y + half, y + half + depth) if side > 0 else slice(y - half - depth, y - half)
-        return ys, slice(x0, x1)
-    y0, y1 = org + j0 * _P + half, org + j1 * _P - half
-    x = org + i0 * _P
-    xs = slice(x + half, x + half + depth) if side > 0 else slice(x - half - depth, x - half)
-    return slice(y0, y1), xs
-
-
-def _turn_feature(feature, k: int, n: int):
-    """A widening ``(a, b, side)`` turned ``k`` quarter turns."""
-    a, b, side = feature
-    ra, rb = _rot(a, k, n), _rot(b, k, n)
-    # the side's direction vector, turned: along x the side is +/-y, along y it is +/-x
-    if a[1] == b[1]:
-        v = (0, side)
-    else:
-        v = (side, 0)
-    for _ in range(k % 4):
-        v = (-v[1], v[0])
-    e = _edge(ra, rb)
-    new_side = v[1] if e[0][1] == e[1][1] else v[0]
-    return (e[0], e[1], new_side)
-
-
 @functools.lru_cache(maxsize=256)
 def lattice_map(lattice_size: int = 5, symmetry: int = 4, decoys: int = 1, seed: int = 0
                 ) -> LatticeMap:
@@ -250,27 +218,37 @@ def lattice_map(lattice_size: int = 5, symmetry: int = 4, decoys: int = 1, seed:
             ya = cy + half if dy > 0 else cy - half - _S
             free[ya:ya + _S, cx - half:cx + half] = True
 
-    # features: widenings of existing corridors, the bay on an orbit of its own
-    edge_list = sorted(edges)
-    sites = [(a, b, s) for a, b in edge_list for s in (-1, 1)]
-    site_orbits = _orbits(sites, lambda f, k: _turn_feature(f, k, n), (0, 1, 2, 3))
-    site_orbits = [o for o in site_orbits if len(o) == 4]  # off the centre's own copies
-    picks = rng.permutation(len(site_orbits))[: 1 + decoys]
-    if len(picks) < 1 + decoys:
-        raise ValueError(f"a {n} x {n} lattice has room for {len(site_orbits) - 1} decoys, "
-                         f"got decoys={decoys}")
-    bay_site = site_orbits[picks[0]][rng.integers(4)]
-    decoy_sites = []
-    for p in picks[1:]:
-        first = site_orbits[p][rng.integers(4)]
-        decoy_sites += [first, _turn_feature(first, 2, n)]
+    # features: plazas, each the block whose lower-left junction is (i, j), the bay on an
+    # orbit of blocks of its own, each decoy on another, with its half-turn copy
+    def turn_block(b, k):
+        (i, j) = b
+        for _ in range(k % 4):
+            i, j = n - 2 - j, i
+        return (i, j)
 
-    def centre(site) -> np.ndarray:
-        ys, xs = _widen_cells(*site, _B, org)
+    blocks = [(i, j) for i in range(n - 1) for j in range(n - 1)]
+    block_orbits = [o for o in _orbits(blocks, turn_block, (0, 1, 2, 3)) if len(o) == 4]
+    picks = rng.permutation(len(block_orbits))[: 1 + decoys]
+    if len(picks) < 1 + decoys:
+        raise ValueError(f"a {n} x {n} lattice has room for {len(block_orbits) - 1} decoys, "
+                         f"got decoys={decoys}")
+    bay_block = block_orbits[picks[0]][rng.integers(4)]
+    decoy_blocks = []
+    for p in picks[1:]:
+        first = block_orbits[p][rng.integers(4)]
+        decoy_blocks += [first, turn_block(first, 2)]
+
+    def plaza(block) -> tuple[slice, slice]:
+        i, j = block
+        return (slice(org + j * _P - half, org + (j + 1) * _P + half),
+                slice(org + i * _P - half, org + (i + 1) * _P + half))
+
+    def centre(block) -> np.ndarray:
+        ys, xs = plaza(block)
         return np.array([(xs.start + xs.stop) / 2, (ys.start + ys.stop) / 2]) * RES
 
-    for site in [bay_site, *decoy_sites]:
-        free[_widen_cells(*site, _B, org)] = True
+    for block in [bay_block, *decoy_blocks]:
+        free[plaza(block)] = True
     obstacles = tuple(
         Obstacle("wall", "polygon", vertices=((x0 * RES, y0 * RES), (x1 * RES, y0 * RES),
                                               (x1 * RES, y1 * RES), (x0 * RES, y1 * RES)))
@@ -280,8 +258,8 @@ def lattice_map(lattice_size: int = 5, symmetry: int = 4, decoys: int = 1, seed:
                           for j in range(n) for i in range(n)])
     free.setflags(write=False)
     return LatticeMap(world=world, free=free, obstacles=obstacles, junctions=junctions,
-                      bay=centre(bay_site),
-                      decoys=np.array([centre(s) for s in decoy_sites]).reshape(-1, 2),
+                      bay=centre(bay_block),
+                      decoys=np.array([centre(b) for b in decoy_blocks]).reshape(-1, 2),
                       symmetry=symmetry)
 
 

@@ -11,10 +11,10 @@ from scipy import ndimage
 import coop_loc_env
 from coop_loc_env.scenarios.active_lattice import STEPS_PER_JUNCTION
 from coop_loc_env.scenarios.lattice_maps import (
-    BAY_DEPTH,
     CORRIDOR,
     FRAME,
     PITCH,
+    PLAZA,
     RES,
     SPUR,
     lattice_map,
@@ -25,21 +25,33 @@ from coop_loc_env.scenarios.lattice_maps import (
 FAST = {"n_particles": 200, "max_cycles": 20, "map_seed": 3}
 
 
-def _feature_cells() -> int:
-    return int(round(BAY_DEPTH / RES) * round((PITCH - CORRIDOR) / RES))
+def _plaza_mask(m, centres) -> np.ndarray:
+    """Raster cells of the plazas centred at ``centres``."""
+    mask = np.zeros_like(m.free)
+    half = int(round(PLAZA / 2 / RES))
+    for x, y in np.asarray(centres).reshape(-1, 2):
+        cx, cy = int(round(x / RES)), int(round(y / RES))
+        mask[cy - half:cy + half, cx - half:cx + half] = True
+    return mask
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_lattice_is_symmetric_but_for_its_features(seed):
     m = lattice_map(5, 4, 1, seed)
     f = m.free
-    cells = _feature_cells()
-    # a quarter turn moves the bay and the decoy pair: each leaves its cells and lands on
-    # walls; a half turn moves only the bay (the decoys are each other's half-turn copies)
-    assert int((np.rot90(f) != f).sum()) == 2 * cells * 3
-    assert int((np.rot90(f, 2) != f).sum()) == 2 * cells
+    # outside the plazas (and their turned images) a quarter turn maps the map onto itself
+    feats = _plaza_mask(m, np.vstack([m.bay, m.decoys]))
+    images = feats | np.rot90(feats) | np.rot90(feats, 2) | np.rot90(feats, 3)
+    assert np.array_equal(np.rot90(f)[~images], f[~images])
+    assert not np.array_equal(np.rot90(f), f)  # the bay (and the decoys) break it
+    # a half turn maps the decoys onto each other: only the bay breaks it
+    bay = _plaza_mask(m, m.bay)
+    bay |= np.rot90(bay, 2)
+    assert np.array_equal(np.rot90(f, 2)[~bay], f[~bay]) and not np.array_equal(np.rot90(f, 2), f)
     two = lattice_map(5, 2, 0, seed)
-    assert int((np.rot90(two.free, 2) != two.free).sum()) == 2 * cells
+    bay2 = _plaza_mask(two, two.bay)
+    bay2 |= np.rot90(bay2, 2)
+    assert np.array_equal(np.rot90(two.free, 2)[~bay2], two.free[~bay2])
     assert len(m.decoys) == 2 and len(lattice_map(5, 4, 2, seed).decoys) == 4
 
 
@@ -59,10 +71,11 @@ def test_lattice_geometry():
                                                                  y - m.bay[1]) > PITCH / 2:
             runs.append(_run(m.free[:, ix], iy))
     assert len(runs) > 5 and set(runs) == {int(round(CORRIDOR / RES))}
-    # the bay widens its corridor by BAY_DEPTH: the free run across it is that much longer
+    # the bay is an open square PLAZA m wide (its corridors and the block between them)
+    assert _plaza_mask(m, m.bay).sum() == round(PLAZA / RES) ** 2
+    assert m.free[_plaza_mask(m, m.bay)].all()
     bx, by = (m.bay / RES).astype(int)
-    runs = {_run(m.free[:, bx], by) * RES, _run(m.free[by, :], bx) * RES}
-    assert CORRIDOR + BAY_DEPTH in runs
+    assert _run(m.free[by, :], bx) * RES >= PLAZA and _run(m.free[:, bx], by) * RES >= PLAZA
     # spurs end SPUR beyond the outer junctions' squares: no free cell farther out
     lo = j.min() - CORRIDOR / 2 - SPUR
     iy, ix = np.nonzero(m.free)
