@@ -192,3 +192,16 @@ def test_paper_profile_runs():
     env.reset(seed=0)
     for _ in range(3):
         env.step({a: np.array([0.5, 0.0], dtype=np.float32) for a in env.agents})
+
+
+def test_belief_map_shows_each_episodes_map():
+    env = coop_loc_env.parallel_env("active_lattice", obs_format="dict", n_particles=100,
+                                    max_cycles=5)
+    k = env.config.belief_map_headings  # the known-map channel follows the heading channels
+    maps = []
+    for seed in (0, 1):
+        obs, _ = env.reset(seed=seed)
+        maps.append(obs["robot_0"]["belief_map"][k].copy())
+        free = ~np.isclose(maps[-1], 1.0)
+        assert 0.1 < free.mean() < 0.6  # the lattice, inside a solid frame
+    assert not np.array_equal(maps[0], maps[1])
