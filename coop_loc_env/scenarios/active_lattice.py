@@ -12,7 +12,8 @@ beliefs) start ``"together"`` (within 3 m of a point) or ``"scattered"``.
 Options (config fields of :class:`LatticeConfig`, set like any other key):
 ``lattice_size`` (default 5), ``symmetry`` (4), ``decoys`` (1), ``map_seed`` (``None``:
 a new map every episode, drawn from the episode's seed; an integer fixes the map) and
-``start`` (``"together"``). The world is ``FRAME`` = 40 m square for every lattice up
+``start`` (``"together"``; the start poses are drawn with the map, so ``start_poses`` is
+not an option here). The world is ``FRAME`` = 40 m square for every lattice up
 to 7 x 7 (larger ones grow it), the lattice centred and the rest solid, so the dict
 observation's belief map (32 cells a side) has the same 1.25 m cells, and one policy
 reads every size.
@@ -87,9 +88,16 @@ class ActiveLattice(Scenario):
             derived["world_size"] = (edge, edge)
         if "max_cycles" not in overrides:
             derived["max_cycles"] = STEPS_PER_JUNCTION * cfg.lattice_size
+        first = cfg.lattice(cfg.map_seed or 0)
         if "obstacles" not in overrides:  # the map the env is built with (reset redraws it)
-            derived["obstacles"] = cfg.lattice(cfg.map_seed or 0).obstacles
-        return cfg.replace(**derived) if derived else cfg
+            derived["obstacles"] = first.obstacles
+        # Start poses on that map: the env's reset then places the robots of the world it
+        # holds without drawing from the episode's generator (every reset draws this
+        # episode's map and start from it alike, whatever episodes came before).
+        derived["start_poses"] = tuple(map(tuple, start_poses(
+            first, cfg.n_robots, cfg.start, cfg.robot_radius, np.random.default_rng(0)
+        ).tolist()))
+        return cfg.replace(**derived)
 
     def reset_world(self, env, rng: np.random.Generator) -> None:
         """Draw this episode's map (from ``rng`` unless ``map_seed`` is set), rebuild what

@@ -205,3 +205,18 @@ def test_belief_map_shows_each_episodes_map():
         free = ~np.isclose(maps[-1], 1.0)
         assert 0.1 < free.mean() < 0.6  # the lattice, inside a solid frame
     assert not np.array_equal(maps[0], maps[1])
+
+
+def test_an_episode_does_not_depend_on_the_episodes_before():
+    def first_steps(env, seed):
+        env.reset(seed=seed)
+        for _ in range(3):
+            env.step({a: np.array([0.6, 0.2], dtype=np.float32) for a in env.agents})
+        return env.map_seed, env.world.poses.copy(), env.estimated_poses.copy()
+
+    fresh = first_steps(coop_loc_env.parallel_env("active_lattice", n_particles=100), 2)
+    used = coop_loc_env.parallel_env("active_lattice", n_particles=100)
+    first_steps(used, 0)
+    again = first_steps(used, 2)
+    assert fresh[0] == again[0]
+    assert np.array_equal(fresh[1], again[1]) and np.array_equal(fresh[2], again[2])
