@@ -150,14 +150,17 @@ def test_nearest_picks_a_nearer_place_than_utility():
     obs, _ = env.reset(seed=2)
     runner = HypothesisPolicy(select="nearest")
     runner.reset(env, seed=2)
-    for _ in range(30):
+    probe = HypothesisPolicy(copies=True)
+    probe.reset(env, seed=2)
+    for _ in range(50):  # drive until robot 0 holds several hypotheses
         obs, *_ = env.step(runner.act(obs))
+        if len(probe._modes([0])[0]) > 1:
+            break
     costs = {}
     for select in ("utility", "nearest"):
         p = HypothesisPolicy(select=select, copies=True)
         p.reset(env, seed=2)
-        modes = p._modes([0])
-        m = modes[0]
+        m = p._modes([0])[0]
         poses = np.column_stack([m[:, 1], m[:, 2], np.arctan2(m[:, 4], m[:, 3])])
         st = p.state[0]
         st.lead = poses[0]
