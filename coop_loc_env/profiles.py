@@ -75,6 +75,7 @@ PAPER_OVERRIDES: dict[str, dict[str, Any]] = {
     "dgps_outage": {"detection_model": "scan_min", "detection_orientation": False},
     "symmetric_hallway": _FOX,
     "hexagon": _FOX,
+    "active_lattice": _FOX,
 }
 """Per scenario, the overrides of the ``"paper"`` profile."""
 

@@ -116,6 +116,27 @@ SLOW_TESTS = frozenset({
     "test_vector_env.py::test_every_estimator_and_obs_format_replays_parallel_env[mcl-dict]",
     "test_vector_env.py::test_every_scenario_replays_parallel_env[active_hallway]",
     "test_vector_env.py::test_every_scenario_replays_parallel_env[hexagon]",
+    # active_lattice draws a new map (its MCL tables) at every reset
+    "test_belief_map.py::test_parallel_api_with_dict_observation[active_lattice]",
+    "test_truth_leaks.py::test_observation_never_reads_the_true_poses[active_lattice-ekf]",
+    "test_truth_leaks.py::test_observation_never_reads_the_true_poses[active_lattice-mcl]",
+    "test_truth_leaks.py::test_observation_never_reads_the_true_poses[active_lattice-mle]",
+    "test_torchrl.py::test_torchrl_env_specs_and_rollout_on_every_scenario[active_lattice]",
+    "test_env_behaviour.py::test_full_episode_is_deterministic[active_lattice]",
+    "test_env_api.py::test_aec_api[active_lattice]",
+    "test_env_api.py::test_aec_seed[active_lattice]",
+    "test_env_api.py::test_parallel_api[active_lattice]",
+    "test_env_api.py::test_parallel_seed[active_lattice]",
+    "test_env_api.py::test_max_cycles[active_lattice]",
+    "test_mle_env.py::test_parallel_api_with_mle[active_lattice]",
+    "test_mle_env.py::test_episode_is_deterministic_with_mle[active_lattice]",
+    "test_mcl_env.py::test_episode_is_deterministic_with_mcl[active_lattice]",
+    "test_mcl_env.py::test_parallel_api_with_mcl[active_lattice]",
+    "test_active_lattice.py::test_one_observation_shape_for_every_size",
+    "test_active_lattice.py::test_new_map_every_episode_unless_map_seed_is_set",
+    "test_range_cast.py::test_compiled_table_equals_the_vectorized_one",
+    "test_lattice_policies.py::test_baselines_never_read_the_truth",
+    "test_lattice_policies.py::test_split_sends_the_team_to_different_places",
 })
 
 

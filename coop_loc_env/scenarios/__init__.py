@@ -175,6 +175,7 @@ def make_config(scenario: str, **overrides: Any) -> ScenarioConfig:
 
 #: The modules of this package that register the shipped scenarios (add new ones here);
 #: imported here, below the registry they register into.
-SCENARIO_MODULES = ("outdoor", "madhavan", "fox", "howard", "rendezvous", "active_hallway")
+SCENARIO_MODULES = ("outdoor", "madhavan", "fox", "howard", "rendezvous", "active_hallway",
+                    "active_lattice")
 for _module in SCENARIO_MODULES:
     importlib.import_module(f"coop_loc_env.scenarios.{_module}")

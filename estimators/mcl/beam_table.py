@@ -52,6 +52,28 @@ def _grid_key(grid: OccupancyGrid) -> tuple:
     return occ.shape, digest, float(grid.resolution), tuple(float(v) for v in grid.origin)
 
 
+MAX_SLOPE = _MAX_SLOPE  # the clip of a table's position derivatives (public name)
+
+
+def table_key(grid: OccupancyGrid, max_range: float, n_bins: int, cone_half_width: float,
+              rays_per_cone: int) -> tuple:
+    """The key :func:`range_table` caches ``grid``'s table under for these parameters."""
+    rays = int(rays_per_cone) if cone_half_width > 0 else 1
+    cone = float(cone_half_width) if rays > 1 else 0.0
+    return (*_grid_key(grid), float(max_range), int(n_bins), cone, rays)
+
+
+def cached_table(key: tuple) -> RangeTable | None:
+    """The table cached under ``key`` (:func:`table_key`), or ``None``."""
+    return _TABLES.get(key)
+
+
+def remember_table(key: tuple, table: RangeTable) -> None:
+    """Cache ``table`` under ``key`` (:func:`table_key`), for :func:`range_table` to return:
+    for a table built elsewhere (:mod:`estimators.mcl.range_cast`)."""
+    _remember(_TABLES, key, table)
+
+
 def _remember(cache: OrderedDict, key: tuple, value: object) -> None:
     cache[key] = value
     while len(cache) > _CACHE_SIZE:

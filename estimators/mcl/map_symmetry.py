@@ -146,3 +146,34 @@ def symmetric_copies(poses: np.ndarray, symmetry: MapSymmetry) -> np.ndarray:
     out = np.column_stack([cx + c * dx - s * dy, cy + s * dx + c * dy,
                            wrap_angle(p[:, 2] + symmetry.angle)])
     return out[0] if one else out
+
+
+def seed_symmetries(grid: OccupancyGrid, centre: tuple[float, float],
+                    min_overlap: float = 0.8) -> tuple[MapSymmetry, ...]:
+    """:func:`map_symmetries` of a map whose generator knows its centre of symmetry: the
+    same turns scored about ``centre`` only (no search, milliseconds instead of a
+    fraction of a second), cached on the grid as ``map_symmetries(grid, min_overlap)``'s
+    answer."""
+    if not 0.0 < min_overlap <= 1.0:
+        raise ValueError(f"min_overlap must be in (0, 1], got {min_overlap}")
+
+    def find() -> tuple[MapSymmetry, ...]:
+        surface = _surface(grid)
+        iy, ix = np.nonzero(surface)
+        points = grid.cell_to_world(np.column_stack([ix, iy]))
+        if len(points) == 0:
+            return ()
+        pad = np.pad(surface, 1)
+        target = (pad[1:-1, 1:-1] | pad[:-2, 1:-1] | pad[2:, 1:-1] | pad[1:-1, :-2]
+                  | pad[1:-1, 2:]) & ~grid.occupied
+        c = np.asarray(centre, dtype=float)
+        found = []
+        for frac in sorted({k / n for n in FOLDS for k in range(1, n)}):
+            angle = 2 * math.pi * frac
+            ov = _overlap(points, target, grid, angle, c)
+            if ov >= min_overlap:
+                found.append(MapSymmetry(float(wrap_angle(angle)),
+                                         (float(c[0]), float(c[1])), ov))
+        return tuple(found)
+
+    return grid.memo(("map_symmetries", float(min_overlap)), find)

@@ -74,6 +74,8 @@ CLOSE = 0.5  # m: a return nearer than this ahead makes the robot turn in place
 MODE_RADIUS = 2.0  # m: mode extraction radius (as the dict observation's)
 MODE_HEADING_TOL = math.pi / 4
 MEET_MODES = ("trusted", "all", "off")
+SELECT_MODES = ("utility", "nearest")
+SWITCH_M = 2.0  # m: with select="nearest", a new target must be this much nearer
 
 
 class _Robot:
@@ -85,6 +87,8 @@ class _Robot:
         self.trusted: bool | None = None  # confident on its own readings (None: not confident)
         self.verify_failed = False  # its scan at a distinctive place did not match
         self.last_sighting = -(10**9)  # step of its last detection (as observer or target)
+        self.resolved = False  # tested a place since its main mode last jumped (copies)
+        self.top: np.ndarray | None = None  # the filter's heaviest mode at the last step
 
     def clear(self) -> None:
         self.lead: np.ndarray | None = None  # lead mode pose (x, y, heading)
@@ -133,6 +137,14 @@ class HypothesisPolicy(CorridorPolicy):
         distinct: m, the :func:`distinctive_cells` value of a distinctive place.
         verify_rms: m, the largest RMS scan mismatch there that confirms the belief.
         meet_gain: weight of the gain of meeting a trusted teammate (0: off).
+        select: ``"utility"`` (gain less path cost, far targets) or ``"nearest"`` (the
+            nearest place, by path and turn, whose gain reaches ``nearest_gain`` times
+            the best gain: greedy hypothesis testing).
+        nearest_gain: with ``select="nearest"``, the share of the best gain a place needs.
+        copies: a mode that lies on a symmetric copy of the heaviest one (under a turn
+            that maps the known map onto itself, :func:`estimators.mcl.map_symmetry.
+            map_symmetries`) weighs as much as it: the filter keeps such copies, with
+            little mass, exactly while the robot's own scans cannot reject them.
     """
 
     name = "hypothesis"
@@ -143,7 +155,8 @@ class HypothesisPolicy(CorridorPolicy):
                  dwell: int = 8, lookahead: float = 1.5, assign_penalty: float = 0.2,
                  forget: int = 40, switch_margin: float = 0.05, meet: str = "trusted",
                  sighting_hold: int = 6, verify: bool = False, distinct: float = 1.0,
-                 verify_rms: float = 0.8, meet_gain: float = 0.0) -> None:
+                 verify_rms: float = 0.8, meet_gain: float = 0.0, select: str = "utility",
+                 nearest_gain: float = 0.5, copies: bool = False) -> None:
         super().__init__(1.0)
         for key, value in (("min_weight", min_weight), ("min_cover", min_cover),
                            ("localized_weight", localized_weight)):
@@ -172,6 +185,14 @@ class HypothesisPolicy(CorridorPolicy):
         self.verify, self.distinct = bool(verify), float(distinct)
         self.verify_rms = float(verify_rms)
         self.meet_gain = float(meet_gain)
+        if select not in SELECT_MODES:
+            raise ValueError(f"select must be one of {SELECT_MODES}, got {select!r}")
+        if not 0 < nearest_gain <= 1:
+            raise ValueError(f"nearest_gain must be in (0, 1], got {nearest_gain!r}")
+        self.select, self.nearest_gain = select, float(nearest_gain)
+        if not isinstance(copies, bool):
+            raise ValueError(f"copies must be True or False, got {copies!r}")
+        self.copies = copies
 
     # ------------------------------------------------------------------ setup
     def reset(self, env, seed: int | None = None) -> None:
@@ -194,9 +215,15 @@ class HypothesisPolicy(CorridorPolicy):
         for g, grid in grids.items():
             key = id(grid)
             if key not in by_grid:
-                by_grid[key] = _plan_grid(grid, cfg.world_size, clearance)
+                by_grid[key] = plan_grid(grid, cfg.world_size, clearance)
             self.plans[g] = by_grid[key]
         self.state = {g: _Robot() for g in self.models}
+        self.symmetries: dict[int, tuple] = {}
+        if self.copies:
+            from coop_loc_env.backends.mcl import SYMMETRY_OVERLAP
+            from estimators.mcl.map_symmetry import map_symmetries
+
+            self.symmetries = {g: map_symmetries(grids[g], SYMMETRY_OVERLAP) for g in grids}
         self.distinctive: dict[int, np.ndarray] = {}  # robot -> its map's distinctive cells
         for g in self.models:
             table, angles, max_range = self.models[g]
@@ -243,8 +270,24 @@ class HypothesisPolicy(CorridorPolicy):
             rows = particle_modes(flat, wt, ends, org, self.n_modes, MODE_RADIUS,
                                   MODE_HEADING_TOL, (0.0, 0.0, w, h))
             for g, m in zip(robots.tolist(), rows, strict=True):
+                if self.symmetries.get(g) and g in self.state:
+                    m = self._copies(self.state[g], m, self.symmetries[g])
                 out[g] = m[m[:, 0] >= self.min_weight]
         return out
+
+    def _copies(self, st: _Robot, m: np.ndarray, symmetries) -> np.ndarray:
+        """``m`` with the symmetric copies of the main mode raised (:func:`_raise_copies`)
+        until the robot has tested a place (reached a target and waited ``dwell`` steps
+        there: its scans have seen where the modes differ); a jump of the main mode
+        starts over."""
+        top = None if not len(m) or m[0, 0] <= 0 else np.array(
+            [m[0, 1], m[0, 2], math.atan2(m[0, 4], m[0, 3])])
+        if top is None or st.top is None or (
+                math.hypot(*(top[:2] - st.top[:2])) > TRACK_M
+                or abs(wrap_angle(top[2] - st.top[2])) > TRACK_RAD):
+            st.resolved = False
+        st.top = top
+        return m if st.resolved else _raise_copies(m, symmetries)[0]
 
     def _robot(self, i: int, view, modes: dict[int, np.ndarray], live: list[int],
                targets: list) -> np.ndarray:
@@ -275,6 +318,7 @@ class HypothesisPolicy(CorridorPolicy):
             st.dwell += 1
             if st.dwell >= self.dwell:
                 st.visited.append(st.target.copy())
+                st.resolved = True  # its scans have seen a place where the modes differ
                 replan = True
         if not replan and len(poses) != st.n_modes:  # a hypothesis died or appeared
             gain = self._gain(i, lead, poses, m[:, 0] / m[:, 0].sum(), st.target[None])[0] \
@@ -323,14 +367,24 @@ class HypothesisPolicy(CorridorPolicy):
         for p in st.visited:
             utility[np.hypot(*(cand - p).T) < VISITED_M] = -np.inf
         reach = self.env.config.detector_range
-        for other_lead, other_target in targets:
+        for other_lead, other_target in self._teammate_targets(i, targets):
             if np.hypot(*(other_lead[:2] - lead[:2])) < reach:
                 utility[np.hypot(*(cand - other_target).T) < ASSIGN_M] -= self.assign_penalty
         utility[~np.isfinite(cost)] = -np.inf
+        if self.select == "nearest":  # the nearest place that tells the modes apart well
+            ok = np.isfinite(utility) & (utility > -np.inf)
+            good = ok & (gain >= max(0.02, self.nearest_gain * float(gain[ok].max(initial=0))))
+            if good.any():
+                # the penalties (visited places, teammates' targets) stay: a penalized
+                # place is skipped while an unpenalized good one remains
+                penalty = gain - self.cost_weight * (cost + self.turn_cost * turn) - utility
+                near = np.where(good, cost + self.turn_cost * turn + 100.0 * penalty, np.inf)
+                utility = np.where(good, -near, -np.inf)
         best = int(np.argmax(utility))
         if keep and st.target is not None:
             now = int(np.argmin(np.hypot(*(cand - st.target).T)))
-            if utility[best] < utility[now] + self.switch_margin:
+            margin = self.switch_margin if self.select == "utility" else SWITCH_M
+            if utility[best] < utility[now] + margin:
                 return
         st.dwell = 0
         if not np.isfinite(utility[best]) or gain[best] < 0.02:
@@ -339,6 +393,11 @@ class HypothesisPolicy(CorridorPolicy):
         st.target = cand[best].copy()
         st.planned_gain = float(gain[best])
         st.tree = plan.distances(int(plan.free_index[best]))[1]
+
+    def _teammate_targets(self, i: int, targets: list) -> list:
+        """``(lead pose, target)`` of the teammates whose places robot ``i``'s plan avoids:
+        those chosen earlier in this step."""
+        return targets
 
     def _meet_gain(self, lead: np.ndarray, poses: np.ndarray, w: np.ndarray, cand: np.ndarray,
                    mates: np.ndarray) -> np.ndarray:
@@ -463,6 +522,34 @@ class HypothesisPolicy(CorridorPolicy):
         return toward(view, err, self.speed)
 
 
+def _raise_copies(m: np.ndarray, symmetries) -> tuple[np.ndarray, bool]:
+    """Modes ``m`` (heaviest first) with each symmetric copy of the heaviest raised to its
+    weight, renormalized over the raised mass, heaviest first; and whether any copy was
+    there."""
+    from estimators.mcl.map_symmetry import symmetric_copies
+
+    m = m[m[:, 0] > 0].copy()
+    if len(m) < 2:
+        return m, False
+    top = np.array([m[0, 1], m[0, 2], math.atan2(m[0, 4], m[0, 3])])
+    heads = np.arctan2(m[:, 4], m[:, 3])
+    raised = False
+    for sym in symmetries:
+        c = symmetric_copies(top, sym)
+        d = np.hypot(m[:, 1] - c[0], m[:, 2] - c[1])
+        ok = (d < TRACK_M) & (np.abs(wrap_angle(heads - c[2])) < TRACK_RAD)
+        ok[0] = False
+        if ok.any():
+            k = int(np.argmin(np.where(ok, d, np.inf)))
+            m[k, 0] = max(m[k, 0], m[0, 0])
+            raised = True
+    if not raised:
+        return m, False
+    total = m[:, 0].sum()
+    m[:, 0] *= min(1.0, 1.0 / total) if total > 0 else 1.0
+    return m[np.argsort(-m[:, 0], kind="stable")], True
+
+
 def toward(view, err: float, speed: float = 1.0) -> np.ndarray:
     """An action ``[forward, turn]`` heading ``err`` rad off the robot's heading, by the
     free space of its own scan: the beam with the most range less ``TURN_PENALTY`` per
@@ -530,7 +617,7 @@ def _distinctive(plan: PlanGrid, table, angles, max_range: float, threshold: flo
     return hit
 
 
-def _plan_grid(grid, world_size, clearance: float) -> PlanGrid:
+def plan_grid(grid, world_size, clearance: float) -> PlanGrid:
     """A :class:`PlanGrid` of ``grid`` (cached per map, clearance and world size)."""
     key = (id(grid), tuple(world_size), float(clearance))
     plan = _PLAN_CACHE.get(key)

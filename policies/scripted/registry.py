@@ -1,7 +1,7 @@
 """The registry of scripted policy names: ``NAME`` or ``NAME:ARG`` -> a policy object.
 
 :func:`policy_names` lists them (``fsm``, ``random``, ``seek``, ``still``,
-``wander``, ``gather``, ``infogain``, ``corridor``, ``hypothesis``);
+``wander``, ``gather``, ``infogain``, ``corridor``, ``hypothesis``, ``split``);
 :func:`register_policy` adds one. :func:`policies.learning.loader.make_policy`
 resolves a spec against this registry first, then as the path of a saved model;
 ``scripts/evaluate.py``, ``--compare`` and ``scripts/train.py`` all go through it.
@@ -99,9 +99,19 @@ def _corridor(arg: str) -> Policy:
 
 
 def _hypothesis(arg: str) -> Policy:
-    from policies.scripted.hypothesis import HypothesisPolicy
+    from policies.scripted.hypothesis import SELECT_MODES, HypothesisPolicy
 
-    return _no_argument(HypothesisPolicy, "hypothesis")(arg)
+    if arg and arg not in SELECT_MODES:
+        raise ValueError(f"policy 'hypothesis:{arg}': the argument must be one of "
+                         f"{SELECT_MODES} (how targets are chosen)")
+    # the greedy variant also weighs the symmetric copies the filter keeps of its main mode
+    return HypothesisPolicy(select=arg, copies=arg == "nearest") if arg else HypothesisPolicy()
+
+
+def _split(arg: str) -> Policy:
+    from policies.scripted.split import SplitPolicy
+
+    return _no_argument(SplitPolicy, "split")(arg)
 
 
 register_policy("gather", _gather,
@@ -113,5 +123,10 @@ register_policy("corridor", _corridor,
                 "follow the free space ahead at full speed by the own scan; corridor:SPEED")
 register_policy("hypothesis", _hypothesis,
                 "hypothesis elimination with far targets: drive where the belief's modes "
-                "predict different readings (MCL), localized robots meet the lost ones")
+                "predict different readings (MCL), localized robots meet the lost ones; "
+                "hypothesis:nearest drives to the nearest such place (greedy), counting the "
+                "map's symmetric copies of the main mode")
+register_policy("split", _split,
+                "team hypothesis testing: lost robots split over different places that tell "
+                "their modes apart (nearest first), localized robots meet the lost ones")
 POLICY_NAMES = tuple(_POLICIES)  # the built-in names

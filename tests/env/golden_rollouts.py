@@ -62,6 +62,7 @@ CASES: dict[str, Case] = {
     "ekf_rendezvous": Case("rendezvous", {}, 4, 25),
     "mcl_hallway": Case("symmetric_hallway", {"n_robots": 3, "n_particles": 300}, 5, 25),
     "mcl_active_hallway": Case("active_hallway", {"n_particles": 300}, 6, 20),
+    "mcl_active_lattice": Case("active_lattice", {"n_particles": 300}, 11, 20),
     "mcl_hexagon": Case("hexagon", {"n_robots": 4, "n_particles": 300}, 7, 15),
     "mcl_outdoor": Case("outdoor_terrain", _MCL, 8, 25),
     "mle_circuit": Case("circuit", {}, 2, 30),
@@ -89,6 +90,7 @@ CASES: dict[str, Case] = {
     "mcl_outdoor_default": Case("outdoor_terrain", {"estimator": "mcl"}, 30, 60),
     "mcl_hallway_default": Case("symmetric_hallway", {}, 22, 60),
     "mcl_hexagon_default": Case("hexagon", {}, 23, 6),
+    "mcl_active_lattice_default": Case("active_lattice", {}, 33, 40),
     "mcl_dict_obs": Case("active_hallway", {"obs_format": "dict", "n_particles": 500}, 24, 60),
     # the scripted planners' decisions (their actions are a digested quantity)
     "plan_hypothesis": Case("active_hallway", {"n_particles": 400}, 25, 80, "policy:hypothesis"),
