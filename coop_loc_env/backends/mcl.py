@@ -37,10 +37,11 @@ in a known map built from the scenario's layout. Per env step and robot:
    hypothesis where the other claims they are (:meth:`MCLBackend._widen`).
 6. symmetric copies (``extras["mcl_symmetry_check"]``, on by default; beam models
    only): the turns under which a map looks the same are found once per grid
-   (:mod:`estimators.mcl.map_symmetry`); a robot whose main mode holds most of its
-   weight keeps ``KEEP_MASS`` on every turned copy of it that its remembered scans,
-   weighed along its odometry, and the detections it received from teammates that
-   know which copy they are on, do not reject (:meth:`MCLBackend.keep_copies`). A
+   (:mod:`estimators.mcl.map_symmetry`); a robot whose top mode and its turned copies
+   hold most of its weight shares that weight between the mode and every copy that
+   its remembered scans, weighed along its odometry, and the detections it received
+   from teammates that know which copy they are on, do not reject, as that evidence
+   weighs them (:meth:`MCLBackend.keep_copies`). A
    filter with a bounded particle budget otherwise keeps whichever copies happened
    to hold particles when the scans stopped being ambiguous along whole corridors,
    and reports one of them sharply before the robot has seen what breaks the
@@ -103,6 +104,13 @@ from estimators.mcl.batch import (
     weigh_batch,
 )
 from estimators.mcl.beam_table import BeamLUT, RangeTable
+from estimators.mcl.copy_weights import (
+    TOP_MODE_HEADING_TOL,
+    hypothesis_shares,
+    near_pose,
+    set_group_masses,
+    top_mode,
+)
 from estimators.mcl.density_tree import load_kernels
 from estimators.mcl.detection_consistency import (
     ConsistencyConfig,
@@ -154,8 +162,8 @@ _EVIDENCE_GRID = np.array([(dx, dy, dth) for dth in EVIDENCE_TURNS for dx in EVI
                            for dy in EVIDENCE_SHIFTS])
 ADOPT_MASS = 0.9  # weight a robot whose scans cannot tell gives a claim its teammate's back
 SYMMETRY_OVERLAP = 0.75  # share of a map's walls a turn must map onto walls to be a symmetry
-KEEP_MASS = 0.005  # weight each symmetric copy of a robot's pose its scans cannot reject keeps
-KEEP_CHECK_MASS = 0.8  # a robot whose main mode holds this much weight is checked ...
+KEEP_MASS = 0.005  # least weight each copy of a robot's pose its scans cannot reject keeps
+KEEP_CHECK_MASS = 0.8  # a robot whose top mode and its copies hold this much weight is checked ...
 KEEP_CHECK_EVERY = 4  # ... every this many steps, once it has this much history:
 KEEP_MIN_HISTORY_S = 1.0
 KEEP_WINDOW_S = 30.0  # s of history the check weighs (a longer backtrack drifts into walls)
@@ -403,6 +411,8 @@ class MCLBackend(EstimatorBackend):
         self.detection_conflicts[:] = 0
         self._certified[:] = False
         self._plausible: list[list | None] = [None] * k
+        self._shares: list[np.ndarray | None] = [None] * k  # of the mode and kept copies
+        self._kept_top: list[np.ndarray | None] = [None] * k  # top mode at the last check
         self._transfers_in: list[list[tuple]] = [[] for _ in range(k)]
         self._t = 0
         self._conflicts = {}
@@ -513,51 +523,66 @@ class MCLBackend(EstimatorBackend):
         """Keep the map's symmetric copies of each live robot's main mode alive while the
         robot's own scans cannot reject them (:mod:`estimators.mcl.map_symmetry`).
 
-        A robot whose main mode holds ``KEEP_CHECK_MASS`` of its weight is checked every
-        ``KEEP_CHECK_EVERY`` steps (:meth:`_plausible_copies`); every copy the check found
-        plausible keeps ``KEEP_MASS`` of the weight at every step until the next check (the
-        main mode's cloud turned there, in place of the least likely particles:
-        :func:`~estimators.mcl.detection_consistency.widen`), so the reported belief is not
-        confident while the map cannot be told apart, and the copy takes over if the main
-        mode was the wrong one when the robot reaches a feature that breaks the symmetry
-        or a certified teammate detects it on the copy (:meth:`_picks_kept_copy`).
+        A robot whose top mode (as ``belief_modes`` extracts it:
+        :func:`~estimators.mcl.copy_weights.top_mode`) holds, with the particles near its
+        turned copies, ``KEEP_CHECK_MASS`` of its weight is checked every
+        ``KEEP_CHECK_EVERY`` steps, and whenever its top mode jumps
+        (:meth:`_plausible_copies`); until the next check the mode and every copy the check
+        found plausible share that mass as the evidence weighs them, at least ``KEEP_MASS``
+        each (:func:`~estimators.mcl.copy_weights.set_group_masses`: the mode's cloud
+        turned onto a copy that holds too few particles), so the top mode's weight is the
+        chance that it is the right copy, and the copy takes over when the robot reaches a
+        feature that breaks the symmetry or a certified teammate detects it on the copy.
         A robot whose evidence rejects every copy by ``EVIDENCE_NATS`` is certified and not
         checked again until its main mode loses that weight or a detection conflicts with it.
         """
         if self._hist_n * self.cfg.dt < KEEP_MIN_HISTORY_S:
             return
         radius = (self.check or ConsistencyConfig()).mode_radius
+        bounds = (0.0, 0.0, *(float(v) for v in self.cfg.world_size))
         for i in live:
             syms = self.symmetries.get(self._kinds[i])
             if not syms:
                 continue
             pf = self.filters[i]
             parts, w = pf.particles, pf.weights
-            _, mode = main_mode(parts[:, :2], w, radius)
-            if float(w[mode].sum()) < KEEP_CHECK_MASS:
+            top, _ = top_mode(parts, w, radius, TOP_MODE_HEADING_TOL, bounds)
+            mode = near_pose(parts, top, radius, TOP_MODE_HEADING_TOL)
+            group = float(w[mode].sum()) + sum(
+                float(w[near_pose(parts, symmetric_copies(top, s), radius,
+                                  TOP_MODE_HEADING_TOL)].sum()) for s in syms)
+            last, self._kept_top[i] = self._kept_top[i], top
+            if group < KEEP_CHECK_MASS or not mode.any():
                 self._certified[i] = False
                 self._plausible[i] = None
                 continue
             if self._certified[i]:
                 continue
             cloud = parts[mode]
-            if self._plausible[i] is None or self._t % KEEP_CHECK_EVERY == 0:
-                self._plausible[i] = self._plausible_copies(i, cloud, w[mode], syms, radius)
-            placed = False
+            jumped = last is None or math.hypot(*(top[:2] - last[:2])) > radius
+            if self._plausible[i] is None or jumped or self._t % KEEP_CHECK_EVERY == 0:
+                self._plausible[i], self._shares[i] = self._plausible_copies(
+                    i, cloud, w[mode], syms, radius)
+            if not self._plausible[i]:
+                continue
+            centres, clouds = [top[:2]], [cloud]
             for sym in self._plausible[i]:
                 turned = symmetric_copies(cloud, sym)
-                turned = turned[pf.grid.is_free(turned[:, :2])]
-                if len(turned):
-                    parts, w, k = widen(parts, w, turned, KEEP_MASS, radius, self.rng)
-                    placed = placed or k > 0
-            if placed:
-                pf.set_particles(parts, w)
+                centres.append(symmetric_copies(top, sym)[:2])
+                clouds.append(turned[pf.grid.is_free(turned[:, :2])])
+            masses = np.maximum(self._shares[i] * group, KEEP_MASS)
+            masses[0] = max(group - masses[1:].sum(), KEEP_MASS)
+            parts, w, _ = set_group_masses(parts, w, np.array(centres), clouds, masses,
+                                           radius, self.rng)
+            pf.set_particles(parts, w)
 
     def _plausible_copies(self, i: int, cloud: np.ndarray, weights: np.ndarray,
-                          syms: tuple, radius: float) -> list:
+                          syms: tuple, radius: float) -> tuple[list, np.ndarray]:
         """The symmetries whose copy of robot ``i``'s main mode (particles ``cloud``) its
-        evidence does not reject by ``WEAK_NATS``; certifies the robot when it rejects every
-        copy by ``EVIDENCE_NATS``.
+        evidence does not reject by ``WEAK_NATS``, and the shares of the mode and those
+        copies in the posterior the evidence gives them
+        (:func:`~estimators.mcl.copy_weights.hypothesis_shares`); certifies the robot when
+        it rejects every copy by ``EVIDENCE_NATS``.
 
         The evidence: the robot's scans of the last ``KEEP_WINDOW_S`` weighed along its
         odometry back from its main mode's pose (a few headings around it,
@@ -578,9 +603,11 @@ class MCLBackend(EstimatorBackend):
         ll = scan_loglik_along(table, lut, pf.state_origin, angles, paths, scans[-h:],
                                pf.config.occupied_loglik)
         ll = (ll + self._detection_loglik(i, paths)).reshape(1 + len(syms), -1)
-        gaps = ll[0].max() - ll[1:].max(axis=1)
+        best = ll.max(axis=1)
+        gaps = best[0] - best[1:]
         self._certified[i] = bool((gaps >= EVIDENCE_NATS).all())
-        return [s for s, gap in zip(syms, gaps.tolist(), strict=True) if gap < WEAK_NATS]
+        kept = [j for j, gap in enumerate(gaps.tolist()) if gap < WEAK_NATS]
+        return [syms[j] for j in kept], hypothesis_shares(best[[0, *(1 + j for j in kept)]])
 
     def _record(self, live: list[int], deltas: np.ndarray, readings: Readings) -> None:
         """Remember each live robot's odometry motion and beam-model scan of this step (the
