@@ -478,7 +478,8 @@ class MCLBackend(EstimatorBackend):
                 if self.reset_fraction > 0:
                     self._detection_reset(ib, rec, observer, target)
                 res = self.transfer.apply(rec, observer, target, self.rng,
-                                          check=not self._picks_kept_copy(ia, ib, rec))
+                                          check=not self._picks_kept_copy(ia, ib, rec),
+                                          hypotheses=self._hypotheses(ib))
                 if res.applied:
                     stats["detections_applied"] += 1
                     self.transfers_applied[ib] += 1
@@ -496,6 +497,18 @@ class MCLBackend(EstimatorBackend):
         if self.symmetries:
             self.keep_copies(live)
         return stats
+
+    def _hypotheses(self, i: int) -> np.ndarray | None:
+        """Mask of robot ``i``'s particles near its top mode and the copies of it that it
+        keeps (:meth:`keep_copies`), or None while it keeps none."""
+        plausible, top = self._plausible[i], self._kept_top[i]
+        if not plausible or top is None:
+            return None
+        radius = (self.check or ConsistencyConfig()).mode_radius
+        centres = np.array([top[:2], *(symmetric_copies(top, s)[:2] for s in plausible)])
+        xy = self.filters[i].particles[:, :2]
+        d2 = ((xy[:, None] - centres[None]) ** 2).sum(axis=2)
+        return d2.min(axis=1) <= radius * radius
 
     def _picks_kept_copy(self, ia: int, ib: int, rec: RobotDetection) -> bool:
         """Whether a certified observer ``ia`` puts an uncertified target ``ib`` on one of the
@@ -791,7 +804,10 @@ class MCLBackend(EstimatorBackend):
         if self.check is not None:
             if self.claim_std(ib) <= obs_std:
                 return
-            _, mode = main_mode(target.particles[:, :2], target.weights, self.check.mode_radius)
+            mode = self._hypotheses(ib)
+            if mode is None:
+                _, mode = main_mode(target.particles[:, :2], target.weights,
+                                    self.check.mode_radius)
             if target.weights[mode].sum() >= self.check.confident_mass:
                 return
         elif target.position_std() <= RESET_STD and not self._confirmed_conflict(

@@ -35,6 +35,7 @@ __all__ = ["TOP_MODE_HEADING_TOL", "hypothesis_shares", "near_pose", "set_group_
            "top_mode"]
 
 TOP_MODE_HEADING_TOL = math.pi / 4  # rad: a mode's heading tolerance, as ``belief_modes``'
+TOP_MODE_SEARCH = 4  # modes extracted to find the heaviest (greedy seeds are cells, not modes)
 
 
 def hypothesis_shares(loglik: np.ndarray) -> np.ndarray:
@@ -59,12 +60,14 @@ def near_pose(poses: np.ndarray, pose: np.ndarray, radius: float,
 def top_mode(poses: np.ndarray, weights: np.ndarray, radius: float, heading_tol: float,
              bounds: tuple[float, float, float, float]) -> tuple[np.ndarray, float]:
     """The heaviest mode of one particle set, as the dict observation's ``belief_modes``
-    extracts it (:func:`estimators.mcl.modes.particle_modes`): its pose and weight."""
+    extracts it (:func:`estimators.mcl.modes.particle_modes`, the heaviest of its first
+    ``TOP_MODE_SEARCH``: a mode split over seeding cells is not the first found): its pose
+    and weight."""
     poses = np.asarray(poses, dtype=float)
     flat = np.ascontiguousarray(poses.T, dtype=np.float32).reshape(-1)
     ends = np.array([len(poses)], dtype=np.intp)
-    row = particle_modes(flat, np.asarray(weights, dtype=float), ends, np.zeros((1, 2)), 1,
-                         radius, heading_tol, bounds)[0, 0]
+    row = particle_modes(flat, np.asarray(weights, dtype=float), ends, np.zeros((1, 2)),
+                         TOP_MODE_SEARCH, radius, heading_tol, bounds)[0, 0]
     return np.array([row[1], row[2], math.atan2(row[4], row[3])]), float(row[0])
 
 
@@ -79,7 +82,8 @@ def set_group_masses(
     within ``radius``); ``clouds``: poses ``(K_h, 3)`` to place in each region when it holds
     fewer than ``round(mass_h * N)`` particles (drawn at random, each given the region's
     mean weight before the region is scaled); ``masses`` ``(H,)`` summing to at most 1.
-    Slots come from the least likely particles outside every region; particles outside
+    Slots come from the least likely particles outside every region, then from the least
+    likely of a region's particles beyond its share of the count; particles left outside
     keep their weights (the group's mass is ``1 -`` theirs, ``masses`` are scaled to it).
     """
     parts = np.array(particles, dtype=float)
@@ -93,8 +97,16 @@ def set_group_masses(
     n = len(w)
     d2 = ((parts[:, None, :2] - centres[None]) ** 2).sum(axis=2)
     region = np.where(d2.min(axis=1) <= radius * radius, d2.argmin(axis=1), -1)
+    # slots: the particles outside every region (least likely first), then each region's
+    # particles beyond its share of the count (least likely first)
     outside = np.nonzero(region < 0)[0]
-    free = outside[np.argsort(w[outside], kind="stable")]  # least likely first
+    free = [outside[np.argsort(w[outside], kind="stable")]]
+    for h in range(len(centres)):
+        inside = np.nonzero(region == h)[0]
+        surplus = len(inside) - int(round(masses[h] * n))
+        if surplus > 0:
+            free.append(inside[np.argsort(w[inside], kind="stable")[:surplus]])
+    free = np.concatenate(free)
     taken = 0
     for h, cloud in enumerate(clouds):
         inside = region == h
