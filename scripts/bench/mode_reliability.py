@@ -18,8 +18,9 @@ within 1 m and 0.3 rad of the true pose. Figures:
   teammate detects (a genuine detection, states read before the step that uses it):
   how many, how many then held a wrong top mode weighing 0.9 or more
   (``wrong_confident``), and the time from that first meeting to localized
-  (``meet_to_localized_s``; a robot that never gets there counts until the episode
-  ends, ``never`` counts them), per group.
+  (``meet_to_localized_s``: 0 when the step that uses the detection localizes it; a
+  robot that never gets there counts until the episode ends, ``never`` counts them),
+  per group.
 
 ::
 
@@ -143,7 +144,7 @@ def reduce_episode(seed: int, weight: np.ndarray, right: np.ndarray, std: np.nda
     for c, (step, wrong) in sorted(met.items()):
         after = below[step:, c]
         done = bool(after.any())
-        wait = (int(after.argmax()) + 1 if done else steps - step) * dt
+        wait = (int(after.argmax()) if done else steps - 1 - step) * dt  # rows of time
         meetings.append({"wrong_confident": wrong, "meet_to_localized_s": wait,
                          "localized": done})
     cw = (std < CONFIDENT_STD_M) & (err > WRONG_M)

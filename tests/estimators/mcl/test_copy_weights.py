@@ -43,7 +43,6 @@ def test_the_top_mode_is_extracted_as_the_observation_does():
 
 def test_group_masses_are_set_and_a_starved_copy_is_refilled():
     rng = np.random.default_rng(1)
-    n = 1000
     mode = rng.normal([4.0, 4.0, 0.0], [0.2, 0.2, 0.02], (900, 3))
     stray = rng.uniform([8.0, 8.0, -3.0], [12.0, 12.0, 3.0], (100, 3))  # outside both
     parts = np.concatenate([mode, stray])
