@@ -413,6 +413,8 @@ class MCLBackend(EstimatorBackend):
         self._plausible: list[list | None] = [None] * k
         self._shares: list[np.ndarray | None] = [None] * k  # of the mode and kept copies
         self._kept_top: list[np.ndarray | None] = [None] * k  # top mode at the last check
+        # nats by which evidence older than the window favours the top mode over its copies
+        self._prior = np.zeros(k)
         self._transfers_in: list[list[tuple]] = [[] for _ in range(k)]
         self._t = 0
         self._conflicts = {}
@@ -568,11 +570,14 @@ class MCLBackend(EstimatorBackend):
             if group < KEEP_CHECK_MASS or not mode.any():
                 self._certified[i] = False
                 self._plausible[i] = None
+                self._prior[i] = 0.0
                 continue
             if self._certified[i]:
                 continue
             cloud = parts[mode]
             jumped = last is None or math.hypot(*(top[:2] - last[:2])) > radius
+            if jumped:
+                self._prior[i] = 0.0  # what it knew was about another copy
             if self._plausible[i] is None or jumped or self._t % KEEP_CHECK_EVERY == 0:
                 self._plausible[i], self._shares[i] = self._plausible_copies(
                     i, cloud, w[mode], syms, radius)
@@ -603,7 +608,10 @@ class MCLBackend(EstimatorBackend):
         turned, so the two differ only where the map does), plus the detection transfers
         it received from certified observers (:meth:`_detection_loglik`: an observer that
         knows which copy it is on tells the target's too; one that does not is blind to
-        the team's being turned as a whole).
+        the team's being turned as a whole). A robot once certified on its top mode keeps
+        ``EVIDENCE_NATS`` in its favour (evidence older than the window, kept until the top
+        mode jumps to another place or loses its weight): a detection that conflicts with
+        it (most are false positives) has it checked again, not forget what it saw.
         """
         own = pose_estimate(cloud, weights, radius)
         cands = own + np.column_stack([np.zeros((len(EVIDENCE_TURNS), 2)), EVIDENCE_TURNS])
@@ -617,8 +625,11 @@ class MCLBackend(EstimatorBackend):
                                pf.config.occupied_loglik)
         ll = (ll + self._detection_loglik(i, paths)).reshape(1 + len(syms), -1)
         best = ll.max(axis=1)
+        best[0] += self._prior[i]
         gaps = best[0] - best[1:]
         self._certified[i] = bool((gaps >= EVIDENCE_NATS).all())
+        if self._certified[i]:
+            self._prior[i] = EVIDENCE_NATS
         kept = [j for j, gap in enumerate(gaps.tolist()) if gap < WEAK_NATS]
         return [syms[j] for j in kept], hypothesis_shares(best[[0, *(1 + j for j in kept)]])
 
