@@ -614,7 +614,7 @@ class MCLBackend(EstimatorBackend):
         it (most are false positives) has it checked again, not forget what it saw.
         """
         own = pose_estimate(cloud, weights, radius)
-        cands = own + np.column_stack([np.zeros((len(EVIDENCE_TURNS), 2)), EVIDENCE_TURNS])
+        cands = own + _EVIDENCE_GRID
         copies = [symmetric_copies(cands, s) for s in syms]
         pf = self.filters[i]
         table, lut, angles, _ = self.beam_model(i)
