@@ -108,3 +108,32 @@ def test_without_the_check_the_copy_stays_confident():
 def test_symmetry_check_flag_is_validated():
     with pytest.raises(ValueError, match="mcl_symmetry_check"):
         coop_loc_env.make_config("active_hallway", extras={"mcl_symmetry_check": 1})
+
+
+def test_a_certified_robot_checked_again_keeps_what_it_saw():
+    # certified next to the bay, then 40 s along the ring: its last 30 s of scans no longer
+    # tell the copies apart. A conflicting detection (most are false positives) has it
+    # checked again; it must not split its weight over the copies it had ruled out.
+    from policies.scripted.corridor import CorridorPolicy
+
+    start = (1.25, 10.0, math.pi / 2)  # the left corridor, beside the bay
+    env = coop_loc_env.parallel_env("active_hallway", n_robots=1, cooperative_updates=False,
+                                     start_poses=(start,))
+    obs, _ = env.reset(seed=0)
+    backend = env.backends[0]
+    rng = np.random.default_rng(0)
+    backend.filters[0].set_particles(np.array(start) + rng.normal(0, [0.1, 0.1, 0.02],
+                                                                  (1000, 3)))
+    policy = CorridorPolicy(1.0)
+    policy.reset(env, seed=0)
+    block = BeliefModesBlock(env.config)
+    for _ in range(80):
+        obs, *_ = env.step(policy.act(obs))
+    assert backend._certified[0]
+    assert np.hypot(*(env.world.poses[0, :2] - start[:2])) > 8.0  # the bay out of range
+    backend._certified[0] = False  # what a conflicting detection does
+    backend._plausible[0] = None
+    for _ in range(4):
+        obs, _, _, _, info = env.step(policy.act(obs))
+        assert block.modes(TeamBeliefs.from_env(env))[0, 0, 0] > 0.9
+        assert info["robot_0"]["particle_spread"] < 1.5
