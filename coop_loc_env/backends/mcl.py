@@ -805,7 +805,8 @@ class MCLBackend(EstimatorBackend):
         has, and a target whose set collapsed onto a wrong mode of a symmetric
         map has none near the truth (sensor resetting, Lenser and Veloso 2000).
         With the consistency check on (:attr:`check`) an observer seeds only a target
-        whose spread is larger than its own and that has no main mode holding
+        whose spread is larger than its own and that has no main mode (or, while it keeps
+        symmetric copies, no mode and copies together: :meth:`_hypotheses`) holding
         ``confident_mass`` of its weight (a confident target that disagrees is a
         conflict, handled by :meth:`_widen`, never re-seeded).
         """
