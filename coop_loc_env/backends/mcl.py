@@ -413,8 +413,9 @@ class MCLBackend(EstimatorBackend):
         self._plausible: list[list | None] = [None] * k
         self._shares: list[np.ndarray | None] = [None] * k  # of the mode and kept copies
         self._kept_top: list[np.ndarray | None] = [None] * k  # top mode at the last check
-        # nats by which evidence older than the window favours the top mode over its copies
-        self._prior = np.zeros(k)
+        # nats by which evidence older than the window favours the top mode over its copies:
+        # a start known up to noise is such evidence
+        self._prior = np.full(k, 0.0 if cfg.global_localization else EVIDENCE_NATS)
         self._transfers_in: list[list[tuple]] = [[] for _ in range(k)]
         self._t = 0
         self._conflicts = {}
@@ -575,7 +576,7 @@ class MCLBackend(EstimatorBackend):
             if self._certified[i]:
                 continue
             cloud = parts[mode]
-            jumped = last is None or math.hypot(*(top[:2] - last[:2])) > radius
+            jumped = last is not None and math.hypot(*(top[:2] - last[:2])) > radius
             if jumped:
                 self._prior[i] = 0.0  # what it knew was about another copy
             if self._plausible[i] is None or jumped or self._t % KEEP_CHECK_EVERY == 0:

@@ -137,3 +137,16 @@ def test_a_certified_robot_checked_again_keeps_what_it_saw():
         obs, _, _, _, info = env.step(policy.act(obs))
         assert block.modes(TeamBeliefs.from_env(env))[0, 0, 0] > 0.9
         assert info["robot_0"]["particle_spread"] < 1.5
+
+
+def test_a_robot_told_its_start_keeps_it_in_a_symmetric_map():
+    # without global localization the start (known up to noise) is evidence the scans of a
+    # symmetric corridor cannot outweigh: the copies of the pose get no share
+    env = coop_loc_env.parallel_env("active_hallway", n_robots=1, cooperative_updates=False,
+                                    global_localization=False, start_poses=(tuple(TRUE),))
+    env.reset(seed=0)
+    block = BeliefModesBlock(env.config)
+    for _ in range(12):
+        info = _stand_still(env, 1)
+        assert block.modes(TeamBeliefs.from_env(env))[0, 0, 0] > 0.9
+        assert info["particle_spread"] < 1.5
