@@ -486,8 +486,11 @@ class MCLBackend(EstimatorBackend):
                 if res.applied:
                     stats["detections_applied"] += 1
                     self.transfers_applied[ib] += 1
-                    if self.symmetries and self._certified[ia]:
-                        # an observer that knows which copy it is on tells the target's too
+                    if self.symmetries:
+                        # evidence on the target's copies: an observer that knows which copy
+                        # it is on tells the target's; one that keeps its own copies tells
+                        # which of the target's fit with some copy of its (the product of
+                        # a two- and a three-copy belief has one common mode)
                         self._transfers_in[ib].append((self._t, res.tree,
                                                        rec.orientation is not None))
                 else:
@@ -607,9 +610,10 @@ class MCLBackend(EstimatorBackend):
         odometry back from its main mode's pose (a few headings around it,
         ``EVIDENCE_TURNS``) and from each copy of those poses (the same trajectories
         turned, so the two differ only where the map does), plus the detection transfers
-        it received from certified observers (:meth:`_detection_loglik`: an observer that
-        knows which copy it is on tells the target's too; one that does not is blind to
-        the team's being turned as a whole). A robot once certified on its top mode keeps
+        it received (:meth:`_detection_loglik`: each observer's density, a mixture over
+        the copies it keeps itself, so an observer that knows which copy it is on tells
+        the target's, and one that does not rules out only the target's copies that fit
+        none of its own). A robot once certified on its top mode keeps
         ``EVIDENCE_NATS`` in its favour (evidence older than the window, kept until the top
         mode jumps to another place or loses its weight): a detection that conflicts with
         it (most are false positives) has it checked again, not forget what it saw.
