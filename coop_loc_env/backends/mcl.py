@@ -486,11 +486,14 @@ class MCLBackend(EstimatorBackend):
                 if res.applied:
                     stats["detections_applied"] += 1
                     self.transfers_applied[ib] += 1
-                    if self.symmetries:
+                    if self.symmetries and (self._certified[ia]
+                                            or self._turns(ia) != self._turns(ib)):
                         # evidence on the target's copies: an observer that knows which copy
-                        # it is on tells the target's; one that keeps its own copies tells
-                        # which of the target's fit with some copy of its (the product of
-                        # a two- and a three-copy belief has one common mode)
+                        # it is on tells the target's; one whose map has other symmetries
+                        # tells which of the target's copies fit with some copy of its own
+                        # (the product of a two- and a three-copy belief has one common
+                        # mode), while one that shares them cannot tell a team turned as a
+                        # whole from the truth
                         self._transfers_in[ib].append((self._t, res.tree,
                                                        rec.orientation is not None))
                 else:
@@ -503,6 +506,11 @@ class MCLBackend(EstimatorBackend):
         if self.symmetries:
             self.keep_copies(live)
         return stats
+
+    def _turns(self, i: int) -> tuple:
+        """The turns under which robot ``i``'s map looks the same (none without a beam
+        model: its copies are not kept)."""
+        return self.symmetries.get(self._kinds[i], ())
 
     def _hypotheses(self, i: int) -> np.ndarray | None:
         """Mask of robot ``i``'s particles near its top mode and the copies of it that it
@@ -610,13 +618,15 @@ class MCLBackend(EstimatorBackend):
         odometry back from its main mode's pose (a few headings around it,
         ``EVIDENCE_TURNS``) and from each copy of those poses (the same trajectories
         turned, so the two differ only where the map does), plus the detection transfers
-        it received (:meth:`_detection_loglik`: each observer's density, a mixture over
-        the copies it keeps itself, so an observer that knows which copy it is on tells
-        the target's, and one that does not rules out only the target's copies that fit
-        none of its own). A robot once certified on its top mode keeps
-        ``EVIDENCE_NATS`` in its favour (evidence older than the window, kept until the top
-        mode jumps to another place or loses its weight): a detection that conflicts with
-        it (most are false positives) has it checked again, not forget what it saw.
+        it received from certified observers and from observers whose maps have other
+        symmetries (:meth:`_detection_loglik`: an observer that knows which copy it is on
+        tells the target's too; one whose map has other turns rules out the target's
+        copies that fit none of its own; one that shares them and does not know its copy
+        is blind to the team's being turned as a whole). A robot once certified on its top
+        mode keeps ``EVIDENCE_NATS`` in its favour (evidence older than the window, kept
+        until the top mode jumps to another place or loses its weight): a detection that
+        conflicts with it (most are false positives) has it checked again, not forget what
+        it saw.
         """
         own = pose_estimate(cloud, weights, radius)
         cands = own + _EVIDENCE_GRID
