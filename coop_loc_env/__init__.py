@@ -37,6 +37,7 @@ from coop_loc_env.scenarios import (
     register_scenario,
     unregister_scenario,
 )
+from coop_loc_env.vector import CoopLocVectorEnv
 
 __version__ = "0.1.0"
 REGISTRY_NAMESPACE = "coop_loc"
@@ -44,6 +45,7 @@ REGISTRY_NAMESPACE = "coop_loc"
 __all__ = [
     "CoopLocAECEnv",
     "CoopLocParallelEnv",
+    "CoopLocVectorEnv",
     "ObsBlock",
     "Obstacle",
     "RewardTerm",
@@ -63,6 +65,7 @@ __all__ = [
     "register_scenario",
     "torchrl_env",
     "unregister_scenario",
+    "vector_env",
 ]
 
 
@@ -71,6 +74,14 @@ def parallel_env(
 ) -> CoopLocParallelEnv:
     """The parallel environment for ``scenario`` (any config field overridable by keyword)."""
     return CoopLocParallelEnv(scenario=scenario, render_mode=render_mode, **overrides)
+
+
+def vector_env(
+    scenario: str = "outdoor_terrain", num_envs: int = 1, **overrides: Any
+) -> CoopLocVectorEnv:
+    """``num_envs`` independent worlds of ``scenario`` stepped as one batch, on arrays
+    ``(num_envs, n_robots, ...)`` (:mod:`coop_loc_env.vector`: seeding, autoreset, infos)."""
+    return CoopLocVectorEnv(scenario, num_envs=num_envs, **overrides)
 
 
 def raw_env(scenario: str = "outdoor_terrain", render_mode: str | None = None, **overrides: Any):
@@ -88,16 +99,31 @@ def torchrl_env(
     scenario: str = "outdoor_terrain",
     seed: int | None = None,
     device: str = "cpu",
+    num_envs: int | None = None,
     **overrides: Any,
 ):
     """The TorchRL environment of ``scenario``, ready for a collector.
+
+    With ``num_envs=B``: ``B`` worlds as one batch, ``batch_size=[B]``
+    (:class:`coop_loc_env.torchrl_vector.CoopLocTorchRLVectorEnv`, the layout below with
+    a batch dimension in front, as TorchRL's ``VmasEnv``; world ``i`` seeded ``seed + i``).
 
     A native ``torchrl.envs.EnvBase`` (:class:`coop_loc_env.native_torchrl.CoopLocTorchRLEnv`)
     that steps the team as one batch: group ``robot`` with ``observation``, ``action``,
     ``reward``, per-robot ``done``/``terminated``/``truncated`` and ``mask``, and the scalar
     infos under ``(robot, info)`` (``info_keys=[...]`` picks them). Any config field is
-    overridable by keyword. Needs the ``torchrl`` extra.
+    overridable by keyword. Sets torch's thread count to the project's
+    (:mod:`coop_loc_env.threads`; ``COOP_LOC_TORCH_THREADS=0`` leaves torch's own).
+    Needs the ``torchrl`` extra.
     """
+    from coop_loc_env.threads import set_torch_threads
+
+    set_torch_threads()
+    if num_envs is not None:
+        from coop_loc_env.torchrl_vector import make_torchrl_vector_env
+
+        return make_torchrl_vector_env(scenario, num_envs, seed=seed, device=device,
+                                       **overrides)
     from coop_loc_env.native_torchrl import make_torchrl_env
 
     return make_torchrl_env(scenario, seed=seed, device=device, **overrides)

@@ -19,7 +19,7 @@ from coop_loc_env.depth_from_motion import CameraRecord, DepthFromMotion
 from coop_loc_env.mapping import TeamMapper
 from coop_loc_env.obs_blocks import ObsInputs
 from coop_loc_env.observations import ObservationBuilder
-from coop_loc_env.records import Beliefs, JoinedSampler, Readings
+from coop_loc_env.records import Beliefs, JoinedSampler, Readings, StepRecord
 from coop_loc_env.rewards import RewardInputs, RewardTerms, sum_terms
 from coop_loc_env.scenarios import make_config, scenario_hooks
 from coop_loc_env.sensors import SensorSuite
@@ -170,6 +170,33 @@ class CoopLocParallelEnv(ParallelEnv):
         return self._last_readings
 
     @property
+    def active(self) -> np.ndarray:
+        """``(n,)``: the robots still in the episode (the env's array: do not change it)."""
+        return self._active
+
+    @property
+    def tipped(self) -> np.ndarray:
+        """``(n,)``: the robots that tipped over in this episode (the env's array)."""
+        return self._tipped
+
+    @property
+    def new_cells(self) -> np.ndarray:
+        """``(n,)``: team-map cells each robot newly mapped in the last step."""
+        return self._new_cells
+
+    @property
+    def covered_cells(self) -> np.ndarray:
+        """``(n,)``: drivable cells each robot was first to cover in the last step."""
+        return self._covered_cells
+
+    def observation_inputs(self) -> ObsInputs:
+        """What the observation blocks read now (:class:`~coop_loc_env.obs_blocks.
+        ObsInputs`): the beliefs, the last action, the true poses, the active robots."""
+        beliefs = self._beliefs
+        return ObsInputs(beliefs.features, self._last_action, self.world.poses, beliefs.mean,
+                         beliefs.cov, self._active, self)
+
+    @property
     def step_count(self) -> int:
         """Steps taken in this episode."""
         return self._step_count
@@ -248,9 +275,34 @@ class CoopLocParallelEnv(ParallelEnv):
         (TorchRL with ``done_on_any=False``) works. Every live agent must act.
         """
         act = self._validate_actions(actions)
+        live = list(self.agents)
+        out = self.step_core(act)
+        infos, rewards = self._infos(
+            out.tipped_now, out.new_contacts, live, in_contact=out.in_contact, step=out,
+        )
+        truncate = out.truncated
+        if truncate or np.count_nonzero(self._active) < self._active.size:
+            active = self._active.tolist()
+            terminations = {a: not active[self.agent_name_mapping[a]] for a in live}
+            truncations = dict.fromkeys(live, truncate)
+            going_on = [a for a in live if not (terminations[a] or truncate)]
+        else:  # every robot is still in and the episode goes on: so does every live agent
+            terminations, truncations = dict.fromkeys(live, False), dict.fromkeys(live, False)
+            going_on = live
+        obs = self._observe_all(live)
+        self.agents = going_on
+        if self.render_mode == "human":
+            self.render()
+        return obs, rewards, terminations, truncations, infos
+
+    def step_core(self, act: np.ndarray) -> StepRecord:
+        """The step's array core, shared with :func:`coop_loc_env.vector_env`: moves the
+        world by the checked actions ``(n, 2)`` (rows of robots already out are zeros),
+        reads the sensors, updates the beliefs, the team map and the reward terms, and
+        returns the step's values as one :class:`StepRecord` (observations are built
+        afterwards, from the env's state)."""
         cfg = self.config
         rng = self.np_random
-        live = list(self.agents)
         # (n, 2): commanded V and w. Only live agents act, and every live agent is active:
         # the rows of tipped-over robots are zeros, so they stand still.
         cmd = act * self._speed_limits
@@ -275,24 +327,16 @@ class CoopLocParallelEnv(ParallelEnv):
         if cfg.tip_over_terminates:
             self._active &= ~physics.tipped
         truncate = self._step_count >= cfg.max_cycles
-
-        infos, rewards = self._infos(
-            physics.tipped.astype(float), physics.new_contacts, live,
-            in_contact=physics.in_contact,
-        )
-        if truncate or np.count_nonzero(self._active) < self._active.size:
-            active = self._active.tolist()
-            terminations = {a: not active[self.agent_name_mapping[a]] for a in live}
-            truncations = dict.fromkeys(live, truncate)
-            going_on = [a for a in live if not (terminations[a] or truncate)]
-        else:  # every robot is still in and the episode goes on: so does every live agent
-            terminations, truncations = dict.fromkeys(live, False), dict.fromkeys(live, False)
-            going_on = live
-        obs = self._observe_all(live)
-        self.agents = going_on
-        if self.render_mode == "human":
-            self.render()
-        return obs, rewards, terminations, truncations, infos
+        tipped_now = physics.tipped.astype(float)
+        poses = self.world.poses.copy()
+        est = self._beliefs.mean.copy()
+        cov = self._beliefs.cov.copy()
+        diff = est - poses
+        err_xy = np.hypot(diff[:, 0], diff[:, 1])
+        err_th = np.abs(wrap_angle(diff[:, 2]))
+        terms = self._reward_terms(err_xy, err_th, physics.in_contact, tipped_now, cov)
+        return StepRecord(poses, est, cov, err_xy, err_th, terms, sum_terms(terms), tipped_now,
+                          physics.new_contacts, physics.in_contact, truncate)
 
     def _validate_actions(self, actions: dict[str, Any]) -> np.ndarray:
         """Check every action before touching any state; returns ``(n, 2)`` floats."""
@@ -369,10 +413,7 @@ class CoopLocParallelEnv(ParallelEnv):
                        JoinedSampler(samplers) if samplers else None)
 
     def _observe_all(self, agents: list[str]) -> dict[str, np.ndarray]:
-        beliefs = self._beliefs
-        obs = self.observations.observe_all(ObsInputs(
-            beliefs.features, self._last_action, self.world.poses, beliefs.mean, beliefs.cov,
-            self._active, self))
+        obs = self.observations.observe_all(self.observation_inputs())
         if len(agents) == len(obs):  # every agent (a live list keeps their order): row views
             return dict(zip(agents, obs, strict=True))
         return {a: obs[self.agent_name_mapping[a]] for a in agents}
@@ -383,21 +424,19 @@ class CoopLocParallelEnv(ParallelEnv):
         new_contacts: np.ndarray,
         agents: list[str] | None = None,
         in_contact: np.ndarray | None = None,
+        step: StepRecord | None = None,
     ) -> tuple[dict[str, dict], dict[str, float]]:
-        """Infos and rewards of ``agents`` (all possible agents by default), in that order."""
+        """Infos and rewards of ``agents`` (all possible agents by default), in that order:
+        of the step ``step`` (its errors and reward terms), or of the episode's start."""
         cfg = self.config
-        poses = self.world.poses.copy()  # each agent's info holds rows of fresh copies
-        est = self._beliefs.mean.copy()
-        cov = self._beliefs.cov.copy()
-        diff = est - poses
-        err_xy = np.hypot(diff[:, 0], diff[:, 1])
-        err_th = np.abs(wrap_angle(diff[:, 2]))
+        if step is None:  # at reset: the errors and reward terms of the start
+            step = self._start_record(tipped, new_contacts, in_contact)
+        poses, est, cov = step.true_pose, step.est_pose, step.pose_cov
+        err_xy, err_th, terms, totals = step.err_xy, step.err_th, step.terms, step.rewards
         readings = self._last_readings
-        extra = self._extra_infos()
+        extra = self.extra_infos()
         coverage = self.mapper.coverage()
         map_rmse = self.mapper.map_rmse()
-        terms = self._reward_terms(err_xy, err_th, in_contact, tipped, cov)
-        totals = sum_terms(terms)
         terms_dict = cfg.reward_terms_dict
         keep = cfg.info_keys
         n = cfg.n_robots
@@ -448,6 +487,20 @@ class CoopLocParallelEnv(ParallelEnv):
             infos[agent] = info if keep is None else _keep_keys(info, keep)
         return infos, rewards
 
+    def _start_record(
+        self, tipped: np.ndarray, new_contacts: np.ndarray, in_contact: np.ndarray | None
+    ) -> StepRecord:
+        """The values of an episode's start (its reward terms computed and advanced)."""
+        poses = self.world.poses.copy()  # each agent's info holds rows of fresh copies
+        est = self._beliefs.mean.copy()
+        cov = self._beliefs.cov.copy()
+        diff = est - poses
+        err_xy = np.hypot(diff[:, 0], diff[:, 1])
+        err_th = np.abs(wrap_angle(diff[:, 2]))
+        terms = self._reward_terms(err_xy, err_th, in_contact, tipped, cov)
+        return StepRecord(poses, est, cov, err_xy, err_th, terms, sum_terms(terms), tipped,
+                          new_contacts, in_contact, False)
+
     def _reward_terms(
         self,
         err_xy: np.ndarray,
@@ -469,7 +522,7 @@ class CoopLocParallelEnv(ParallelEnv):
         self.reward_terms.advance(x)
         return terms
 
-    def _extra_infos(self) -> dict[int, dict]:
+    def extra_infos(self) -> dict[int, dict]:
         """The estimators' extra info entries per robot, every robot with the same keys.
 
         In a mixed team a key that only some robots' estimator reports (e.g. MCL's

@@ -253,3 +253,25 @@ class JoinedSampler:
                 out.update(sampler())
             self._out = out
         return self._out
+
+
+class StepRecord(NamedTuple):
+    """The values of one env step after the reward phase, one row per robot: the true and
+    estimated poses ``(n, 3)`` and covariances ``(n, 3, 3)`` (fresh copies), the true
+    position / heading errors ``(n,)``, the weighted reward terms ``{name: [float per
+    robot]}`` and their sums ``rewards``, ``tipped_now`` (tipped over in this step, 0/1),
+    ``new_contacts`` and ``in_contact`` (``None`` at an episode's start) and whether the
+    episode is ``truncated`` (``max_cycles`` reached). The parallel env turns it into
+    PettingZoo's dicts; :func:`coop_loc_env.vector_env` stacks it over its worlds."""
+
+    true_pose: np.ndarray
+    est_pose: np.ndarray
+    pose_cov: np.ndarray
+    err_xy: np.ndarray
+    err_th: np.ndarray
+    terms: dict[str, list[float]]
+    rewards: list[float]
+    tipped_now: np.ndarray
+    new_contacts: np.ndarray
+    in_contact: np.ndarray | None
+    truncated: bool

@@ -40,6 +40,13 @@ ROBOT_COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", 
                 "tab:pink", "tab:olive", "tab:cyan", "tab:gray")
 OBSTACLE_COLORS = {"tree": "#2e6b30", "rock": "#6d6d6d", "wall": "#333333",
                    "building": "#555555", "ooi": "#d4a017"}
+#: What each obstacle kind is, in the frames' legend.
+OBSTACLE_LABELS = {"tree": "tree trunk", "rock": "rock", "wall": "wall", "building": "building",
+                   "ooi": "object of interest (mapped)"}
+CANOPY_COLOR = "#1b4d1b"
+STEEP_COLOR = "#b22222"
+#: Robots listed one by one in the legend up to this team size (beyond, the GPS ones only).
+LEGEND_ROBOTS = 8
 
 
 def _import_matplotlib():
@@ -49,9 +56,9 @@ def _import_matplotlib():
         from matplotlib.collections import LineCollection
         from matplotlib.figure import Figure
     except ImportError as err:  # pragma: no cover - exercised only without matplotlib
-        raise ImportError(
+        raise ModuleNotFoundError(
             "rendering needs matplotlib: pip install -e '.[render]' in the repository (or "
-            "pip install matplotlib imageio)"
+            "pip install matplotlib imageio)", name="matplotlib"
         ) from err
     from matplotlib.lines import Line2D
 
@@ -105,7 +112,7 @@ class Renderer:
         dpi = 100
         self.fig = figure_cls(figsize=(size_px / dpi, size_px / dpi), dpi=dpi)
         self.canvas = canvas_cls(self.fig)
-        self.ax = self.fig.add_axes((0.01, 0.1, 0.98, 0.85))
+        self.ax = self.fig.add_axes((0.01, 0.17, 0.98, 0.78))
         self.title = self.fig.text(0.5, 0.985, "", ha="center", va="top", fontsize=9)
         self._window = None
         self._frame = 0
@@ -125,8 +132,58 @@ class Renderer:
             line([], [], color="m", lw=0.8, ls="--", label="false detection"),
             line([], [], color="red", lw=0.8, alpha=0.6, label="range beams"),
         ]
-        self.fig.legend(handles=key, loc="lower center", ncol=4, fontsize=7, frameon=False,
-                        handlelength=1.6, columnspacing=1.0, borderaxespad=0.2)
+        self._line = line
+        self._key = key + self._robot_key()
+        self._legend = None
+        self._layout_kinds: tuple | None = None
+
+    def _robot_key(self) -> list:
+        """Legend entries for the robots' colours and which robots have GPS."""
+        cfg = self.env.config
+        gps = [cfg.robot_spec(i).has_gps for i in range(cfg.n_robots)]
+        mixed = len(set(cfg.estimators)) > 1
+        if cfg.n_robots <= LEGEND_ROBOTS:
+            return [self._robot_entry(i, f"robot_{i}: {'GPS' if gps[i] else 'no GPS'}"
+                                         + (f", {cfg.estimators[i]}" if mixed else ""))
+                    for i in range(cfg.n_robots)]
+        with_gps = [i for i in range(cfg.n_robots) if gps[i]]
+        if not with_gps:
+            return [self._robot_entry(0, f"robots ({cfg.n_robots}): none has GPS")]
+        shown = ", ".join(map(str, with_gps[:6])) + (", ..." if len(with_gps) > 6 else "")
+        return [self._robot_entry(with_gps[0], f"GPS: robots {shown} ({len(with_gps)} of "
+                                               f"{cfg.n_robots})")]
+
+    def _robot_entry(self, i: int, label: str):
+        return self.patches.Patch(color=ROBOT_COLORS[i % len(ROBOT_COLORS)], label=label)
+
+    def _layout_key(self) -> list:
+        """Legend entries for what the map shows: canopy, steep ground, obstacle kinds."""
+        world = self.env.world
+        key = []
+        if len(world.layout.canopy_radii):
+            key.append(self.patches.Patch(color=CANOPY_COLOR, alpha=0.25,
+                                          label="tree canopy (weak GPS)"))
+        if world.terrain.steep.any():
+            key.append(self.patches.Patch(color=STEEP_COLOR, alpha=0.35,
+                                          label="steep ground (tips over)"))
+        for kind in dict.fromkeys(o.kind for o in world.layout.obstacles):
+            key.append(self.patches.Patch(color=OBSTACLE_COLORS.get(kind, "k"),
+                                          label=OBSTACLE_LABELS.get(kind, kind)))
+        return key
+
+    def _update_legend(self) -> None:
+        """(Re)draw the legend when the layout's kinds of marks change (a new episode)."""
+        world = self.env.world
+        kinds = (len(world.layout.canopy_radii) > 0, bool(world.terrain.steep.any()),
+                 tuple(dict.fromkeys(o.kind for o in world.layout.obstacles)))
+        if kinds == self._layout_kinds:
+            return
+        self._layout_kinds = kinds
+        if self._legend is not None:
+            self._legend.remove()
+        self._legend = self.fig.legend(
+            handles=self._key + self._layout_key(), loc="lower center", ncol=4, fontsize=7,
+            frameon=False, handlelength=1.6, columnspacing=1.0, borderaxespad=0.2)
 
     def draw(self) -> np.ndarray:
         """Render the current state; returns ``uint8 (H, W, 3)``."""
@@ -135,6 +192,7 @@ class Renderer:
         world = env.world
         ax = self.ax
         ax.clear()
+        self._update_legend()
         w, h = cfg.world_size
         terrain = world.terrain
         if np.ptp(terrain.z) > 0:
@@ -143,9 +201,9 @@ class Renderer:
             ax.add_patch(self.patches.Rectangle((0, 0), w, h, color="#f2f2ee", lw=0))
         if terrain.steep.any():
             ax.contourf(terrain.xs, terrain.ys, terrain.steep.astype(float), levels=[0.5, 1.5],
-                        colors=["#b22222"], alpha=0.35)
+                        colors=[STEEP_COLOR], alpha=0.35)
         for c, r in zip(world.layout.canopy_centers, world.layout.canopy_radii, strict=True):
-            ax.add_patch(self.patches.Circle(c, r, color="#1b4d1b", alpha=0.25, lw=0))
+            ax.add_patch(self.patches.Circle(c, r, color=CANOPY_COLOR, alpha=0.25, lw=0))
         for o in world.layout.obstacles:
             color = OBSTACLE_COLORS.get(o.kind, "k")
             if o.shape == "circle":

@@ -90,8 +90,23 @@ def run_episode(
             "true": env.mapper.true_height,
             "objects": np.array(env.terrain_map.objects, dtype=float).reshape(-1, 3),
             "extent": (0.0, env.config.world_size[0], 0.0, env.config.world_size[1]),
+            "layout": _layout_marks(env.world),
         },
     }
+
+
+def _layout_marks(world) -> dict[str, Any]:
+    """The known map's marks for the terrain plot: canopies ``(k, 3)`` (x, y, radius),
+    round obstacles by kind ``(k, 3)``, and the steep cells' grid with its axes."""
+    layout, terrain = world.layout, world.terrain
+    canopy = np.c_[layout.canopy_centers, layout.canopy_radii].reshape(-1, 3)
+    round_obstacles: dict[str, list] = {}
+    for o in layout.obstacles:
+        if o.shape == "circle":
+            round_obstacles.setdefault(o.kind, []).append((*o.center, o.radius))
+    return {"canopy": canopy,
+            "obstacles": {k: np.array(v, dtype=float) for k, v in round_obstacles.items()},
+            "steep": (terrain.xs, terrain.ys, terrain.steep.copy())}
 
 
 def episode_figures(ep: dict[str, Any]) -> dict[str, Any]:

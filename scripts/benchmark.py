@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 import coop_loc_env
+from coop_loc_env.cli import ScriptParser, run_script
 
 #: Targets the benchmark reports against: env / mpe2 steps per second at the smallest
 #: team (the goal, and the least acceptable), and the step time of the largest team
@@ -188,7 +189,7 @@ def _bad_argument(args: argparse.Namespace) -> str | None:
 
 def main(argv: list[str] | None = None) -> dict | int:
     """Print the figures; returns them (2 on bad arguments, after one line on stderr)."""
-    parser = argparse.ArgumentParser(description=__doc__,
+    parser = ScriptParser(description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--seconds", type=float, default=1.0,
                         help="CPU seconds of each side (env, mpe2) per round")
@@ -250,5 +251,5 @@ def main(argv: list[str] | None = None) -> dict | int:
 
 
 if __name__ == "__main__":
-    result = main()
+    result = run_script(main)
     sys.exit(result if isinstance(result, int) else 0)

@@ -37,20 +37,27 @@ import argparse
 import sys
 from pathlib import Path
 
+from coop_loc_env.cli import (
+    ScriptParser,
+    add_config_arguments,
+    require,
+    run_script,
+    scenario_and_overrides,
+)
 from policies.experiments.report import format_table, report, write_json
-from policies.experiments.runner import parse_overrides, run_episodes
+from policies.experiments.runner import run_episodes
 from policies.scripted.registry import policy_help
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The command-line interface (other scripts may extend it)."""
-    p = argparse.ArgumentParser(
+    p = ScriptParser(
         description=__doc__.split("\n\n")[0],
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog=f"policies (--policy, --compare), or the path of a saved stable-baselines3 "
                f"model (.zip):\n{policy_help()}",
     )
-    p.add_argument("--scenario", default="outdoor_terrain", help="registered scenario name")
+    add_config_arguments(p, "outdoor_terrain")
     p.add_argument("--policy", default="fsm",
                    help="a policy name (listed below), PATH.zip (SB3 model) or DIR (SB3 or "
                         "RLlib training run)")
@@ -63,8 +70,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-cycles", type=int, default=None, help="steps per episode (override)")
     p.add_argument("--json", type=Path, default=None, help="write the report as JSON here")
     p.add_argument("--plot-dir", type=Path, default=None, help="write PNG plots here")
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="config override, repeatable (e.g. --set n_robots=4)")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     return p
 
@@ -72,8 +77,12 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Run the evaluation; returns the exit status."""
     args = build_parser().parse_args(argv)
+    if args.plot_dir is not None or args.compare is not None:
+        require("matplotlib")  # the plots come at the end: fail before the episodes
+    if not args.no_progress:
+        require("tqdm")
     try:
-        overrides = parse_overrides(args.overrides)
+        args.scenario, overrides = scenario_and_overrides(args)
         if args.max_cycles is not None:
             overrides["max_cycles"] = args.max_cycles
         if args.compare is not None:
@@ -97,7 +106,13 @@ def main(argv: list[str] | None = None) -> int:
         stem = f"{args.scenario}_{Path(args.policy).stem}"
         a = plot_errors(episodes, args.plot_dir / f"{stem}_error.png",
                         title=f"{args.scenario} / {args.policy}: position error per robot")
-        b = plot_terrain(episodes[-1], args.plot_dir / f"{stem}_terrain.png")
+        last, summary, n = episodes[-1], data["summary"], len(episodes)
+        b = plot_terrain(last, args.plot_dir / f"{stem}_terrain.png", title=(
+            f"{args.scenario} / {args.policy}: episode seed {last['seed']} (the last of {n}), "
+            f"final coverage {last['coverage']:.3f}, map RMSE {last['map_rmse_m']:.3f} m\n"
+            f"mean over the {n} episode{'s' if n > 1 else ''}: coverage "
+            f"{summary['coverage']['mean']:.3f}, map RMSE "
+            f"{summary['map_rmse_m']['mean']:.3f} m"))
         print(f"wrote {a} and {b}")
     return 0
 
@@ -148,6 +163,7 @@ def _compare(args: argparse.Namespace, overrides: dict) -> int:
         print(f"note: {n} episodes; use >= 20 episodes for 95 % intervals you can trust")
     if args.json is not None:
         write_json(data, args.json)
+        args.json.with_suffix(".partial.json").unlink(missing_ok=True)  # superseded
         print(f"wrote {args.json}")
     plot_dir = args.plot_dir if args.plot_dir is not None else Path("outputs")
     print(f"wrote {plot_compare(data, plot_dir / f'{args.scenario}_compare.png', panels)}")
@@ -159,4 +175,4 @@ def _compare(args: argparse.Namespace, overrides: dict) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_script(main))

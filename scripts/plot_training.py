@@ -11,10 +11,11 @@ TensorBoard log; right: the periodic evaluation's team localization error
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
+
+from coop_loc_env.cli import ScriptParser, require, run_script
 
 
 def tb_scalars(tb_dir: Path, tag: str) -> tuple[list[int], list[float]]:
@@ -35,10 +36,11 @@ def tb_scalars(tb_dir: Path, tag: str) -> tuple[list[int], list[float]]:
 
 def main(argv: list[str] | None = None) -> int:
     """Write the figure; returns the exit status."""
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = ScriptParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--run", type=Path, required=True, help="training output directory")
     p.add_argument("--out", type=Path, required=True, help="PNG to write")
     args = p.parse_args(argv)
+    require("matplotlib")
     summary_path = args.run / "train_summary.json"
     if not summary_path.is_file():
         print(f"error: no train_summary.json in {str(args.run)!r}", file=sys.stderr)
@@ -74,4 +76,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_script(main))

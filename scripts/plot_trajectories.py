@@ -13,13 +13,13 @@ in its title.
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
 import numpy as np
 
 import coop_loc_env
+from coop_loc_env.cli import ScriptParser, require, run_script
 from policies.episode import env_overrides_for, run_episode
 from policies.experiments.compare import parse_policy_list, policy_label, resolve_policy
 from policies.experiments.runner import parse_overrides
@@ -44,13 +44,14 @@ def record_paths(scenario: str, spec: str, seed: int, overrides: dict) -> tuple[
 
 def main(argv: list[str] | None = None) -> int:
     """Run the episodes and write the figure; returns the exit status."""
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = ScriptParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--scenario", default="rendezvous")
     p.add_argument("--policies", required=True, metavar="A,B,...")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     p.add_argument("--out", type=Path, required=True)
     args = p.parse_args(argv)
+    require("matplotlib")
     try:
         specs = parse_policy_list(args.policies)
         overrides = parse_overrides(args.overrides)
@@ -92,4 +93,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_script(main))

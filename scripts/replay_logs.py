@@ -31,6 +31,7 @@ from pathlib import Path
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
+from coop_loc_env.cli import ScriptParser, require, run_script  # noqa: E402
 from estimators.log_replay import (  # noqa: E402
     DEFAULT_NOISE_PATH,
     ESTIMATORS,
@@ -45,7 +46,7 @@ from estimators.mrclam import load_mrclam  # noqa: E402
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     """Command-line arguments."""
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    p = ScriptParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     p.add_argument("dataset_dir", type=Path, help="MR.CLAM dataset directory")
     p.add_argument("--estimator", choices=ESTIMATORS, default="ekf_team")
     p.add_argument(
@@ -125,6 +126,7 @@ def _plot(result, metrics: dict, path: Path, landmarks: dict | None = None) -> N
     )
     ax1.legend(fontsize=8)
     fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)
     plt.close(fig)
 
@@ -133,6 +135,10 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the process exit status (2, with one line on stderr, on bad input:
     a missing folder or file, a malformed line, a bad parameter file)."""
     args = parse_args(argv)
+    if args.plot:
+        require("matplotlib")  # the figure comes after the replay: fail before it
+    if not args.no_progress:
+        require("tqdm")
     try:
         return _run(args)
     except (OSError, ValueError) as err:
@@ -215,6 +221,7 @@ def _run(args: argparse.Namespace) -> int:
     )
     print(f"run time {metrics['runtime_s']:.2f} s")
     if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(metrics, indent=2) + "\n")
     if args.plot:
         _plot(result, metrics, args.plot, dataset.landmarks)
@@ -222,4 +229,4 @@ def _run(args: argparse.Namespace) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_script(main))

@@ -33,10 +33,10 @@ Examples::
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
+from coop_loc_env.cli import ScriptParser, require, run_script
 from coop_loc_env.profiles import PROFILES, with_profile
 from policies.experiments.fox import (
     CONDITIONS,
@@ -77,7 +77,7 @@ def _print_hexagon(result: dict) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the experiments; returns the exit status."""
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = ScriptParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--experiment", choices=("hallway", "hexagon", "all"), default="all")
     p.add_argument("--seeds", type=int, default=8, help="episodes per condition (hallway)")
     p.add_argument("--hexagon-seeds", type=int, default=4, help="episodes per condition (hexagon)")
@@ -96,6 +96,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="config override of the scenarios, repeatable (e.g. n_particles=1000)")
     args = p.parse_args(argv)
+    if args.plot_dir:
+        require("matplotlib")  # the plot comes after the runs: fail before them
+    if not args.no_progress:
+        require("tqdm")
     if args.seeds < 1 or args.hexagon_seeds < 1:
         print(f"error: --seeds and --hexagon-seeds must be >= 1, got {args.seeds}, "
               f"{args.hexagon_seeds}", file=sys.stderr)
@@ -150,4 +154,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_script(main))

@@ -25,7 +25,6 @@ Example::
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
@@ -33,6 +32,7 @@ import numpy as np
 
 from coop_loc_env import make_config
 from coop_loc_env.backends.mle import ANCHORING
+from coop_loc_env.cli import ScriptParser, require, run_script
 from coop_loc_env.profiles import PROFILES, with_profile
 from policies.experiments.howard import plot_howard, run_circuit, run_dispersal
 from policies.experiments.report import write_json
@@ -56,7 +56,7 @@ def _progress_bar(total: int, enabled: bool):
 
 def main(argv: list[str] | None = None) -> int:
     """Run the experiments; returns the exit status."""
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = ScriptParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--seed", type=int, default=0, help="episode seed")
     p.add_argument("--experiments", nargs="+", choices=EXPERIMENTS, default=list(EXPERIMENTS),
                    help="which experiments to run")
@@ -71,6 +71,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="config override applied to both scenarios, repeatable")
     args = p.parse_args(argv)
+    if args.plot:
+        require("matplotlib")  # the plot comes after the runs: fail before them
+    if not args.no_progress:
+        require("tqdm")
     total = 0
     try:
         user = parse_overrides(args.overrides)
@@ -132,4 +136,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_script(main))

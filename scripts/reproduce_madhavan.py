@@ -17,10 +17,10 @@ the observer's laser profile (:mod:`coop_loc_env.profiles`).
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
+from coop_loc_env.cli import ScriptParser, require, run_script
 from coop_loc_env.profiles import PROFILES, with_profile
 from policies.experiments.madhavan import plot_dgps_outage, run_dgps_outage
 from policies.experiments.report import write_json
@@ -31,7 +31,7 @@ KEYS = ("std_before_outage_m", "std_peak_m", "std_after_first_coop_update_m")
 
 def main(argv: list[str] | None = None) -> int:
     """Run the experiment; returns the exit status."""
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = ScriptParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--seed", type=int, default=0, help="episode seed")
     p.add_argument("--duration", type=float, default=50.0, help="seconds to drive")
     p.add_argument("--json", type=Path, default=None, help="write the three figures here")
@@ -43,6 +43,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="config override of the dgps_outage scenario, repeatable")
     args = p.parse_args(argv)
+    if args.plot:
+        require("matplotlib")  # the plot comes after the runs: fail before them
     try:
         overrides = with_profile("dgps_outage", args.profile, parse_overrides(args.overrides))
         result = run_dgps_outage(args.seed, args.duration, **overrides)
@@ -64,4 +66,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_script(main))

@@ -2,6 +2,10 @@
 and save a rendered frame.
 
     python scripts/run_episode.py --scenario outdoor_terrain --steps 100 --frame outputs/frame.png
+    python scripts/run_episode.py --config examples/configs/mixed_team.yaml --steps 50
+
+``--config FILE.yaml`` holds the scenario, any scenario config key and the team
+(see docs/configs.md); ``--set KEY=VALUE`` applies on top of it.
 """
 
 from __future__ import annotations
@@ -13,11 +17,19 @@ from pathlib import Path
 import numpy as np
 
 import coop_loc_env
+from coop_loc_env.cli import (
+    ScriptParser,
+    add_config_arguments,
+    require,
+    run_script,
+    scenario_and_overrides,
+)
 
 
-def run(scenario: str, steps: int, seed: int, frame: Path | None) -> dict[str, float]:
+def run(scenario: str, steps: int, seed: int, frame: Path | None,
+        overrides: dict | None = None) -> dict[str, float]:
     """Run ``steps`` random-action steps; returns the mean position error per robot."""
-    env = coop_loc_env.parallel_env(scenario, max_cycles=steps,
+    env = coop_loc_env.parallel_env(scenario, **{**(overrides or {}), "max_cycles": steps},
                                     render_mode="rgb_array" if frame else None)
     env.reset(seed=seed)
     for agent in env.possible_agents:
@@ -39,16 +51,18 @@ def run(scenario: str, steps: int, seed: int, frame: Path | None) -> dict[str, f
 
 def main(argv: list[str] | None = None) -> int:
     """Run the episode and print the errors; returns the exit status."""
-    parser = argparse.ArgumentParser(description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--scenario", default="outdoor_terrain",
-                        choices=coop_loc_env.list_scenarios())
+    parser = ScriptParser(description=__doc__,
+                          formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_config_arguments(parser, "outdoor_terrain")
     parser.add_argument("--steps", type=int, default=100)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--frame", type=Path, default=Path("outputs/frame.png"))
     args = parser.parse_args(argv)
+    if args.frame:
+        require("imageio", "matplotlib")  # the frame is drawn with matplotlib, saved by imageio
     try:
-        errors = run(args.scenario, args.steps, args.seed, args.frame)
+        args.scenario, overrides = scenario_and_overrides(args)
+        errors = run(args.scenario, args.steps, args.seed, args.frame, overrides)
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
@@ -60,4 +74,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_script(main))

@@ -9,6 +9,11 @@ Examples::
     python scripts/evaluate.py --policy runs/ppo_outdoor/final_model.zip --episodes 20
     python scripts/train.py --backend rllib --num-env-runners 2 --timesteps 40000 --out runs/rl
     python scripts/evaluate.py --policy runs/rl --episodes 3
+    python scripts/train.py --config examples/configs/mixed_team.yaml --timesteps 20000 \\
+        --out runs/mixed
+
+``--config FILE.yaml`` holds the scenario, any scenario config key and the team
+(see docs/configs.md); ``--set`` and the options given apply on top of it.
 
 A scenario may carry its own training defaults (``rendezvous`` does: its
 reward, observation and PPO settings, see ``coop_loc_env/scenarios/rendezvous.py``);
@@ -26,6 +31,9 @@ overrides as in training (the observation size depends on some of them).
 see docs/scaling.md) and writes the checkpoint ``DIR/checkpoint``, TensorBoard
 logs in ``DIR/tb``, ``DIR/train_config.json`` and ``DIR/train_summary.json``.
 ``scripts/evaluate.py --policy DIR`` evaluates either kind of run.
+
+Torch runs on the project's thread count (one thread; ``COOP_LOC_TORCH_THREADS=N``
+overrides it, ``0`` leaves torch's default: see docs/scaling.md).
 """
 
 from __future__ import annotations
@@ -34,8 +42,21 @@ import argparse
 import os
 import sys
 
-from policies.experiments.runner import parse_overrides
-from policies.learning.training import ALGOS, TrainConfig, train, trained_timesteps
+from coop_loc_env.cli import (
+    ScriptParser,
+    add_config_arguments,
+    require,
+    run_script,
+    scenario_and_overrides,
+)
+from policies.learning.training import (
+    ALGOS,
+    VEC_ENVS,
+    TrainConfig,
+    estimate_cloning_s,
+    train,
+    trained_timesteps,
+)
 from policies.learning.vec_env import REWARD_MODES
 from policies.scripted.registry import policy_names
 
@@ -43,8 +64,8 @@ from policies.scripted.registry import policy_names
 def build_parser() -> argparse.ArgumentParser:
     """The command-line interface."""
     d = TrainConfig(out="")
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--scenario", default=d.scenario, help="registered scenario name")
+    p = ScriptParser(description=__doc__.split("\n\n")[0])
+    add_config_arguments(p, d.scenario)
     p.add_argument("--estimator", default=None, help="ekf | mcl | mle (scenario default if unset)")
     p.add_argument("--algo", default=d.algo, type=str.upper, choices=ALGOS, help="PPO or SAC")
     p.add_argument("--timesteps", type=int, default=d.timesteps, help="agent steps to train")
@@ -52,6 +73,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "slot per robot)")
     p.add_argument("--n-procs", type=int, default=d.n_procs, help="processes stepping the "
                    "copies (1 = this process)")
+    p.add_argument("--vec-env", default=d.vec_env, choices=VEC_ENVS, help="auto: one "
+                   "batched env when --n-procs is 1 and the env's rewards are used, else "
+                   "env copies")
     p.add_argument("--seed", type=int, default=d.seed, help="seed of model and env copies")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--max-cycles", type=int, default=None, help="episode length override")
@@ -60,8 +84,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--reward-coverage-weight", type=float, default=None)
     p.add_argument("--collision-penalty", type=float, default=None)
     p.add_argument("--tip-over-penalty", type=float, default=None)
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="env config override, repeatable (e.g. --set n_robots=4)")
     p.add_argument("--learning-rate", type=float, default=d.learning_rate)
     p.add_argument("--n-steps", type=int, default=d.n_steps, help="PPO rollout length per slot")
     p.add_argument("--batch-size", type=int, default=d.batch_size)
@@ -119,7 +141,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def config_from_args(args: argparse.Namespace) -> TrainConfig:
     """The :class:`TrainConfig` of parsed arguments."""
-    overrides = parse_overrides(args.overrides)
+    args.scenario, overrides = scenario_and_overrides(args)
     no_bc = str(args.bc_from).lower() == "none"  # no cloning (nor DAgger) at all
     if args.max_cycles is not None:
         overrides["max_cycles"] = args.max_cycles
@@ -131,6 +153,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
     return TrainConfig(
         out=args.out, scenario=args.scenario, estimator=args.estimator, algo=args.algo,
         timesteps=args.timesteps, n_envs=args.n_envs, n_procs=args.n_procs, seed=args.seed,
+        vec_env=args.vec_env,
         overrides=overrides, learning_rate=args.learning_rate, n_steps=args.n_steps,
         batch_size=args.batch_size, n_epochs=args.n_epochs, gamma=args.gamma,
         ent_coef=args.ent_coef, net_arch=tuple(args.net_arch), eval_freq=args.eval_freq,
@@ -157,16 +180,23 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
     parser = build_parser()
     first, _ = parser.parse_known_args(argv)
-    defaults = training_defaults(first.scenario)
+    defaults = training_defaults(scenario_and_overrides(first)[0])
     if defaults and first.backend == "sb3":  # the scenarios' recipes are stable-baselines3 ones
         parser.set_defaults(**defaults)
+    given = sys.argv[1:] if argv is None else argv
+    if first.resume and not any(a.split("=")[0] == "--bc-from" for a in given):
+        parser.set_defaults(bc_from="none")  # the resumed run was cloned when it started
     return parser.parse_args(argv)
 
 
 def main(argv: list[str] | None = None) -> int:
     """Train; returns the exit status (2 on bad input)."""
-    args = parse_args(argv)
     try:
+        args = parse_args(argv)
+        if args.backend == "sb3":
+            require("stable_baselines3", "torch", extra="train")
+        else:
+            require("ray", "torch", extra="rllib")
         cfg = config_from_args(args)
         cfg.validate()
         import coop_loc_env
@@ -181,6 +211,11 @@ def main(argv: list[str] | None = None) -> int:
             print(f"note: training {steps} agent steps, not {cfg.timesteps}: the agent slots "
                   f"(--n-envs x robots) step together, and PPO learns in whole rollouts of "
                   f"--n-steps steps per slot")
+        if cfg.bc_from is not None:
+            rounds = f" and {cfg.dagger_rounds} DAgger rounds" if cfg.dagger_rounds else ""
+            print(f"behaviour cloning {cfg.bc_from} before PPO: {cfg.bc_episodes} episodes"
+                  f"{rounds}, about {estimate_cloning_s(cfg):.0f} s to collect here, plus "
+                  f"the fits (--bc-from none skips it)", flush=True)
         summary = train(cfg)
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)
@@ -192,7 +227,8 @@ def main(argv: list[str] | None = None) -> int:
               f"{bc['wall_s']:.0f} s (action MSE {bc['action_mse']:.4f}, value MSE "
               f"{bc['value_mse']:.4f})")
     print(f"trained {summary['timesteps']} agent steps in {summary['wall_s']:.0f} s "
-          f"({summary['steps_per_s']:.0f} steps/s), {summary['total_wall_s']:.0f} s in all; "
+          f"({summary['steps_per_s']:.0f} steps/s, {summary['vec_env']} env), "
+          f"{summary['total_wall_s']:.0f} s in all; "
           f"final model: {summary['final_model']}")
     for ev in summary["evals"]:
         print(f"  eval at {ev['timesteps']:.0f}: error {ev['localization_error_m']:.3f} m, "
@@ -206,14 +242,12 @@ def main(argv: list[str] | None = None) -> int:
 
 def _train_rllib(cfg: TrainConfig, args: argparse.Namespace) -> int:
     """``--backend rllib`` (raises ``ValueError`` on options that path does not have)."""
-    try:
-        from policies.learning.rllib_backend import run_from_train_config, train_rllib
-    except ImportError as err:
-        raise ValueError(f"--backend rllib needs the rllib extra (pip install -e "
-                         f"'.[rllib]'): {err}") from err
+    from policies.learning.rllib_backend import run_from_train_config, train_rllib
+
     summary = train_rllib(run_from_train_config(cfg, args.num_env_runners, args.address))
     print(f"trained {summary['timesteps']} agent steps with RLlib in {summary['wall_s']:.0f} s "
-          f"({summary['steps_per_s']:.0f} steps/s), {summary['total_wall_s']:.0f} s in all; "
+          f"({summary['steps_per_s']:.0f} steps/s, {summary['vec_env']} env), "
+          f"{summary['total_wall_s']:.0f} s in all; "
           f"checkpoint: {summary['checkpoint']}")
     return 0
 
@@ -224,4 +258,4 @@ if __name__ == "__main__":
         # the same seed gives the same samples and batches (the env runners get it too).
         os.environ["PYTHONHASHSEED"] = "0"
         os.execv(sys.executable, [sys.executable, *sys.argv])
-    sys.exit(main())
+    sys.exit(run_script(main))

@@ -46,11 +46,16 @@ def script_main():
 # quick check, the full suite runs them all. An entry without ``[...]`` covers every
 # parameter of the test.
 SLOW_TESTS = frozenset({
+    "test_bench_vector_env.py::test_every_side_steps_its_worlds",
+    "test_missing_extras.py::test_every_script_names_the_extra_of_a_missing_package",
+    "test_benchmarl.py::test_the_one_line_command_runs_with_the_short_preset",
+    "test_torch_threads.py::test_the_torchrl_and_benchmarl_entry_points_set_it",
     "test_benchmarl.py::test_a_tiny_mappo_run_on_rendezvous",
     "test_camera_pipeline.py::test_teams_without_cameras_read_nothing",
     "test_compare.py::test_evaluate_compare_prints_one_table_and_saves_plot_and_json",
     "test_compare.py::test_still_policy_covers_less_than_random",
     "test_density_tree.py::test_monte_carlo_integral_of_pdf_over_the_domain_is_one",
+    "test_doc_blocks.py::test_page_blocks_run",
     "test_ekf.py::test_filter_is_consistent_with_gps_over_a_long_run",
     "test_env_api.py::test_aec_api[dispersal]",
     "test_env_api.py::test_aec_api[hexagon]",
@@ -100,13 +105,18 @@ SLOW_TESTS = frozenset({
     "test_mrclam.py::test_cli_writes_the_documented_json",
     "test_mrclam.py::test_mle_runs_on_excerpt_and_beats_dead_reckoning",
     "test_particle_filter.py::test_beam_model_tracks_with_wide_cones[180]",
-    "test_quoted_commands.py::test_belief_honesty_figures_quoted_in_the_readme",
+    "test_quoted_commands.py::test_belief_honesty_figures_quoted_in_the_docs",
     "test_rllib.py::test_tiny_training_then_evaluate_and_compare",
     "test_sb3_adapter.py::test_two_processes_match_one_process",
+    "test_sb3_batched.py::test_dict_observations_flatten_per_entry",
+    "test_sb3_batched.py::test_training_on_the_batched_env_learns_the_model_the_copies_learn",
     "test_symmetric_copies.py::test_a_certified_robot_checked_again_keeps_what_it_saw",
     "test_torchrl.py::test_torchrl_env_specs_and_rollout_on_every_scenario",
     "test_training.py::test_tiny_training_saves_a_model_that_evaluate_loads",
     "test_torchrl.py::test_wrapper_with_default_arguments_on_every_scenario",
+    "test_vector_env.py::test_every_estimator_and_obs_format_replays_parallel_env[mcl-dict]",
+    "test_vector_env.py::test_every_scenario_replays_parallel_env[active_hallway]",
+    "test_vector_env.py::test_every_scenario_replays_parallel_env[hexagon]",
 })
 
 
@@ -135,6 +145,32 @@ def steep_and_flat():
     s = steep[np.argmin(np.hypot(*(steep - (cx, cy)).T))]
     f = flat[np.argmax(np.hypot(*(flat - s).T))]
     return (float(s[0]), float(s[1]), 0.0), (float(f[0]), float(f[1]), 0.0)
+
+
+@pytest.fixture(scope="session")
+def mean_position_error():
+    """``f(scenario, policy, seeds, **overrides) -> float``: the mean over episodes (one per
+    seed) of the mean over steps and robots of the ``position_error`` infos of ``policy``,
+    stepped here directly (what an evaluation should report as its localization error)."""
+    import numpy as np
+
+    import coop_loc_env
+
+    def mean(scenario: str, policy, seeds, **overrides) -> float:
+        overrides = {**(getattr(policy, "env_settings", None) or {}), **overrides}
+        per_episode = []
+        for seed in seeds:
+            env = coop_loc_env.parallel_env(scenario, **overrides)
+            obs, _ = env.reset(seed=seed)
+            policy.reset(env, seed=seed)
+            errors = []
+            while env.agents:
+                obs, _, _, _, infos = env.step(policy.act(obs))
+                errors.extend(info["position_error"] for info in infos.values())
+            per_episode.append(np.mean(errors))
+        return float(np.mean(per_episode))
+
+    return mean
 
 
 @pytest.fixture(scope="session")

@@ -104,6 +104,8 @@ from estimators.mcl.batch import (
     weigh_batch,
 )
 from estimators.mcl.beam_table import BeamLUT, RangeTable
+from estimators.mcl.copy_keeper import filter_mode, mode_weight_below
+from estimators.mcl.copy_keeper import load_kernels as load_keeper_kernels
 from estimators.mcl.copy_weights import (
     TOP_MODE_HEADING_TOL,
     hypothesis_shares,
@@ -376,6 +378,7 @@ class MCLBackend(EstimatorBackend):
         self._t = 0
         self._conflicts: dict[int, list] = {}
         self._summary: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._modes: dict[int, tuple] = {}  # filter -> its state's main mode (:meth:`_mode`)
 
     # ------------------------------------------------------------------ reset
     def _sensor(self, i: int) -> str:
@@ -420,6 +423,7 @@ class MCLBackend(EstimatorBackend):
         self._t = 0
         self._conflicts = {}
         self._summary = None
+        self._modes = {}
         if self._keeps_history:
             h = max(1, int(round(EVIDENCE_WINDOW_S / cfg.dt)))
             width = max((len(a) for a in self._angles.values()), default=0)
@@ -428,6 +432,8 @@ class MCLBackend(EstimatorBackend):
             self._hist_n = self._hist_next = 0
         if cfg.cooperative_updates:  # the first detection would load them inside a step
             load_kernels()
+        if any(self.symmetries.values()):  # and the first step that keeps a copy
+            load_keeper_kernels()
         # build the shared range tables now, not inside the first step
         for i in range(k):
             if self._sonar[i]:
@@ -572,14 +578,22 @@ class MCLBackend(EstimatorBackend):
             if not syms:
                 continue
             pf = self.filters[i]
-            parts, w = pf.particles, pf.weights
-            top, _ = top_mode(parts, w, radius, TOP_MODE_HEADING_TOL, bounds)
-            mode = near_pose(parts, top, radius, TOP_MODE_HEADING_TOL)
-            group = float(w[mode].sum()) + sum(
-                float(w[near_pose(parts, symmetric_copies(top, s), radius,
-                                  TOP_MODE_HEADING_TOL)].sum()) for s in syms)
-            last, self._kept_top[i] = self._kept_top[i], top
-            if group < KEEP_CHECK_MASS or not mode.any():
+            # a spread-out belief: no disc of the radius holds the share of KEEP_CHECK_MASS
+            # that the mode and its copies would need each, a bound settles it (compiled)
+            below = mode_weight_below(pf.particle_set, radius,
+                                      KEEP_CHECK_MASS / (1 + len(syms)))
+            if not below:
+                parts, w = pf.particles, pf.weights
+                top, _ = top_mode(parts, w, radius, TOP_MODE_HEADING_TOL, bounds)
+                mode = near_pose(parts, top, radius, TOP_MODE_HEADING_TOL)
+                group = float(w[mode].sum()) + sum(
+                    float(w[near_pose(parts, symmetric_copies(top, s), radius,
+                                      TOP_MODE_HEADING_TOL)].sum()) for s in syms)
+                below = group < KEEP_CHECK_MASS or not mode.any()
+            # a belief below the bound keeps no copies: its top mode is not needed (the
+            # next check is forced by the cleared copies, not by a jump of the mode)
+            last, self._kept_top[i] = self._kept_top[i], None if below else top
+            if below:
                 self._certified[i] = False
                 self._plausible[i] = None
                 self._prior[i] = 0.0
@@ -605,6 +619,32 @@ class MCLBackend(EstimatorBackend):
             parts, w, _ = set_group_masses(parts, w, np.array(centres), clouds, masses,
                                            radius, self.rng)
             pf.set_particles(parts, w)
+
+    def _mode(self, i: int, radius: float) -> tuple[np.ndarray, float]:
+        """Filter ``i``'s main mode (the mask of
+        :func:`~estimators.mcl.detection_consistency.main_mode` over its particles) and the
+        weight in it, computed once per state of the filter: cached until a step begins or
+        the filter's particles, weights or motion count change."""
+        hit = self._cached_mode(i, radius)
+        if hit is not None:
+            return hit
+        ps = self.filters[i].particle_set
+        mode, mass = filter_mode(ps, radius)
+        mode.flags.writeable = False
+        self._modes[i] = (self._t, ps.state, ps.weights, ps.unwrapped_steps, radius, mode, mass)
+        return mode, mass
+
+    def _cached_mode(self, i: int, radius: float) -> tuple[np.ndarray, float] | None:
+        """:meth:`_mode`'s answer for filter ``i``'s current state, if it has one."""
+        hit = self._modes.get(i)
+        if hit is None:
+            return None
+        ps = self.filters[i].particle_set
+        t, state, weights, steps, r, mode, mass = hit
+        if (t == self._t and state is ps.state and weights is ps.weights
+                and steps == ps.unwrapped_steps and r == radius):
+            return mode, mass
+        return None
 
     def _plausible_copies(self, i: int, cloud: np.ndarray, weights: np.ndarray,
                           syms: tuple, radius: float) -> tuple[list, np.ndarray]:
@@ -745,7 +785,7 @@ class MCLBackend(EstimatorBackend):
             # its scans gave it fits there as well in a symmetric map, and a noisy draw from
             # the claim would lose weight to the well-fitted own mode while it settles
             pf = self.filters[i]
-            _, mode = main_mode(pf.particles[:, :2], pf.weights, cfg.mode_radius)
+            mode, _ = self._mode(i, cfg.mode_radius)
             moved = move_rigidly(pf.particles[mode] if mode.any() else pf.particles, own, alt)
             clouds[i] = moved[pf.grid.is_free(moved[:, :2])]
         claims = {i: c for i, c in clouds.items() if len(c)}
@@ -778,7 +818,7 @@ class MCLBackend(EstimatorBackend):
             return pf.position_std()
         radius = (self.check or ConsistencyConfig()).mode_radius
         parts, w = pf.particles, pf.weights
-        _, mode = main_mode(parts[:, :2], w, radius)
+        mode, _ = self._mode(i, radius)
         wm = w[mode] / w[mode].sum()
         d = parts[mode, :2] - wm @ parts[mode, :2]
         return math.sqrt(0.5 * float(wm @ (d * d).sum(axis=1)))
@@ -832,10 +872,9 @@ class MCLBackend(EstimatorBackend):
             if self.claim_std(ib) <= obs_std:
                 return
             mode = self._hypotheses(ib)
-            if mode is None:
-                _, mode = main_mode(target.particles[:, :2], target.weights,
-                                    self.check.mode_radius)
-            if target.weights[mode].sum() >= self.check.confident_mass:
+            mass = (float(target.weights[mode].sum()) if mode is not None
+                    else self._mode(ib, self.check.mode_radius)[1])
+            if mass >= self.check.confident_mass:
                 return
         elif target.position_std() <= RESET_STD and not self._confirmed_conflict(
             ib, rec, observer, target

@@ -16,10 +16,20 @@ or from the command line (the package's hydra plugin puts its task YAML on Bench
 search path; nothing is copied into site-packages)::
 
     python -m benchmarl.run algorithm=mappo task=coop_loc/rendezvous
+    python -m benchmarl.run algorithm=mappo task=coop_loc/rendezvous experiment=coop_loc_short
+
+(``experiment=coop_loc_short``: a run of about a minute on 2 cores). Every task's
+``defaults:`` list makes BenchMARL log to CSV files only (its default adds wandb;
+``experiment.loggers=[csv,wandb]`` brings it back) and adds a hydra callback that stops
+the run with one line if a logger's package is missing. The env sets torch's thread
+count to the project's (:mod:`coop_loc_env.threads`).
 
 Each task's YAML (``coop_loc_env/benchmarl/conf/task/coop_loc/<scenario>.yaml``) holds
-:class:`~coop_loc_env.config.ScenarioConfig` overrides (``team`` as a list of dicts).
-The env is the native TorchRL env (:mod:`coop_loc_env.native_torchrl`, group ``robot``);
+:class:`~coop_loc_env.config.ScenarioConfig` overrides (``team`` as a list of dicts) and
+its hydra ``defaults:`` list.
+The env is the batched TorchRL env (:mod:`coop_loc_env.torchrl_vector`, group ``robot``):
+BenchMARL's ``num_envs`` worlds in one env with ``batch_size=[num_envs]``, as its VMAS
+tasks (no ``SerialEnv`` of copies);
 its infos are logged as NaN-aware means (:meth:`CoopLocClass.log_info`): position
 error, particle spread (MCL robots only), coverage, map RMSE, and the steps a robot
 takes to get within 1.5 m of its true position. BenchMARL's losses do not read the
@@ -45,8 +55,10 @@ from torchrl.data import Composite
 from torchrl.envs import EnvBase
 
 from coop_loc_env.env import CoopLocParallelEnv
-from coop_loc_env.native_torchrl import GROUP, CoopLocTorchRLEnv
+from coop_loc_env.native_torchrl import DEFAULT_INFO_KEYS, GROUP, CoopLocTorchRLEnv
 from coop_loc_env.scenarios import make_config
+from coop_loc_env.threads import set_torch_threads
+from coop_loc_env.torchrl_vector import CoopLocTorchRLVectorEnv, make_torchrl_vector_env
 
 #: BenchMARL's environment name of these tasks (``task=coop_loc/<scenario>``).
 ENV_NAME = "coop_loc"
@@ -76,9 +88,14 @@ class CoopLocClass(TaskClass):
             )
         config = copy.deepcopy(dict(self.config))
         scenario = self.scenario
-        return lambda: CoopLocTorchRLEnv(
-            CoopLocParallelEnv(scenario=scenario, **config), device=device, seed=seed,
-            info_name=INFO_NAME,
+        set_torch_threads()  # the project's torch threads for this run (coop_loc_env.threads)
+        probe = CoopLocParallelEnv(scenario=scenario, **config)  # its estimators' infos
+        probe.reset(seed=0)
+        extra = [k for entries in probe.extra_infos().values() for k in entries]
+        keys = tuple(dict.fromkeys([*DEFAULT_INFO_KEYS, *extra]))
+        return lambda: make_torchrl_vector_env(
+            scenario, num_envs, seed=seed, device=device, info_keys=keys,
+            info_name=INFO_NAME, **copy.deepcopy(config),
         )
 
     def supports_continuous_actions(self) -> bool:
@@ -97,12 +114,12 @@ class CoopLocClass(TaskClass):
         return {GROUP: list(_base(env).agents)}
 
     def observation_spec(self, env: EnvBase) -> Composite:
-        spec = env.observation_spec[GROUP]
+        spec = env.full_observation_spec_unbatched[GROUP]  # one world's (as VMAS tasks)
         return Composite({GROUP: Composite(observation=spec["observation"].clone(),
                                            shape=spec.shape)})
 
     def info_spec(self, env: EnvBase) -> Composite | None:
-        spec = env.observation_spec[GROUP]
+        spec = env.full_observation_spec_unbatched[GROUP]
         return Composite({GROUP: Composite({INFO_NAME: spec[INFO_NAME].clone()},
                                            shape=spec.shape)})
 
@@ -113,7 +130,7 @@ class CoopLocClass(TaskClass):
         return None
 
     def action_spec(self, env: EnvBase) -> Composite:
-        return env.full_action_spec
+        return env.full_action_spec_unbatched
 
     @staticmethod
     def env_name() -> str:
@@ -160,12 +177,13 @@ class CoopLocTask(Task):
         if path is None:
             path = str(CONF_DIR / "task" / ENV_NAME / f"{self.name.lower()}.yaml")
         config = _read_yaml_config(path)
+        config.pop("defaults", None)  # hydra's defaults list: experiment settings, not the env's
         return self.get_task(config=config)
 
 
-def _base(env: EnvBase) -> CoopLocTorchRLEnv:
-    """The :class:`CoopLocTorchRLEnv` under BenchMARL's transforms."""
-    while not isinstance(env, CoopLocTorchRLEnv):
+def _base(env: EnvBase) -> CoopLocTorchRLEnv | CoopLocTorchRLVectorEnv:
+    """The env of this package under BenchMARL's transforms."""
+    while not isinstance(env, (CoopLocTorchRLEnv, CoopLocTorchRLVectorEnv)):
         env = env.base_env
     return env
 

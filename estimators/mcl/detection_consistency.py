@@ -69,7 +69,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from estimators.geometry import wrap_angle
-from estimators.mcl.beam_table import BeamLUT, RangeTable
+from estimators.mcl._keeper_kernels import weighted_median
+from estimators.mcl.beam_table import BeamLUT, RangeTable, scan_loglik
 
 __all__ = [
     "ConsistencyConfig",
@@ -194,6 +195,9 @@ def _weights(w: np.ndarray | None, n: int, name: str) -> np.ndarray:
 
 
 def _weighted_median(x: np.ndarray, w: np.ndarray) -> float:
+    value, ok = weighted_median(np.ascontiguousarray(x), np.ascontiguousarray(w))
+    if ok:  # selection, no sort (compiled); else the sort decides rounding-close cases
+        return value
     order = np.argsort(x)
     cum = np.cumsum(w[order])
     return float(x[order[min(int(np.searchsorted(cum, 0.5 * cum[-1])), len(x) - 1)]])
@@ -353,13 +357,14 @@ def scan_loglik_along(
     if k == 0:
         return np.zeros(n) if many else 0.0
     flat = traj.reshape(-1, 3)
-    x = (flat[:, 0] - origin[0]).astype(np.float32)
-    y = (flat[:, 1] - origin[1]).astype(np.float32)
-    h = flat[:, 2].astype(np.float32)
-    expected = table.expected(x, y, h, angles)
+    # one pose per segment of the compiled beam pass (its x, y, heading in a row)
+    poses32 = np.empty((n * k, 3), dtype=np.float32)
+    poses32[:, 0] = flat[:, 0] - origin[0]
+    poses32[:, 1] = flat[:, 1] - origin[1]
+    poses32[:, 2] = flat[:, 2]
     rows = np.broadcast_to(lut.rows(scans)[None], (n, k, len(angles))).reshape(-1, len(angles))
-    ll = lut.loglik(expected, rows)
-    ll[~table.free(x, y)] += occupied_loglik
+    ll = scan_loglik(table, lut, poses32.reshape(-1), angles, rows,
+                     np.arange(1, n * k + 1, dtype=np.intp), occupied_loglik)
     total = ll.reshape(n, k).sum(axis=1)
     return total if many else float(total[0])
 

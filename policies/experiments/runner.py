@@ -6,35 +6,21 @@
   series and the final maps for plots); :mod:`policies.experiments.report`
   reduces them;
 * :func:`record_frames` runs one episode with rendering, for a GIF;
-* :func:`parse_overrides` reads the ``--set KEY=VALUE`` options of the scripts.
+* :func:`parse_overrides` reads the ``--set KEY=VALUE`` options of the scripts
+  (:func:`coop_loc_env.cli.parse_overrides`, kept here for the scripts that import it).
 """
 
 from __future__ import annotations
 
-import ast
 from typing import Any
 
 import numpy as np
 
 import coop_loc_env
+from coop_loc_env.cli import parse_overrides  # noqa: F401  (re-exported)
 from policies.episode import env_overrides_for, run_episode
 from policies.learning.loader import make_policy
 from policies.scripted.baselines import Policy
-
-
-def parse_overrides(pairs: list[str] | None) -> dict[str, Any]:
-    """``["KEY=VALUE", ...]`` to a dict; values parse as Python literals, else stay strings."""
-    out: dict[str, Any] = {}
-    for pair in pairs or []:
-        key, sep, raw = pair.partition("=")
-        key = key.strip()
-        if not sep or not key:
-            raise ValueError(f"--set expects KEY=VALUE, got {pair!r}")
-        try:
-            out[key] = ast.literal_eval(raw)
-        except (ValueError, SyntaxError):
-            out[key] = raw
-    return out
 
 
 def run_episodes(

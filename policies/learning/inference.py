@@ -10,10 +10,13 @@ from pathlib import Path
 
 from gymnasium import spaces
 
-INFERENCE_THREADS = 1
-"""Torch threads for acting: a forward pass of one team observation is too small to gain
-from more (on a shared 2-core machine, 14.0-27.3 ms per predict with torch's default of 2
-threads vs 0.96-1.08 ms with 1: ``python scripts/bench/inference.py``)."""
+from coop_loc_env.threads import TORCH_THREADS
+
+INFERENCE_THREADS = TORCH_THREADS
+"""Torch threads for acting (the project's :data:`~coop_loc_env.threads.TORCH_THREADS`,
+overridden by ``COOP_LOC_TORCH_THREADS``): a forward pass of one team observation is too
+small to gain from more (on a shared 2-core machine, 14.0-27.3 ms per predict with
+torch's default of 2 threads vs 0.96-1.08 ms with 1: ``python scripts/bench/inference.py``)."""
 
 
 def check_observation_shape(name: str, expected, env) -> None:

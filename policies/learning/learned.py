@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from coop_loc_env.threads import set_torch_threads
 from policies.learning.inference import INFERENCE_THREADS, check_observation_shape
 
 
@@ -26,8 +27,9 @@ class LearnedPolicy:
         model: a stable-baselines3 algorithm instance (``PPO``, ``SAC``, ...).
         name: label used in tables and plots.
         deterministic: use the mean action (``True`` for evaluation).
-        threads: torch's (process-wide) intra-op thread count, set here;
-            ``None`` leaves it as it is.
+        threads: torch's (process-wide) intra-op thread count, set here (the
+            ``COOP_LOC_TORCH_THREADS`` environment variable overrides it, see
+            :mod:`coop_loc_env.threads`); ``None`` leaves it as it is.
     """
 
     def __init__(self, model: Any, name: str = "learned", deterministic: bool = True,
@@ -35,9 +37,7 @@ class LearnedPolicy:
         if not hasattr(model, "predict") or not hasattr(model, "observation_space"):
             raise ValueError(f"model must be a stable-baselines3 model, got {type(model)!r}")
         if threads is not None:
-            import torch
-
-            torch.set_num_threads(threads)
+            set_torch_threads(threads)
         self.model = model
         self.name = name
         #: the observation settings the network was trained with (config overrides an

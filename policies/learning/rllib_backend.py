@@ -31,6 +31,7 @@ import numpy as np
 from ray.rllib.env.multi_agent_env import MultiAgentEnv
 
 import coop_loc_env
+from coop_loc_env.threads import set_torch_threads
 from policies.learning.inference import INFERENCE_THREADS, check_observation_shape, is_rllib_run
 
 ENV_NAME = "coop_loc_rllib"
@@ -292,6 +293,7 @@ def train_rllib(run: RLlibRun) -> dict[str, Any]:
         else:
             ray.init(address="local", num_cpus=run.num_env_runners + 1, include_dashboard=False,
                      log_to_driver=False, configure_logging=False, runtime_env=runtime_env)
+    set_torch_threads()  # the learner's updates in this process (coop_loc_env.threads)
     t0 = time.perf_counter()
     writer = SummaryWriter(str(out / "tb"))
     history: list[dict[str, float]] = []
@@ -347,10 +349,9 @@ class RLlibPolicy:
         module_dir = ckpt.joinpath(*MODULE_PATH)
         if not module_dir.is_dir():
             raise ValueError(f"no module {MODULE_ID!r} in the RLlib checkpoint {str(ckpt)!r}")
-        import torch
         from ray.rllib.core.rl_module.rl_module import RLModule
 
-        torch.set_num_threads(INFERENCE_THREADS)  # one team observation per forward pass
+        set_torch_threads(INFERENCE_THREADS)  # one team observation per forward pass
         self.module = RLModule.from_checkpoint(str(module_dir.resolve()))
         self.module.eval()
         self.name = path.name

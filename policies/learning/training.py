@@ -47,6 +47,7 @@ import dataclasses
 import json
 import re
 import time
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -54,6 +55,7 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
+from coop_loc_env.threads import set_torch_threads
 from policies.episode import run_episode
 from policies.learning.imitation import (
     behaviour_clone,
@@ -66,6 +68,8 @@ from policies.learning.loader import make_policy
 from policies.learning.vec_env import REWARD_MODES, TimeToLocalizeReward, make_env_fn
 
 ALGOS = ("PPO", "SAC")
+#: How the training samples: ``auto`` (see :func:`vec_env_kind`), one batched env, or copies.
+VEC_ENVS = ("auto", "batched", "copies")
 OBS_DICT_FIELDS = ("belief_map_cells", "belief_map_headings", "belief_modes")
 EVAL_SEED = 100_000  # evaluation episodes use seeds EVAL_SEED + k, apart from training seeds
 BC_SEED = 200_000  # behaviour-cloning demonstrations use seeds BC_SEED + k
@@ -88,6 +92,7 @@ class TrainConfig:
     timesteps: int = 100_000
     n_envs: int = 2
     n_procs: int = 1
+    vec_env: str = "auto"
     seed: int = 0
     overrides: dict[str, Any] = field(default_factory=dict)
     learning_rate: float = 3e-4
@@ -135,6 +140,11 @@ class TrainConfig:
                 raise ValueError(f"{key} must be an integer >= 0 (0 = off), got {value!r}")
         if self.n_procs > self.n_envs:
             raise ValueError(f"n_procs must be <= n_envs ({self.n_envs}), got {self.n_procs!r}")
+        if self.vec_env not in VEC_ENVS:
+            raise ValueError(f"vec_env must be one of {VEC_ENVS}, got {self.vec_env!r}")
+        if self.vec_env == "batched" and (self.n_procs > 1 or self.reward_mode != "env"):
+            raise ValueError("vec_env 'batched' steps every world in this process with the "
+                             "env's rewards: it needs n_procs 1 and reward_mode 'env'")
         if self.max_wall_s is not None and not self.max_wall_s > 0:
             raise ValueError(f"max_wall_s must be > 0, got {self.max_wall_s!r}")
         if not (0 < self.gamma <= 1):
@@ -152,13 +162,17 @@ class TrainConfig:
         if isinstance(self.dagger_rounds, bool) or not isinstance(self.dagger_rounds, int) or (
                 self.dagger_rounds < 0):
             raise ValueError(f"dagger_rounds must be an integer >= 0, got {self.dagger_rounds!r}")
+        if self.resume:
+            check_checkpoint(self.resume)
         if self.dagger_rounds and self.bc_from is None:
             raise ValueError("dagger_rounds needs bc_from (the teacher that labels the states)")
         if self.bc_from is not None:
             if self.algo.upper() != "PPO":
                 raise ValueError(f"bc_from needs algo PPO, got {self.algo!r}")
             if self.resume:
-                raise ValueError("bc_from and resume exclude each other")
+                raise ValueError("bc_from and resume exclude each other (a resumed run was "
+                                 "cloned when it started): drop --bc-from, or use "
+                                 "--bc-from none")
             make_teacher(self.bc_from)  # fail early on a bad spec
             for key in ("bc_episodes", "bc_epochs", "dagger_epochs"):
                 value = getattr(self, key)
@@ -198,13 +212,29 @@ def trained_timesteps(cfg: TrainConfig) -> int:
     return -(-cfg.timesteps // chunk) * chunk
 
 
+def vec_env_kind(cfg: TrainConfig) -> str:
+    """``"batched"`` (one batched env in this process) or ``"copies"`` (env copies, in
+    ``n_procs`` processes). ``auto`` picks the batched env whenever it can run the
+    config (one process, the env's rewards): it samples exactly what the copies sample
+    without their per-agent dicts (docs/scaling.md); several processes and the
+    ``localize`` reward (a wrapper of each copy) take the copies."""
+    if cfg.vec_env != "auto":
+        return cfg.vec_env
+    return "batched" if cfg.n_procs == 1 and cfg.reward_mode == "env" else "copies"
+
+
 def make_vec_env(cfg: TrainConfig):
     """The training ``VecEnv``: slots per agent, reward-normalized when asked."""
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from policies.learning.sb3_vec_env import ParallelEnvVecEnv
+    if vec_env_kind(cfg) == "batched":
+        from policies.learning.sb3_batched import BatchedVecEnv
 
-    venv = ParallelEnvVecEnv(cfg.env_fn(), n_envs=cfg.n_envs, n_procs=cfg.n_procs)
+        venv = BatchedVecEnv(cfg.scenario, n_envs=cfg.n_envs, **cfg.env_overrides())
+    else:
+        from policies.learning.sb3_vec_env import ParallelEnvVecEnv
+
+        venv = ParallelEnvVecEnv(cfg.env_fn(), n_envs=cfg.n_envs, n_procs=cfg.n_procs)
     if cfg.normalize_reward:
         venv = VecNormalize(venv, norm_obs=False, norm_reward=True, gamma=cfg.gamma)
     return venv
@@ -391,6 +421,27 @@ def find_checkpoint(path: str | Path) -> Path:
     raise ValueError(f"resume: no checkpoint found at {str(path)!r}")
 
 
+def check_checkpoint(path: str | Path) -> Path:
+    """The checkpoint :func:`find_checkpoint` picks, checked to be a zip archive (what
+    stable-baselines3 saves); raises ``ValueError`` saying what is wrong."""
+    if not Path(path).exists():
+        raise ValueError(f"resume: {str(path)!r} does not exist (give a checkpoint .zip or "
+                         f"a training run's DIR)")
+    ckpt = find_checkpoint(path)
+    if not zipfile.is_zipfile(ckpt):
+        raise ValueError(f"resume: {str(ckpt)!r} is not a stable-baselines3 checkpoint (not a "
+                         f"zip archive)")
+    return ckpt
+
+
+def estimate_cloning_s(cfg: TrainConfig) -> float:
+    """Seconds :func:`warm_start` will spend collecting demonstrations, from the time one
+    teacher episode takes here (fitting the clone comes on top)."""
+    probe = collect_demonstrations(cfg.env_fn(), make_teacher(cfg.bc_from), 1, BC_SEED,
+                                   gamma=cfg.gamma)
+    return probe["wall_s"] * cfg.bc_episodes * (1 + cfg.dagger_rounds)
+
+
 def _vecnormalize_of(ckpt: Path) -> Path | None:
     """The reward-normalization statistics saved with a checkpoint, if any."""
     steps = re.findall(r"_(\d+)_steps", ckpt.name)
@@ -441,10 +492,9 @@ def train(cfg: TrainConfig) -> dict[str, Any]:
     evaluation records).
     """
     import stable_baselines3 as sb3
-    import torch
 
     cfg.validate()
-    torch.set_num_threads(1)
+    set_torch_threads()  # small networks: more threads wait (coop_loc_env.threads)
     t0 = time.perf_counter()
     deadline = None if cfg.max_wall_s is None else t0 + cfg.max_wall_s
     out = Path(cfg.out)
@@ -462,7 +512,12 @@ def train(cfg: TrainConfig) -> dict[str, Any]:
 
                 venv = VecNormalize.load(str(stats), venv.venv)
             algo = getattr(sb3, cfg.algo.upper())
-            model = algo.load(str(ckpt), env=venv, device="cpu", tensorboard_log=tb)
+            try:
+                model = algo.load(str(ckpt), env=venv, device="cpu", tensorboard_log=tb)
+            except (ValueError, KeyError, AssertionError, zipfile.BadZipFile, RuntimeError) as err:
+                reason = str(err).removeprefix("Error: ").splitlines()[0]
+                raise ValueError(f"resume: cannot load {str(ckpt)!r} as a {cfg.algo.upper()} "
+                                 f"model: {reason}") from None
             reset = False
         else:
             model = make_model(cfg, venv, tb)
@@ -496,6 +551,7 @@ def train(cfg: TrainConfig) -> dict[str, Any]:
         "total_wall_s": time.perf_counter() - t0,
         "bc": bc,
         "steps_per_s": done / wall if wall > 0 else float("nan"),
+        "vec_env": vec_env_kind(cfg),
         "evals": evaluator.history if evaluator is not None else [],
         "best_model": str(out / "best_model.zip") if evaluator is not None and evaluator.history
         else None,

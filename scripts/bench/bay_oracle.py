@@ -17,13 +17,13 @@ the paired differences, like ``scripts/evaluate.py --compare``::
 
 from __future__ import annotations
 
-import argparse
 import math
 import sys
 from pathlib import Path
 
 import numpy as np
 
+from coop_loc_env.cli import ScriptParser, run_script
 from coop_loc_env.scenarios.fox import BAY, CORRIDOR, HALLWAY_SIZE
 from policies.experiments.compare import (
     compare,
@@ -75,7 +75,7 @@ class BayOraclePolicy(CorridorPolicy):
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = ScriptParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--scenario", default="active_hallway")
     p.add_argument("--episodes", type=int, default=100)
     p.add_argument("--seed", type=int, default=200_000)
@@ -109,4 +109,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_script(main))

@@ -24,7 +24,6 @@ Three probes on ``outdoor_terrain`` with the EKF backend:
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import sys
@@ -33,6 +32,7 @@ import numpy as np
 
 import coop_loc_env
 from coop_loc_env import RobotSpec
+from coop_loc_env.cli import ScriptParser, run_script
 
 NEES_BOUND = 16.266  # chi-square 99.9 % quantile, 3 dof
 
@@ -174,7 +174,7 @@ PROBES = {"forward": forward, "half_gps": half_gps, "wall": wall, "kidnapped_log
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = ScriptParser(description=__doc__.splitlines()[0])
     parser.add_argument("--probe", nargs="+", default=["forward", "half_gps", "wall"],
                         choices=list(PROBES))
     parser.add_argument("--mrclam", default=None, help="MR.CLAM dataset folder (kidnapped_log)")
@@ -194,4 +194,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_script(main))

@@ -14,7 +14,6 @@ episode by episode on the same seeds, and reports per team step:
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 
@@ -22,6 +21,7 @@ import numpy as np
 
 import coop_loc_env
 from coop_loc_env.belief_map import TeamBeliefs
+from coop_loc_env.cli import ScriptParser, run_script
 from policies.learning.loader import make_policy
 
 
@@ -48,7 +48,7 @@ def _episode(env, seed: int, blocks: list[float] | None) -> list[float]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = ScriptParser(description=__doc__.splitlines()[0])
     p.add_argument("--scenario", default="active_hallway")
     p.add_argument("--episodes", type=int, default=6)
     p.add_argument("--seed", type=int, default=0)
@@ -77,4 +77,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(run_script(main))

@@ -20,6 +20,8 @@ import time
 
 import numpy as np
 
+from coop_loc_env.cli import ScriptParser, require, run_script
+
 
 class _Stop(Exception):
     """Raised by the wall-clock callback to end training."""
@@ -113,7 +115,7 @@ def _train(args: argparse.Namespace) -> tuple[object, dict]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = ScriptParser(description=__doc__.splitlines()[0])
     p.add_argument("--scenario", default="rendezvous")
     p.add_argument("--algo", default="mappo", choices=("mappo", "ippo"))
     p.add_argument("--minutes", type=float, default=6.0)
@@ -128,6 +130,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: need --minutes > 0 and --episodes >= 2, got {args.minutes}, "
               f"{args.episodes}", file=sys.stderr)
         return 2
+    require("torch", "torchrl", "benchmarl", "hydra", extra="benchmarl")
     import coop_loc_env
     from policies.episode import run_episode
     from policies.experiments.compare import mean_ci
@@ -156,4 +159,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(run_script(main))

@@ -23,7 +23,6 @@ and step:
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
@@ -31,6 +30,7 @@ import time
 import numpy as np
 
 import coop_loc_env
+from coop_loc_env.cli import ScriptParser, run_script
 from policies.episode import env_overrides_for
 from policies.experiments.runner import parse_overrides
 from policies.learning.loader import make_policy
@@ -134,7 +134,7 @@ def parse_seeds(text: str) -> list[int]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = ScriptParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", default="30000:30040",
                         help="A:B or a list (default 30000:30040)")
     parser.add_argument("--policy", default="corridor")
@@ -173,4 +173,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_script(main))

@@ -16,8 +16,9 @@ pass does not depend on the weights.
 
 from __future__ import annotations
 
-import argparse
 import time
+
+from coop_loc_env.cli import ScriptParser, run_script
 
 
 def predict_ms(model, batch, calls: int) -> float:
@@ -33,7 +34,7 @@ def predict_ms(model, batch, calls: int) -> float:
 
 def main(argv: list[str] | None = None) -> int:
     """Print ms per call with the default and with one torch thread."""
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = ScriptParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--calls", type=int, default=2000, help="predict calls per repeat")
     p.add_argument("--model", default=None, help="a saved SB3 model (.zip) to time instead")
     args = p.parse_args(argv)
@@ -67,4 +68,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(run_script(main))

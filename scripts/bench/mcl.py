@@ -8,7 +8,6 @@ same log-likelihood field, measured in the same run, and their ratio.
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 import timeit
@@ -16,6 +15,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from coop_loc_env.cli import ScriptParser, run_script
 from estimators.mcl.filter import MCLConfig, ParticleFilter
 from estimators.mcl.occupancy import OccupancyGrid
 
@@ -178,7 +178,7 @@ def bench_mcl(
 
 def main(argv: list[str] | None = None) -> None:
     """Print the figures."""
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = ScriptParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--particles", type=int, default=1000, help="particles of the filter")
     parser.add_argument("--beams", type=int, default=30, help="laser beams per scan")
     parser.add_argument("--number", type=int, default=200, help="calls per timing round")
@@ -192,4 +192,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(run_script(main))

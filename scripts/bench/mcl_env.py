@@ -16,13 +16,13 @@ imports it; ``python scripts/bench/mcl_env.py`` prints it.
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 
 import numpy as np
 
 import coop_loc_env
+from coop_loc_env.cli import ScriptParser, run_script
 
 __all__ = ["bench_mcl_env"]
 
@@ -68,7 +68,7 @@ def bench_mcl_env(seconds: float = 3.0) -> dict[str, float]:
 
 def main(argv: list[str] | None = None) -> None:
     """Print :func:`bench_mcl_env`'s figures."""
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = ScriptParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seconds", type=float, default=3.0,
                         help="CPU seconds per measurement")
     args = parser.parse_args(argv)
@@ -80,4 +80,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(run_script(main))

@@ -17,6 +17,9 @@ contending for the core slows one copy's step, rarely all three (the
   of three gathers after every step, and ``hallway_ratio``, the step over the
   gather; ``hallway_gather_8mib_us`` and ``hallway_ratio_8mib`` are the same
   with a 2**20-entry table (8 MiB, the size class of a map's lookup table);
+  with ``without_copies=True`` (``--without-copies``) also ``hallway_step_ms_no_copies``
+  and ``hallway_ratio_no_copies``: the same env without its kept symmetric copies
+  (``extras["mcl_symmetry_check"] = False``), stepped in alternating blocks with it;
 * ``outdoor_mcl_extra_us_per_robot``: in ``outdoor_terrain`` with 4 robots,
   1000 particles and 30 laser beams, the CPU time per robot and step that
   ``estimator="mcl"`` adds over ``estimator="ekf"`` (fixed particle count; the two
@@ -35,7 +38,6 @@ Run ``python scripts/bench/mcl_team.py --help`` for the options.
 
 from __future__ import annotations
 
-import argparse
 import importlib.util
 import sys
 import time
@@ -44,6 +46,7 @@ from pathlib import Path
 import numpy as np
 
 import coop_loc_env
+from coop_loc_env.cli import ScriptParser, run_script
 
 __all__ = ["bench_mcl_team", "table_accuracy", "table_memory_mb", "timed_steps"]
 
@@ -134,12 +137,15 @@ def timed_steps(scenario: str, cases: dict[str, dict], steps: int, warmup: int =
 
 
 def bench_mcl_team(steps: int = 60, training: bool = True, timesteps: int = 4096,
-                   memory: bool = True) -> dict[str, float]:
+                   memory: bool = True, without_copies: bool = False) -> dict[str, float]:
     """The figures listed in the module docstring."""
     out: dict[str, float] = {}
     cfg = coop_loc_env.make_config("symmetric_hallway")
     n_values = cfg.n_robots * cfg.n_particles * cfg.sonar_beams
-    hall = timed_steps("symmetric_hallway", {"mcl": {}}, steps, gather_n=n_values,
+    cases: dict[str, dict] = {"mcl": {}}
+    if without_copies:
+        cases["no_copies"] = {"extras": {**cfg.extras, "mcl_symmetry_check": False}}
+    hall = timed_steps("symmetric_hallway", cases, steps, gather_n=n_values,
                        tables=(SMALL_TABLE_ENTRIES, TABLE_ENTRIES))
     gather = hall[f"gather_us_{SMALL_TABLE_ENTRIES}"]
     gather_big = hall[f"gather_us_{TABLE_ENTRIES}"]
@@ -149,6 +155,9 @@ def bench_mcl_team(steps: int = 60, training: bool = True, timesteps: int = 4096
     out["hallway_ratio_all_copies"] = hall["mcl_all"] * 1e3 / gather
     out["hallway_gather_8mib_us"] = gather_big
     out["hallway_ratio_8mib"] = hall["mcl"] * 1e3 / gather_big
+    if without_copies:
+        out["hallway_step_ms_no_copies"] = hall["no_copies"]
+        out["hallway_ratio_no_copies"] = hall["no_copies"] * 1e3 / gather
     outdoor = {"n_robots": 4, "n_particles": 1000, "laser_beams": 30, "start_region": None,
                "extras": {**coop_loc_env.make_config("outdoor_terrain").extras,
                           "mcl": {"adaptive": False}}}
@@ -248,22 +257,25 @@ def ppo_hallway_steps_per_second(timesteps: int = 4096, seed: int = 0) -> float:
 
 def main(argv: list[str] | None = None) -> None:
     """Print :func:`bench_mcl_team`'s figures."""
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = ScriptParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--steps", type=int, default=60, help="timed env steps per case")
     parser.add_argument("--no-training", action="store_true", help="skip the PPO figure")
     parser.add_argument("--timesteps", type=int, default=4096, help="timed PPO agent steps")
     parser.add_argument("--no-memory", action="store_true",
                         help="skip the tables' sizes and accuracy")
+    parser.add_argument("--without-copies", action="store_true",
+                        help="also time the hallway without its kept symmetric copies "
+                             "(mcl_symmetry_check=False), in alternating blocks of steps")
     args = parser.parse_args(argv)
     if args.steps < 1 or args.timesteps < 1:
         print(f"error: --steps and --timesteps must be >= 1, got {args.steps}, "
               f"{args.timesteps}", file=sys.stderr)
         sys.exit(2)
     figures = bench_mcl_team(args.steps, not args.no_training, args.timesteps,
-                             not args.no_memory)
+                             not args.no_memory, args.without_copies)
     for key, value in figures.items():
         print(f"{key:<50} {value:12.2f}")
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(run_script(main))

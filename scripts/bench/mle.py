@@ -31,11 +31,12 @@ prints it); run this file to print it standalone::
 
 from __future__ import annotations
 
-import argparse
+import sys
 import time
 
 import numpy as np
 
+from coop_loc_env.cli import ScriptParser, run_script
 from estimators.gtsam_bridge import dead_reckoning
 from estimators.mle_online import TeamMLE, simulate_team_stream
 from estimators.pose_graph import PairSensing, PoseGraph, optimize, random_team_graph
@@ -229,7 +230,7 @@ def bench_mle(quick: bool = False) -> dict[str, float]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = ScriptParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer repeats, shorter online run")
     args = parser.parse_args()
     for key, value in bench_mle(quick=args.quick).items():
@@ -237,4 +238,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(run_script(main))

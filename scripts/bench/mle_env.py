@@ -20,12 +20,12 @@ Figures are CPU time of this process (``time.process_time``).
 
 from __future__ import annotations
 
-import argparse
 import time
 
 import numpy as np
 
 import coop_loc_env
+from coop_loc_env.cli import ScriptParser
 
 
 def mle_env_steps_per_second(
@@ -70,7 +70,7 @@ def bench_mle_env(seconds: float = 3.0) -> dict[str, float]:
 
 
 if __name__ == "__main__":
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = ScriptParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--seconds", type=float, default=3.0, help="CPU seconds per measurement")
     args = p.parse_args()
     for key, value in bench_mle_env(args.seconds).items():

@@ -11,11 +11,11 @@ step (one call each for the whole team) over the episodes, and their ratio.
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 
 import coop_loc_env
+from coop_loc_env.cli import ScriptParser, run_script
 from policies.episode import env_overrides_for
 from policies.experiments.compare import parse_policy_list, resolve_policy
 from policies.experiments.runner import parse_overrides
@@ -44,7 +44,7 @@ def bench(scenario: str, spec: str, episodes: int, overrides: dict) -> tuple[flo
 
 def main(argv: list[str] | None = None) -> int:
     """Run the benchmark; returns the exit status."""
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = ScriptParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--scenario", default="rendezvous")
     p.add_argument("--policies", default="gather,infogain,fsm")
     p.add_argument("--episodes", type=int, default=2)
@@ -66,4 +66,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_script(main))

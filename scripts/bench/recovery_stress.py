@@ -32,7 +32,6 @@ replay's public functions, so the same file can score another tree of the code
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import sys
@@ -40,6 +39,7 @@ import sys
 import numpy as np
 
 import estimators.replay.runner as runner
+from coop_loc_env.cli import ScriptParser, run_script
 from estimators.mrclam import MrclamDataset, load_mrclam
 from estimators.replay import evaluate, load_noise_parameters, scale_noise
 
@@ -150,7 +150,7 @@ def _recoveries(ekf) -> int | None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = ScriptParser(description=__doc__.splitlines()[0])
     p.add_argument("dataset_dir")
     p.add_argument("--windows", nargs="+", default=["0:300", "300:300"],
                    help="START:DURATION in seconds after the latest odometry start")
@@ -231,4 +231,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_script(main))

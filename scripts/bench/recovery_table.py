@@ -11,10 +11,11 @@ robot's RMSE and RMSE-to-mean ratio among them (kidnapped cases: the slowest sec
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from collections import defaultdict
+
+from coop_loc_env.cli import ScriptParser, run_script
 
 
 def _groups(cases: dict) -> dict[tuple[str, str, str], list[dict]]:
@@ -66,7 +67,7 @@ def table(before: dict, after: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = ScriptParser(description=__doc__.splitlines()[0])
     p.add_argument("pairs", nargs="+", help="BEFORE.json AFTER.json, one pair or more")
     args = p.parse_args(argv)
     if len(args.pairs) % 2:
@@ -84,4 +85,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_script(main))

@@ -20,10 +20,11 @@ thread per process), no learning:
 
 from __future__ import annotations
 
-import argparse
 import time
 
 import numpy as np
+
+from coop_loc_env.cli import ScriptParser
 
 N_ROBOTS = 3
 
@@ -121,7 +122,7 @@ def bench_rllib(scenario: str = "outdoor_terrain", steps: int = 600) -> dict[str
 
 
 if __name__ == "__main__":
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = ScriptParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--scenario", default="outdoor_terrain")
     parser.add_argument("--steps", type=int, default=600, help="env steps per runner")
     args = parser.parse_args()

@@ -11,12 +11,13 @@ the env and this package's tensor work cost, then with TorchRL's own step logic)
 
 from __future__ import annotations
 
-import argparse
 import statistics
 import sys
 import time
 
 import numpy as np
+
+from coop_loc_env.cli import ScriptParser, require, run_script
 
 
 def _bare(env, steps: int, rng: np.random.Generator) -> float:
@@ -53,11 +54,12 @@ def _torchrl(env, steps: int) -> float:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = ScriptParser(description=__doc__.splitlines()[0])
     p.add_argument("--scenario", default="rendezvous")
     p.add_argument("--steps", type=int, default=400)
     p.add_argument("--reps", type=int, default=5)
     args = p.parse_args(argv)
+    require("torch", "tensordict", "torchrl", extra="torchrl")
     if args.steps < 1 or args.reps < 1:
         print(f"error: --steps and --reps must be >= 1, got {args.steps}, {args.reps}",
               file=sys.stderr)
@@ -94,4 +96,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(run_script(main))

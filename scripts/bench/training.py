@@ -17,8 +17,10 @@ steps per second).
 
 from __future__ import annotations
 
-import argparse
+import sys
 import time
+
+from coop_loc_env.cli import ScriptParser, run_script
 
 N_ENVS = 4
 N_ROBOTS = 3
@@ -70,7 +72,7 @@ def bench_training(timesteps: int = 6144) -> dict[str, float]:
 
 def main() -> None:
     """Print :func:`bench_training`'s figures."""
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = ScriptParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--timesteps", type=int, default=6144)
     args = parser.parse_args()
     for key, value in bench_training(args.timesteps).items():
@@ -78,4 +80,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(run_script(main))

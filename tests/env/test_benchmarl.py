@@ -25,13 +25,16 @@ def test_task_env_specs_and_a_team_written_as_dicts():
     task = CoopLocTask.RENDEZVOUS.get_task(
         {"max_cycles": 6, "n_particles": 100,
          "team": [{"estimator": "ekf"}, {"estimator": "mcl", "has_gps": False}]})
-    env = task.get_env_fun(num_envs=1, continuous_actions=True, seed=0, device="cpu")()
+    env = task.get_env_fun(num_envs=3, continuous_actions=True, seed=0, device="cpu")()
+    assert env.batch_size == torch.Size([3])  # BenchMARL's num_envs worlds in one env
     assert task.group_map(env) == {"robot": [f"robot_{i}" for i in range(4)]}
     assert task.max_steps(env) == 6
     assert list(task.observation_spec(env)["robot"].keys()) == ["observation"]
     assert "particle_spread" in task.info_spec(env)["robot", INFO_NAME].keys()
     td = env.rollout(10)
-    assert td.batch_size == torch.Size([6])
+    assert td.batch_size == torch.Size([3, 6])
+    spread = td["next", "robot", INFO_NAME, "particle_spread"]
+    assert torch.isnan(spread[..., 0]).all() and torch.isfinite(spread[..., 1]).all()
     assert env.env.config.estimators == ("ekf", "mcl", "ekf", "mcl")
     with pytest.raises(ValueError, match="continuous"):
         task.get_env_fun(num_envs=1, continuous_actions=False, seed=0, device="cpu")
@@ -99,3 +102,68 @@ def test_a_tiny_mappo_run_on_rendezvous(tmp_path):
         assert exp.total_frames == 1200
         returns.append(exp.mean_return)
     assert math.isfinite(returns[0]) and returns[0] == returns[1]
+
+
+def _compose(overrides):
+    from hydra import compose, initialize_config_module
+
+    with initialize_config_module(config_module="benchmarl.conf", version_base=None):
+        return compose(config_name="config", overrides=overrides, return_hydra_config=True)
+
+
+def test_coop_loc_tasks_log_to_csv_and_check_the_loggers():
+    cfg = _compose(["algorithm=mappo", "task=coop_loc/rendezvous"])
+    assert list(cfg.experiment.loggers) == ["csv"]  # BenchMARL's own default adds wandb
+    assert cfg.experiment.max_n_frames == 3_000_000  # the full run is BenchMARL's
+    assert cfg.hydra.callbacks.coop_loc_check_loggers._target_ == (
+        "coop_loc_env.benchmarl.hydra_callbacks.CheckLoggers")
+    assert "defaults" not in cfg.task and dict(cfg.task) == {"max_cycles": 400}
+    cfg = _compose(["algorithm=mappo", "task=coop_loc/rendezvous",
+                    "experiment.loggers=[csv,tensorboard]"])
+    assert list(cfg.experiment.loggers) == ["csv", "tensorboard"]  # the command line wins
+
+
+def test_the_short_preset_is_a_few_small_iterations():
+    cfg = _compose(["algorithm=mappo", "task=coop_loc/rendezvous",
+                    "experiment=coop_loc_short"]).experiment
+    assert cfg.max_n_frames == 6000 and cfg.on_policy_collected_frames_per_batch == 2000
+    assert cfg.on_policy_n_minibatch_iters == 4 and list(cfg.loggers) == ["csv"]
+    assert cfg.evaluation_interval % cfg.on_policy_collected_frames_per_batch == 0
+    assert cfg.lr == _compose(["algorithm=mappo", "task=coop_loc/rendezvous"]).experiment.lr
+
+
+def test_a_missing_logger_package_stops_the_run_in_one_line(capsys, monkeypatch):
+    from omegaconf import OmegaConf
+
+    from coop_loc_env.benchmarl import hydra_callbacks
+
+    monkeypatch.setitem(hydra_callbacks.LOGGER_PACKAGES, "wandb", "no_such_package_here")
+    check = hydra_callbacks.CheckLoggers()
+    check.on_job_start(OmegaConf.create({"experiment": {"loggers": ["csv"]}}))
+    with pytest.raises(SystemExit) as stop:
+        check.on_job_start(OmegaConf.create({"experiment": {"loggers": ["csv", "wandb"]}}))
+    assert stop.value.code == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and "needs no_such_package_here" in err[0]
+    assert "experiment.loggers=[csv]" in err[0]
+
+
+def test_the_one_line_command_runs_with_the_short_preset(tmp_path):
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    env = {**os.environ, "PYTHONPATH": str(root)}
+    cmd = [sys.executable, "-m", "benchmarl.run", "algorithm=mappo", "task=coop_loc/rendezvous",
+           "experiment=coop_loc_short",  # cut further for the test:
+           "experiment.max_n_frames=200", "experiment.on_policy_collected_frames_per_batch=200",
+           "experiment.on_policy_minibatch_size=100", "experiment.evaluation_interval=200",
+           "task.max_cycles=50", f"hydra.run.dir={tmp_path}"]
+    done = subprocess.run(cmd, cwd=tmp_path, env=env, capture_output=True, text=True,
+                          timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "wandb" not in done.stderr
+    rewards = list(tmp_path.rglob("eval_reward_episode_reward_mean.csv"))
+    assert len(rewards) == 1 and rewards[0].read_text().strip()

@@ -45,8 +45,17 @@ def test_records_do_not_depend_on_when_they_are_read():
     readings = env.last_readings
     assert readings.camera == [[(c.kind, c.id, c.bearing, c.range) for c in recs]
                                for recs in lazy_last]
-    assert readings.camera_sightings is not None
-    assert len(readings.camera_sightings.bearing) == sum(len(recs) for recs in lazy_last)
+    # the sightings are the records' pairs, in (observer, target) order, with the true
+    # offsets and distances between the robots
+    sightings = readings.camera_sightings
+    flat = [(i, c) for i, recs in enumerate(lazy_last) for c in recs]
+    assert sightings.observer.tolist() == [i for i, _ in flat]
+    assert list(sightings.bearing) == [c.bearing for _, c in flat]
+    xy = env.world.poses[:, :2]
+    robots = [(k, i, c.id) for k, (i, c) in enumerate(flat) if c.kind == "robot"]
+    assert robots and all(np.array_equal(sightings.offset[k], xy[j] - xy[i])
+                          for k, i, j in robots)
+    np.testing.assert_allclose(sightings.dist, np.hypot(*sightings.offset.T), rtol=1e-12)
 
 
 def test_steps_without_a_frame_read_empty():

@@ -342,3 +342,14 @@ def test_kidnapped_robot_is_recovered_on_the_envs_resampling_schedule():
     no_injection = {"extras": {"mcl": {"random_fraction": 0.0, "augmented": False}}}
     recovered = [_kidnap_recovered(seed, **no_injection) for seed in range(10)]
     assert sum(recovered) <= 1, recovered
+
+
+def test_default_particle_count_is_1000():
+    """A scenario that sets no count tracks each robot with 1000 particles (Gaussian start
+    around its noisy initial estimate), and the first resampling keeps 1000."""
+    env = coop_loc_env.parallel_env("outdoor_terrain", estimator="mcl", n_robots=2,
+                                    max_cycles=3)
+    _, infos = env.reset(seed=0)
+    assert [i["n_particles"] for i in infos.values()] == [1000, 1000]
+    _, _, _, _, infos = env.step({a: np.zeros(2, np.float32) for a in env.agents})
+    assert [i["n_particles"] for i in infos.values()] == [1000, 1000]

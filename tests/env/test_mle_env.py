@@ -19,6 +19,7 @@ from coop_loc_env.backends.mle import (
     relative_feature_names,
     relative_pose_features,
 )
+from estimators.geometry import relative_pose, wrap_angle
 from estimators.mle_online import TeamMLE
 from estimators.relative_metrics import (
     ERROR_NAMES,
@@ -77,9 +78,21 @@ def test_relative_error_infos_on_every_scenario(scenario):
     env, trace = _rollout(scenario, 2, 8)
     infos = trace[-1][4]
     n = env.config.n_robots
-    for agent in env.possible_agents:
+    agents = env.possible_agents
+    for a, agent in enumerate(agents):
         if n > 1:
-            assert all(np.isfinite(infos[agent][k]) and infos[agent][k] >= 0 for k in ERROR_NAMES)
+            # robot a's mean error over its teammates b of (range, bearing, orientation) of
+            # b seen from a, estimated poses against true ones, from the infos alone
+            pairs = []
+            for other in agents[:a] + agents[a + 1:]:
+                est = relative_pose(infos[agent]["est_pose"], infos[other]["est_pose"])
+                true = relative_pose(infos[agent]["true_pose"], infos[other]["true_pose"])
+                diff = np.asarray(est) - np.asarray(true)
+                diff[1:] = wrap_angle(diff[1:])
+                pairs.append(np.abs(diff))
+            expected = np.mean(pairs, axis=0)
+            np.testing.assert_allclose([infos[agent][k] for k in ERROR_NAMES], expected,
+                                       rtol=0, atol=1e-9)
         else:
             assert not set(ERROR_NAMES) & set(infos[agent])
     if n > 1:

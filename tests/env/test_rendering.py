@@ -86,3 +86,55 @@ def test_missing_matplotlib_names_an_install_that_works(monkeypatch):
     monkeypatch.setitem(sys.modules, "matplotlib.figure", None)  # import fails
     with pytest.raises(ImportError, match=r"pip install -e '\.\[render\]'"):
         rendering._import_matplotlib()
+
+
+def test_frame_legend_names_the_map_marks_and_which_robots_have_gps():
+    env, r, _ = _rendered("rendezvous")
+    labels = _legend_labels(r)
+    for label in ("tree canopy (weak GPS)", "tree trunk", "rock",
+                  "object of interest (mapped)"):
+        assert label in labels
+    gps = [env.config.robot_spec(i).has_gps for i in range(env.config.n_robots)]
+    assert gps == [True, False]  # rendezvous: every second robot without GPS
+    assert "robot_0: GPS" in labels and "robot_1: no GPS" in labels
+
+
+def test_terrain_plot_says_which_episode_and_names_every_mark(tmp_path, monkeypatch):
+    from matplotlib.figure import Figure
+
+    from policies.experiments import plots
+    from policies.experiments.runner import run_episodes
+
+    saved = {}
+    real = Figure.savefig
+
+    def keep(fig, *a, **k):
+        saved["fig"] = fig
+        return real(fig, *a, **k)
+
+    monkeypatch.setattr(Figure, "savefig", keep)
+    ep = run_episodes("outdoor_terrain", "still", 1, seed=3, overrides={"max_cycles": 5},
+                      progress=False)[0]
+    plots.plot_terrain(ep, tmp_path / "t.png")
+    fig = saved["fig"]
+    assert fig._suptitle.get_text().startswith("episode seed 3: final coverage")
+    labels = [t.get_text() for legend in fig.legends for t in legend.get_texts()]
+    for label in ("unmapped (left panel)", "tree canopy (weak GPS)", "tree trunk", "rock",
+                  "object of interest", "steep ground (tips over)"):
+        assert label in labels
+    assert fig.axes[-1].get_ylabel() == "elevation (m), both panels"  # the colorbar
+    assert fig.axes[0].get_xlim() == (0.0, 40.0)  # marks at the border do not widen it
+
+
+def test_large_teams_list_only_the_gps_robots():
+    from coop_loc_env.rendering import LEGEND_ROBOTS, Renderer
+
+    for n, each in ((LEGEND_ROBOTS, True), (LEGEND_ROBOTS + 1, False)):
+        env = coop_loc_env.parallel_env("rendezvous", n_robots=n, max_cycles=5)
+        env.reset(seed=0)
+        labels = [p.get_label() for p in Renderer(env)._robot_key()]
+        if each:
+            assert labels == [f"robot_{i}: {'no GPS' if i % 2 else 'GPS'}" for i in range(n)]
+        else:
+            assert labels == ["GPS: robots 0, 2, 4, 6, 8 (5 of 9)"]
+    assert LEGEND_ROBOTS == 8

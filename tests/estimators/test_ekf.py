@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.stats import chi2
+from scipy.stats import binom, chi2
 
 import coop_loc_env
 from estimators.ekf import PoseEKF, chi2_threshold, relative_measurement
@@ -50,18 +50,39 @@ def test_filter_is_consistent_with_gps_over_a_long_run():
 
 
 def test_gate_rejects_injected_outliers_and_accepts_inliers():
+    """20 000 genuine fixes (innovation covariance exactly ``S``): the default 99 % gate
+    rejects a binomial(20 000, 0.01) count, within its two-sided 99.9 % band 155-248
+    (197 here; a 99.9 % gate would reject about 20, a threshold 10 % higher about 126).
+    Outliers 10 m off are all rejected and leave the means alone."""
+    n = 20_000
     rng = np.random.default_rng(0)
-    ekf = PoseEKF(np.zeros((200, 3)), np.diag([0.04, 0.04, 0.01]))
-    r = np.repeat(np.eye(2)[None] * 0.09, 200, axis=0)
-    inlier = rng.multivariate_normal([0, 0], np.eye(2) * 0.13, size=200)
-    ok = ekf.update_position(np.arange(200), inlier, r)
-    # 99 % gate: about 1 % of genuine measurements rejected.
-    assert 0.95 <= ok.mean() <= 1.0
+    ekf = PoseEKF(np.zeros((n, 3)), np.diag([0.04, 0.04, 0.01]))
+    r = np.repeat(np.eye(2)[None] * 0.09, n, axis=0)
+    inlier = rng.multivariate_normal([0, 0], np.eye(2) * 0.13, size=n)
+    ok = ekf.update_position(np.arange(n), inlier, r)
+    lo, hi = binom.ppf(0.0005, n, 0.01), binom.isf(0.0005, n, 0.01)
+    assert lo <= np.count_nonzero(~ok) <= hi, (np.count_nonzero(~ok), lo, hi)
     before = ekf.mean.copy()
-    outliers = np.tile([8.0, -6.0], (200, 1))
-    ok = ekf.update_position(np.arange(200), outliers, r)
+    outliers = np.tile([8.0, -6.0], (n, 1))
+    ok = ekf.update_position(np.arange(n), outliers, r)
     assert not ok.any()
     np.testing.assert_array_equal(ekf.mean, before)
+
+
+def test_gate_decides_at_the_chi2_quantile():
+    """Fixes and headings whose gate statistic is 5 % under the 0.99 chi-square quantile
+    (2 dof, 1 dof) pass the default gate, 5 % over it fail."""
+    cov = np.diag([0.04, 0.04, 0.01])
+    ekf = PoseEKF(np.zeros((2, 3)), cov)
+    q2 = chi2.ppf(0.99, 2)
+    z = np.array([[np.sqrt(0.13 * 0.95 * q2), 0.0], [0.0, -np.sqrt(0.13 * 1.05 * q2)]])
+    ok = ekf.update_position(np.arange(2), z, np.repeat(np.eye(2)[None] * 0.09, 2, axis=0))
+    np.testing.assert_array_equal(ok, [True, False])
+    ekf = PoseEKF(np.zeros((2, 3)), cov)
+    q1 = chi2.ppf(0.99, 1)
+    h = np.array([np.sqrt(0.02 * 0.95 * q1), -np.sqrt(0.02 * 1.05 * q1)])
+    np.testing.assert_array_equal(ekf.update_heading(np.arange(2), h, np.full(2, 0.01)),
+                                  [True, False])
 
 
 def test_chi2_threshold_matches_scipy_and_rejects_bad_probability():

@@ -62,3 +62,12 @@ def test_corridor_speed_is_checked():
         from policies.scripted import CorridorPolicy
 
         CorridorPolicy(gain=0.0)
+
+
+def test_active_hallway_starts_4000_particles_a_robot():
+    """Global localization over the hallway starts each robot's filter with 4 times the
+    scenario's 1000 particles, spread over the whole free space."""
+    env = coop_loc_env.parallel_env("active_hallway", max_cycles=2)
+    _, infos = env.reset(seed=0)
+    assert [i["n_particles"] for i in infos.values()] == [4000] * 4
+    assert all(i["particle_spread"] > 5.0 for i in infos.values())

@@ -57,9 +57,18 @@ def test_parse_policy_list_rejects_bad_lists():
             parse_policy_list(bad)
 
 
-def test_evaluate_compare_prints_one_table_and_saves_plot_and_json(tmp_path, capsys, script_main):
+def test_evaluate_compare_prints_one_table_and_saves_plot_and_json(tmp_path, capsys, script_main,
+                                                                   monkeypatch):
     out = tmp_path / "cmp.json"
     evaluate = script_main("evaluate")
+    written = {}  # what each JSON path held when written (the partial one is then removed)
+    write_json = evaluate.__globals__["write_json"]
+
+    def spy(data, path):
+        written[path.name] = json.loads(json.dumps(data, default=str))
+        return write_json(data, path)
+
+    monkeypatch.setitem(evaluate.__globals__, "write_json", spy)
     rc = evaluate(["--compare", "fsm,random", "--episodes", "3", "--max-cycles", "15",
                    "--set", "n_robots=2", "--seed", "4", "--json", str(out),
                    "--plot-dir", str(tmp_path), "--no-progress"])
@@ -72,7 +81,8 @@ def test_evaluate_compare_prints_one_table_and_saves_plot_and_json(tmp_path, cap
     assert "paired difference in team loc. error (m) vs fsm" in text
     data = json.loads(out.read_text())
     assert data["policies"] == ["fsm", "random"]
-    partial = json.loads((tmp_path / "cmp.partial.json").read_text())  # saved after fsm
+    partial = written["cmp.partial.json"]  # saved after fsm, removed once the whole run is
+    assert not (tmp_path / "cmp.partial.json").exists()
     assert partial["policies"] == ["fsm"] and partial["summary"]["fsm"] == data["summary"]["fsm"]
     for spec in ("fsm", "random"):
         errs = [ep["localization_error_m"] for ep in data["episodes"][spec]]

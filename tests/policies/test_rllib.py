@@ -105,7 +105,7 @@ def test_same_seed_same_first_batch():
     assert not np.array_equal(a[1], c[1])  # another seed, other actions
 
 
-def test_tiny_training_then_evaluate_and_compare(tmp_path, script_main):
+def test_tiny_training_then_evaluate_and_compare(tmp_path, script_main, mean_position_error):
     out = tmp_path / "run"
     train, evaluate = script_main("train"), script_main("evaluate")
     rc = train(["--backend", "rllib", "--num-env-runners", "1", "--timesteps", "1000",
@@ -130,7 +130,10 @@ def test_tiny_training_then_evaluate_and_compare(tmp_path, script_main):
     assert evaluate(["--policy", str(out), "--episodes", "1", "--max-cycles", "10",
                      "--set", "n_robots=2", "--json", str(report), "--no-progress"]) == 0
     data = json.loads(report.read_text())
-    assert data["policy"] == str(out) and data["summary"]["localization_error_m"]["mean"] > 0
+    assert data["policy"] == str(out)
+    expected = mean_position_error("outdoor_terrain", load_learned_policy(out), [0], n_robots=2,
+                                   max_cycles=10)
+    assert data["summary"]["localization_error_m"]["mean"] == pytest.approx(expected, rel=1e-12)
     assert evaluate(["--compare", f"random,{out}", "--episodes", "1", "--max-cycles", "10",
                      "--set", "n_robots=2", "--plot-dir", str(tmp_path), "--no-progress"]) == 0
     with pytest.raises(ValueError, match="observations of shape"):

@@ -14,7 +14,7 @@ import coop_loc_env
 from policies.episode import run_episode
 from policies.learning.learned import LearnedPolicy
 from policies.learning.loader import load_learned_policy, make_policy
-from policies.learning.training import TrainConfig, find_checkpoint, train
+from policies.learning.training import EVAL_SEED, TrainConfig, find_checkpoint, train
 
 ROOT = Path(__file__).resolve().parents[2]
 TINY = ["--scenario", "outdoor_terrain", "--estimator", "ekf", "--set", "n_robots=2",
@@ -29,7 +29,8 @@ def _script(name: str):
     return mod.main
 
 
-def test_tiny_training_saves_a_model_that_evaluate_loads(tmp_path, capsys):
+def test_tiny_training_saves_a_model_that_evaluate_loads(tmp_path, capsys,
+                                                          mean_position_error):
     out = tmp_path / "run"
     rc = _script("train")(TINY + ["--timesteps", "256", "--seed", "3", "--out", str(out),
                                   "--eval-freq", "128", "--eval-episodes", "1",
@@ -40,8 +41,11 @@ def test_tiny_training_saves_a_model_that_evaluate_loads(tmp_path, capsys):
     summary = json.loads((out / "train_summary.json").read_text())
     assert summary["timesteps"] == 256  # 2 copies x 2 robots x 32 steps x 2 rollouts
     assert [e["timesteps"] for e in summary["evals"]] == [128, 256]
-    assert summary["baseline"]["localization_error_m"] > 0  # the FSM on the same seeds
     config = json.loads((out / "train_config.json").read_text())
+    # the FSM on the evaluation's seeds, in the run's env
+    expected = mean_position_error("outdoor_terrain", make_policy("fsm"), [EVAL_SEED],
+                                   **config["overrides"], estimator=config["estimator"])
+    assert summary["baseline"]["localization_error_m"] == pytest.approx(expected, rel=1e-12)
     assert config["overrides"]["reward_coverage_weight"] == 0.5
     assert config["estimator"] == "ekf"
     assert sorted(p.name for p in (out / "checkpoints").glob("*.zip")) == [

@@ -14,7 +14,8 @@ from policies.learning.learned import SB3Policy, detect_sb3_algo
 from policies.learning.loader import make_policy
 
 
-def test_evaluate_writes_valid_json_and_plots(tmp_path, capsys, script_main):
+def test_evaluate_writes_valid_json_and_plots(tmp_path, capsys, script_main,
+                                              mean_position_error):
     out = tmp_path / "eval.json"
     rc = script_main("evaluate")(
         ["--scenario", "outdoor_terrain", "--policy", "fsm", "--episodes", "2", "--max-cycles",
@@ -32,7 +33,9 @@ def test_evaluate_writes_valid_json_and_plots(tmp_path, capsys, script_main):
         assert data["summary"][key]["mean"] == pytest.approx(np.mean(vals))
         assert data["summary"][key]["std"] == pytest.approx(np.std(vals))
     assert 0 < data["summary"]["coverage"]["mean"] < 1
-    assert data["summary"]["localization_error_m"]["mean"] > 0
+    expected = mean_position_error("outdoor_terrain", make_policy("fsm"), [5, 6], n_robots=2,
+                                   max_cycles=40)
+    assert data["summary"]["localization_error_m"]["mean"] == pytest.approx(expected, rel=1e-12)
     assert sum(data["episodes"][0]["state_steps"].values()) == 2 * 40
     pngs = sorted(p.name for p in tmp_path.glob("*.png"))
     assert pngs == ["outdoor_terrain_fsm_error.png", "outdoor_terrain_fsm_terrain.png"]

@@ -111,17 +111,21 @@ def test_every_scenario_is_described():
         coop_loc_env.describe_scenario("nowhere")
 
 
-# ---------------------------------------------------------------- README
-README = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+# ---------------------------------------------------------------- docs
+DOCS = Path(__file__).resolve().parents[2] / "docs"
 
 
-def test_readme_lists_every_scenario_and_reward_term():
-    table = README[README.index("## Scenarios"):README.index("## Reward")]
+def test_docs_list_every_scenario_and_reward_term():
+    scenarios = (DOCS / "scenarios.md").read_text()
+    table = scenarios[:scenarios.index("\n## ")]
     for name in coop_loc_env.list_scenarios():
         assert f"| `{name}` | `{coop_loc_env.env_id(name)}` |" in table
+        assert f"## `{name}`\n\n![{name}](_static/scenarios/{name}.png)" in scenarios
+        assert (DOCS / "_static" / "scenarios" / f"{name}.png").is_file()
     env = _env(reward_terms_dict=True)
     _, rewards, _, _, infos = env.step({a: np.zeros(2) for a in env.agents})
-    reward_section = README[README.index("## Reward"):README.index("## Design notes")]
+    page = (DOCS / "observations.md").read_text()
+    reward_section = page[page.index("## Reward"):]
     for key in infos["robot_0"]["reward_terms"]:
         assert f"`{key}`" in reward_section
     assert rewards["robot_0"] == sum(infos["robot_0"]["reward_terms"].values())

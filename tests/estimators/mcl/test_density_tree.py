@@ -20,7 +20,10 @@ def test_leaf_densities_integrate_to_one():
     lo, hi, dens = tree.leaves()
     # the leaves tile the domain: their volumes add up to the box
     assert np.prod(hi - lo, axis=1).sum() == pytest.approx(tree.volume, rel=1e-12)
-    assert np.all(dens >= 0)
+    # each leaf's density is the share of the samples inside it over its volume
+    inside = np.all((x[:, None, :] >= lo) & (x[:, None, :] < hi), axis=2)
+    assert np.all(inside.sum(axis=1) == 1)
+    np.testing.assert_allclose(dens, inside.mean(axis=0) / np.prod(hi - lo, axis=1), rtol=1e-12)
 
 
 def test_monte_carlo_integral_of_pdf_over_the_domain_is_one():

@@ -205,12 +205,20 @@ def test_checked_transfer_does_not_move_a_confident_robot_to_stray_particles():
         parts = n.particles.copy()
         parts[:5] = [15.0, 2.0, 0.0]  # the strays, where the observer's claim points
         n.set_particles(parts)
+        x0, y0, x1, y1 = grid.bounds
+        exact = detection_bayes_factor(m.particles, n.particles, np.asarray(z),
+                                       np.array([0.3, 0.04, 0.1]),
+                                       (x1 - x0) * (y1 - y0) * 2 * np.pi, m.weights, n.weights)
         res = DetectionTransfer(cfg).apply(det, m, n, np.random.default_rng(7))
         moved[name] = (res, float(np.hypot(*(n.mean_pose()[:2] - truth_n[:2]))))
     assert moved["fox"][0].applied and moved["fox"][1] > 5.0
     res, err = moved["checked"]
     assert not res.applied and res.reason == "conflict" and err < 0.2
-    assert res.bayes_factor is not None
+    # The strays agree with the claim: the Bayes factor (the transfer's density tree;
+    # 65.5 against the Gaussian integral's 66.0) is far above min_bayes_factor, and the
+    # conflict is the move of the main mode's weight onto the strays.
+    assert res.bayes_factor == pytest.approx(exact, rel=0.05)
+    assert res.bayes_factor > ConsistencyConfig().min_bayes_factor
 
 
 def test_unchecked_transfer_moves_a_confident_robot_to_the_hypothesis_it_keeps():
@@ -262,3 +270,55 @@ def test_a_robot_split_between_symmetric_copies_is_confident_about_the_set():
     assert not assess_detection(stray, w, elsewhere, 1e-3, cfg).conflict
     with pytest.raises(ValueError, match="hypotheses"):
         assess_detection(xy, w, picks, 25.0, cfg, hypotheses=both[:10])
+
+
+def _mode_with_mass(mass: float, n: int = 1000) -> tuple[np.ndarray, np.ndarray]:
+    """Particles of which ``mass`` of the weight sits in one tight cluster, the rest 10 m
+    away: the main mode holds exactly ``mass``."""
+    rng = np.random.default_rng(3)
+    k = int(round(mass * n))
+    xy = np.concatenate([rng.normal([5.0, 5.0], 0.2, (k, 2)), rng.normal([15.0, 15.0], 0.2,
+                                                                          (n - k, 2))])
+    return xy, np.full(n, 1.0 / n)
+
+
+@pytest.mark.parametrize(("bayes_factor", "conflict"), [(0.095, True), (0.105, False)])
+def test_default_bayes_factor_threshold(bayes_factor, conflict):
+    """A confident robot: a detection with a Bayes factor 5 % under the default 0.1
+    conflicts with it, one 5 % over does not (a transfer that keeps its mode)."""
+    xy, w = _mode_with_mass(0.9)
+    res = assess_detection(xy, w, np.ones(len(w)), bayes_factor, ConsistencyConfig())
+    assert res.confident and res.mode_mass_after == pytest.approx(0.9)
+    assert res.conflict is conflict
+
+
+@pytest.mark.parametrize(("mass", "confident"), [(0.58, False), (0.62, True)])
+def test_default_confident_mass(mass, confident):
+    """A main mode holding 0.58 of the weight is not confident (no conflict however
+    unlikely the detection), one holding 0.62 is (the default bound is 0.6)."""
+    xy, w = _mode_with_mass(mass)
+    res = assess_detection(xy, w, np.ones(len(w)), 1e-3, ConsistencyConfig())
+    assert res.mode_mass == pytest.approx(mass)
+    assert res.confident is confident and res.conflict is confident
+
+
+@pytest.mark.parametrize(("kept", "conflict"), [(0.47, True), (0.53, False)])
+def test_default_move_fraction(kept, conflict):
+    """A confident robot (0.9 of its weight in its mode) whose would-be transfer keeps
+    ``kept`` of that share in the mode: below half (the default) it is a conflict, above
+    not, whatever the Bayes factor (1 here)."""
+    xy, w = _mode_with_mass(0.9)
+    mode = np.arange(len(w)) < 900
+    # factor f outside the mode: after = 0.9 / (0.9 + 0.1 f) = kept * 0.9
+    f = (1.0 / kept - 0.9) / 0.1
+    res = assess_detection(xy, w, np.where(mode, 1.0, f), 1.0, ConsistencyConfig())
+    assert res.mode_mass_after == pytest.approx(0.9 * kept)
+    assert res.conflict is conflict
+
+
+def test_default_mode_radius():
+    """Particles 1.9 m from the main mode's centre belong to it, 2.1 m away not (the
+    default radius is 2 m)."""
+    xy = np.array([[5.0, 5.0]] * 900 + [[6.9, 5.0]] * 50 + [[7.1, 5.0]] * 50)
+    res = assess_detection(xy, np.full(1000, 1e-3), np.ones(1000), 1.0, ConsistencyConfig())
+    assert res.mode_mass == pytest.approx(0.95)
