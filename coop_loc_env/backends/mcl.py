@@ -41,7 +41,8 @@ in a known map built from the scenario's layout. Per env step and robot:
    hold most of its weight shares that weight between the mode and every copy that
    its remembered scans, weighed along its odometry, and the detections it received
    from teammates that know which copy they are on, do not reject, as that evidence
-   weighs them (:meth:`MCLBackend.keep_copies`). A
+   weighs them (:meth:`MCLBackend.keep_copies`, the passes that loop compiled in
+   :mod:`estimators.mcl.copy_keeper`). A
    filter with a bounded particle budget otherwise keeps whichever copies happened
    to hold particles when the scans stopped being ambiguous along whole corridors,
    and reports one of them sharply before the robot has seen what breaks the
