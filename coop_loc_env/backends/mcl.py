@@ -105,7 +105,7 @@ from estimators.mcl.batch import (
     weigh_batch,
 )
 from estimators.mcl.beam_table import BeamLUT, RangeTable
-from estimators.mcl.copy_keeper import filter_mode, mode_weight_below
+from estimators.mcl.copy_keeper import filter_mode, mode_weight_below, top_up_copies
 from estimators.mcl.copy_keeper import load_kernels as load_keeper_kernels
 from estimators.mcl.copy_weights import (
     TOP_MODE_HEADING_TOL,
@@ -114,6 +114,7 @@ from estimators.mcl.copy_weights import (
     set_group_masses,
     top_mode,
 )
+from estimators.mcl.copy_weights import load_kernels as load_top_mode_kernels
 from estimators.mcl.density_tree import load_kernels
 from estimators.mcl.detection_consistency import (
     ConsistencyConfig,
@@ -163,6 +164,7 @@ EVIDENCE_TURNS = np.linspace(-0.18, 0.18, 7)  # rad: headings searched around a 
 EVIDENCE_SHIFTS = (-0.3, 0.0, 0.3)  # m: and positions along x and y
 _EVIDENCE_GRID = np.array([(dx, dy, dth) for dth in EVIDENCE_TURNS for dx in EVIDENCE_SHIFTS
                            for dy in EVIDENCE_SHIFTS])
+_EVIDENCE_HEADINGS = np.column_stack([np.zeros((len(EVIDENCE_TURNS), 2)), EVIDENCE_TURNS])
 ADOPT_MASS = 0.9  # weight a robot whose scans cannot tell gives a claim its teammate's back
 SYMMETRY_OVERLAP = 0.75  # share of a map's walls a turn must map onto walls to be a symmetry
 KEEP_MASS = 0.005  # least weight each copy of a robot's pose its scans cannot reject keeps
@@ -234,6 +236,17 @@ def symmetry_check(cfg: ScenarioConfig) -> bool:
     al.'s filter alone, as the ``paper`` profile runs it; see :meth:`MCLBackend.keep_copies`)."""
     f = cfg.extras.get("mcl_symmetry_check", True)
     check_extra("mcl_symmetry_check", f)
+    return f
+
+
+def calibrated_copies(cfg: ScenarioConfig) -> bool:
+    """``extras["mcl_calibrated_copies"]``: the kept symmetric copies share the top mode's
+    weight as the evidence weighs them, so its weight is the chance that it is the right
+    copy (True; :meth:`MCLBackend._keep_shared_copies`), or each keeps a token
+    ``KEEP_MASS`` (False, the default: about a third of the step time on symmetric maps;
+    :meth:`MCLBackend._keep_token_copies`)."""
+    f = cfg.extras.get("mcl_calibrated_copies", False)
+    check_extra("mcl_calibrated_copies", f)
     return f
 
 
@@ -365,6 +378,8 @@ class MCLBackend(EstimatorBackend):
         self.symmetries = {t: map_symmetries(g, SYMMETRY_OVERLAP) for t, g in self._grids.items()
                            if symmetry_check(cfg) and (t == "sonar" or self._laser_beam)}
         self._keeps_history = self.check is not None or any(self.symmetries.values())
+        self.calibrated = calibrated_copies(cfg)
+        self._keep = self._keep_shared_copies if self.calibrated else self._keep_token_copies
         self.reset_fraction = detection_reset_fraction(cfg)
         self.resample_every_step = cfg.extras.get("mcl_random_every_step", False)
         check_extra("mcl_random_every_step", self.resample_every_step)
@@ -419,7 +434,8 @@ class MCLBackend(EstimatorBackend):
         self._kept_top: list[np.ndarray | None] = [None] * k  # top mode at the last check
         # nats by which evidence older than the window favours the top mode over its copies:
         # a start known up to noise is such evidence
-        self._prior = np.full(k, 0.0 if cfg.global_localization else EVIDENCE_NATS)
+        self._prior = np.full(k, EVIDENCE_NATS if self.calibrated and not
+                              cfg.global_localization else 0.0)
         self._transfers_in: list[list[tuple]] = [[] for _ in range(k)]
         self._t = 0
         self._conflicts = {}
@@ -433,8 +449,11 @@ class MCLBackend(EstimatorBackend):
             self._hist_n = self._hist_next = 0
         if cfg.cooperative_updates:  # the first detection would load them inside a step
             load_kernels()
-        if any(self.symmetries.values()):  # and the first step that keeps a copy
-            load_keeper_kernels()
+        for t, syms in self.symmetries.items():  # and the first step that keeps a copy
+            if syms:
+                load_keeper_kernels(self._grids[t])
+                if self.calibrated:
+                    load_top_mode_kernels()
         # build the shared range tables now, not inside the first step
         for i in range(k):
             if self._sonar[i]:
@@ -493,8 +512,8 @@ class MCLBackend(EstimatorBackend):
                 if res.applied:
                     stats["detections_applied"] += 1
                     self.transfers_applied[ib] += 1
-                    if self.symmetries and (self._certified[ia]
-                                            or self._turns(ia) != self._turns(ib)):
+                    if self.symmetries and (self._certified[ia] or (
+                            self.calibrated and self._turns(ia) != self._turns(ib))):
                         # evidence on the target's copies: an observer that knows which copy
                         # it is on tells the target's; one whose map has other symmetries
                         # tells which of the target's copies fit with some copy of its own
@@ -555,7 +574,62 @@ class MCLBackend(EstimatorBackend):
 
     def keep_copies(self, live: list[int]) -> None:
         """Keep the map's symmetric copies of each live robot's main mode alive while the
-        robot's own scans cannot reject them (:mod:`estimators.mcl.map_symmetry`).
+        robot's own scans cannot reject them (:mod:`estimators.mcl.map_symmetry`): each
+        with a token weight (:meth:`_keep_token_copies`, the default) or sharing the top
+        mode's weight as the evidence weighs them (:meth:`_keep_shared_copies`,
+        ``extras["mcl_calibrated_copies"]``)."""
+        self._keep(live)
+
+    def _keep_token_copies(self, live: list[int]) -> None:
+        """:meth:`keep_copies` with a token weight on each copy (the default).
+
+        A robot whose main mode holds ``KEEP_CHECK_MASS`` of its weight is checked every
+        ``KEEP_CHECK_EVERY`` steps (:meth:`_plausible_copies`); every copy the check found
+        plausible keeps ``KEEP_MASS`` of the weight at every step until the next check (the
+        main mode's cloud turned there, in place of the least likely particles:
+        :func:`~estimators.mcl.detection_consistency.widen`), so the reported belief is not
+        confident while the map cannot be told apart, and the copy takes over if the main
+        mode was the wrong one when the robot reaches a feature that breaks the symmetry
+        or a certified teammate detects it on the copy (:meth:`_picks_kept_copy`).
+        A robot whose evidence rejects every copy by ``EVIDENCE_NATS`` is certified and not
+        checked again until its main mode loses that weight or a detection conflicts with it.
+        """
+        if self._hist_n * self.cfg.dt < KEEP_MIN_HISTORY_S:
+            return
+        radius = (self.check or ConsistencyConfig()).mode_radius
+        for i in live:
+            syms = self.symmetries.get(self._kinds[i])
+            if not syms:
+                continue
+            # a spread-out belief's mode cannot hold KEEP_CHECK_MASS: a bound settles it
+            below = self._cached_mode(i, radius) is None and mode_weight_below(
+                self.filters[i].particle_set, radius, KEEP_CHECK_MASS)
+            if not below:
+                mode, mass = self._mode(i, radius)
+                below = mass < KEEP_CHECK_MASS
+            if below:
+                self._certified[i] = False
+                self._plausible[i] = None
+                continue
+            if self._certified[i]:
+                continue
+            pf = self.filters[i]
+            parts, w = pf.particles, pf.weights
+            cloud = parts[mode]
+            if self._plausible[i] is None or self._t % KEEP_CHECK_EVERY == 0:
+                self._plausible[i], _ = self._plausible_copies(i, cloud, w[mode], syms, radius)
+            if not self._plausible[i]:
+                continue
+            # each copy's particles turned from the main mode's and its weight topped up to
+            # KEEP_MASS (compiled; most copies still hold it from an earlier step)
+            parts, w, placed = top_up_copies(parts, w, cloud, self._plausible[i], KEEP_MASS,
+                                             radius, self.rng, pf.grid)
+            if placed:
+                pf.set_particles(parts, w)
+
+    def _keep_shared_copies(self, live: list[int]) -> None:
+        """:meth:`keep_copies` with the copies sharing the top mode's weight
+        (``extras["mcl_calibrated_copies"]``).
 
         A robot whose top mode (as ``belief_modes`` extracts it:
         :func:`~estimators.mcl.copy_weights.top_mode`) holds, with the particles near its
@@ -670,7 +744,7 @@ class MCLBackend(EstimatorBackend):
         it saw.
         """
         own = pose_estimate(cloud, weights, radius)
-        cands = own + _EVIDENCE_GRID
+        cands = own + (_EVIDENCE_GRID if self.calibrated else _EVIDENCE_HEADINGS)
         copies = [symmetric_copies(cands, s) for s in syms]
         pf = self.filters[i]
         table, lut, angles, _ = self.beam_model(i)
@@ -684,7 +758,7 @@ class MCLBackend(EstimatorBackend):
         best[0] += self._prior[i]
         gaps = best[0] - best[1:]
         self._certified[i] = bool((gaps >= EVIDENCE_NATS).all())
-        if self._certified[i]:
+        if self._certified[i] and self.calibrated:
             self._prior[i] = EVIDENCE_NATS
         kept = [j for j, gap in enumerate(gaps.tolist()) if gap < WEAK_NATS]
         return [syms[j] for j in kept], hypothesis_shares(best[[0, *(1 + j for j in kept)]])

@@ -1,8 +1,8 @@
-"""Compiled loops (numba, cached on disk) for the main mode of a particle set and a
-bound on the weight any disc of it holds.
+"""Compiled loops (numba, cached on disk) for the main mode of a particle set and the
+symmetric copies the MCL backend keeps of it.
 
 They return exactly what the numpy code of :mod:`estimators.mcl.detection_consistency`
-returns, or say that they cannot tell (``ok``
+and :mod:`estimators.mcl.map_symmetry` returns, or say that they cannot tell (``ok``
 False) and the caller runs that code: sums are formed in numpy's order where a result
 depends on their rounding (:func:`pairwise_sum`), and where numpy's order cannot be
 repeated (a sort, a BLAS dot) a decision is taken here only when it lies well clear of
@@ -11,10 +11,13 @@ what any order of rounding could change (``SAFE``).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
-__all__ = ["disc_weight_bound", "mode_mask", "pairwise_sum", "weighted_median"]
+__all__ = ["copy_masks", "disc_weight_bound", "lightest_outside", "mode_mask", "pairwise_sum",
+           "topped_up_weights", "turned_free", "uniform_centre", "weighted_median"]
 
 SAFE = 1e-9  # relative margin: far above the rounding of a few thousand float64 terms
 
@@ -211,6 +214,170 @@ def mode_mask(state: np.ndarray, ox: float, oy: float, w: np.ndarray, radius: fl
             inside[k] = w[i]
             k += 1
     return mask, pairwise_sum(inside), True
+
+
+@njit(cache=True)
+def turned_free(poses: np.ndarray, cx: float, cy: float, angle: float, c: float, s: float,
+                gx: float, gy: float, res: float, occupied: np.ndarray
+                ) -> np.ndarray:  # pragma: no cover (compiled)
+    """``symmetric_copies(poses, symmetry)`` restricted to the grid's free cells
+    (``grid.is_free``), bit for bit: ``c, s`` are the cosine and sine of ``angle``, ``gx,
+    gy`` the grid's origin and ``res`` its resolution."""
+    n = poses.shape[0]
+    ny, nx = occupied.shape
+    out = np.empty((n, 3))
+    two_pi = 2.0 * math.pi
+    below_pi = np.nextafter(math.pi, 0.0)
+    k = 0
+    for i in range(n):
+        dx = poses[i, 0] - cx
+        dy = poses[i, 1] - cy
+        px = cx + c * dx - s * dy
+        py = cy + s * dx + c * dy
+        ix = math.floor((px - gx) / res)
+        iy = math.floor((py - gy) / res)
+        if not (0 <= ix < nx and 0 <= iy < ny) or occupied[int(iy), int(ix)]:
+            continue
+        h = (poses[i, 2] + angle + math.pi) % two_pi - math.pi
+        out[k, 0] = px
+        out[k, 1] = py
+        out[k, 2] = min(h, below_pi)
+        k += 1
+    return out[:k]
+
+
+@njit(cache=True)
+def uniform_centre(claimed: np.ndarray, radius: float
+                   ) -> tuple[float, float, bool, bool]:  # pragma: no cover (compiled)
+    """The centre :func:`~estimators.mcl.detection_consistency.main_mode` finds for poses
+    ``claimed`` ``(M, 3)`` under equal weights: ``(cx, cy, exact, ok)``. ``exact``: the
+    centre is a coordinate median, bit for bit (equal weights make the sorted running
+    sum a function of ``M`` alone, repeated here); otherwise it is the mean up to
+    rounding (a mask drawn about it needs a margin). ``ok`` False: the choice between
+    mean and median lies within rounding of the threshold."""
+    m = claimed.shape[0]
+    u0 = 1.0 / m
+    full = np.full(m, u0)
+    u = u0 / pairwise_sum(full)
+    mx = 0.0
+    my = 0.0
+    for i in range(m):
+        mx += u * claimed[i, 0]
+        my += u * claimed[i, 1]
+    spread = 0.0
+    for i in range(m):
+        dx = claimed[i, 0] - mx
+        dy = claimed[i, 1] - my
+        spread += u * (dx * dx + dy * dy)
+    lim = (0.25 * radius) ** 2
+    if abs(spread - lim) <= SAFE * (lim + spread) + 1e-300 or spread != spread:
+        return 0.0, 0.0, False, False
+    if spread <= lim:
+        return mx, my, False, True
+    # numpy's cumsum of m equal weights, and the first entry reaching half the last
+    cum = np.empty(m)
+    c = 0.0
+    for j in range(m):
+        c = u if j == 0 else c + u
+        cum[j] = c
+    half = 0.5 * cum[m - 1]
+    j = 0
+    while j < m - 1 and cum[j] < half:
+        j += 1
+    xs = np.partition(claimed[:, 0].copy(), j)
+    ys = np.partition(claimed[:, 1].copy(), j)
+    return xs[j], ys[j], True, True
+
+
+@njit(cache=True)
+def copy_masks(x: np.ndarray, y: np.ndarray, wn: np.ndarray, claimed: np.ndarray,
+               cx: float, cy: float, exact: bool, radius: float
+               ) -> tuple[np.ndarray, np.ndarray, float, bool]:  # pragma: no cover
+    """``widen``'s masks about the centre ``cx, cy`` of the claimed poses: the particles
+    ``x, y`` within ``radius`` (``here``) and the claims within it (``near``), and
+    ``wn[here].sum()`` bit for bit; ``ok`` False when the centre is not ``exact`` and a
+    point lies within its rounding of the radius."""
+    r2 = radius * radius
+    margin = 0.0 if exact else SAFE * (r2 + 1.0)
+    n = x.size
+    here = np.zeros(n, dtype=np.bool_)
+    inside = np.empty(n)
+    k = 0
+    for i in range(n):
+        dx = x[i] - cx
+        dy = y[i] - cy
+        d2 = dx * dx + dy * dy
+        if margin > 0.0 and abs(d2 - r2) <= margin:
+            return here, here, 0.0, False
+        if d2 <= r2:
+            here[i] = True
+            inside[k] = wn[i]
+            k += 1
+    m = claimed.shape[0]
+    near = np.zeros(m, dtype=np.bool_)
+    for i in range(m):
+        dx = claimed[i, 0] - cx
+        dy = claimed[i, 1] - cy
+        d2 = dx * dx + dy * dy
+        if margin > 0.0 and abs(d2 - r2) <= margin:
+            return here, near, 0.0, False
+        near[i] = d2 <= r2
+    return here, near, _pairwise(inside, 0, k), True
+
+
+@njit(cache=True)
+def lightest_outside(wn: np.ndarray, here: np.ndarray, k: int
+                     ) -> np.ndarray:  # pragma: no cover (compiled)
+    """``outside[np.argsort(wn[outside], kind="stable")[:k]]`` for ``outside`` the indices
+    not ``here``: the ``k`` least weights outside, ties by index."""
+    slots = np.empty(k, dtype=np.intp)
+    vals = np.empty(k)
+    filled = 0
+    for i in range(wn.size):
+        if here[i]:
+            continue
+        v = wn[i]
+        if filled == k and v >= vals[k - 1]:
+            continue  # not lighter than the k-th (a tie keeps the earlier index)
+        j = filled if filled < k else k - 1
+        while j > 0 and vals[j - 1] > v:
+            vals[j] = vals[j - 1]
+            slots[j] = slots[j - 1]
+            j -= 1
+        vals[j] = v
+        slots[j] = i
+        if filled < k:
+            filled += 1
+    return slots[:filled]
+
+
+@njit(cache=True)
+def topped_up_weights(wn: np.ndarray, here: np.ndarray, slots: np.ndarray, mass: float,
+                      have: float) -> np.ndarray:  # pragma: no cover (compiled)
+    """``widen``'s new weights, bit for bit: the particles outside ``here`` and not in
+    ``slots`` scaled to ``1 - mass`` in all, each slot ``(mass - have) / k``, normalized."""
+    n = wn.size
+    keep = np.ones(n, dtype=np.bool_)
+    for i in range(n):
+        keep[i] = not here[i]
+    for s in slots:
+        keep[s] = False
+    rest_w = np.empty(n)
+    k = 0
+    for i in range(n):
+        if keep[i]:
+            rest_w[k] = wn[i]
+            k += 1
+    rest = _pairwise(rest_w, 0, k)
+    f = (1.0 - mass) / rest if rest > 0 else 0.0
+    out = wn.copy()
+    for i in range(n):
+        if keep[i]:
+            out[i] *= f
+    each = (mass - have) / slots.size
+    for s in slots:
+        out[s] = each
+    return out / pairwise_sum(out)
 
 
 @njit(cache=True)

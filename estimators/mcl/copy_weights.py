@@ -31,8 +31,8 @@ import numpy as np
 from estimators.geometry import wrap_angle
 from estimators.mcl.modes import particle_modes
 
-__all__ = ["TOP_MODE_HEADING_TOL", "hypothesis_shares", "near_pose", "set_group_masses",
-           "top_mode"]
+__all__ = ["TOP_MODE_HEADING_TOL", "hypothesis_shares", "load_kernels", "near_pose",
+           "set_group_masses", "top_mode"]
 
 TOP_MODE_HEADING_TOL = math.pi / 4  # rad: a mode's heading tolerance, as ``belief_modes``'
 TOP_MODE_SEARCH = 4  # modes extracted to find the heaviest (greedy seeds are cells, not modes)
@@ -129,3 +129,11 @@ def set_group_masses(
         if have > 0:
             new_w[inside] *= masses[h] * scale / have
     return parts, new_w / new_w.sum(), taken
+
+
+def load_kernels() -> None:
+    """Load :func:`top_mode`'s compiled loop now (from numba's disk cache, compiling it
+    the first time): otherwise the first step that weighs the copies pays it."""
+    w = np.full(2, 0.5)
+    particle_modes(np.zeros(6, dtype=np.float32), w, np.array([2], dtype=np.intp),
+                   np.zeros((1, 2)), 1, 1.0, 1.0, (0.0, 0.0, 1.0, 1.0))

@@ -1,6 +1,5 @@
 """The compiled passes of the symmetric-copy keeper give bit for bit what the numpy code
-they replace gives (main modes, scans scored along trajectories), and its bound settles
-only beliefs whose top mode and copies cannot hold the weight it checks for."""
+they replace gives (main modes, copies topped up, scans scored along trajectories)."""
 
 from __future__ import annotations
 
@@ -17,9 +16,8 @@ from estimators.mcl._keeper_kernels import (
     weighted_median,
 )
 from estimators.mcl.beam_table import BeamLUT, RangeTable
-from estimators.mcl.copy_keeper import filter_mode, mode_weight_below
-from estimators.mcl.copy_weights import TOP_MODE_HEADING_TOL, near_pose, top_mode
-from estimators.mcl.detection_consistency import main_mode, scan_loglik_along
+from estimators.mcl.copy_keeper import filter_mode, mode_weight_below, top_up_copies
+from estimators.mcl.detection_consistency import main_mode, scan_loglik_along, widen
 from estimators.mcl.map_symmetry import symmetric_copies
 
 TRUE = np.array([10.0, 1.25, 0.3])  # bottom corridor of the hallway ring
@@ -106,6 +104,18 @@ def _belief(rng: np.random.Generator, grid, spread: float, copies: dict) -> tupl
     return parts, w / w.sum()
 
 
+def _widen_each(parts, w, cloud, syms, mass, radius, rng, grid):
+    """The keeper's loop as numpy code: ``widen`` on each free turned copy in turn."""
+    placed = False
+    for sym in syms:
+        turned = symmetric_copies(cloud, sym)
+        turned = turned[grid.is_free(turned[:, :2])]
+        if len(turned):
+            parts, w, k = widen(parts, w, turned, mass, radius, rng)
+            placed = placed or k > 0
+    return parts, w, placed
+
+
 def test_filter_mode_is_main_mode_bit_for_bit(hallway):
     rng = np.random.default_rng(2)
     pf = hallway.filters[0]
@@ -141,39 +151,31 @@ def test_the_disc_bound_holds_and_settles_spread_beliefs(hallway):
     assert settled >= 10  # the widest beliefs are settled without their mode
 
 
-def test_the_bound_settles_only_beliefs_whose_mode_and_copies_hold_too_little(hallway):
-    """The keeper skips a belief when no disc holds ``KEEP_CHECK_MASS / (1 + copies)``:
-    then its top mode and turned copies together hold less than ``KEEP_CHECK_MASS``
-    (a belief split evenly over the copies holds it all, no disc more than a quarter)."""
-    from coop_loc_env.backends.mcl import KEEP_CHECK_MASS
-
-    pf = hallway.filters[0]
+def test_top_up_copies_is_widen_copy_by_copy(hallway):
+    grid = hallway.filters[0].grid
     syms = hallway.symmetries["sonar"]
-    share = KEEP_CHECK_MASS / (1 + len(syms))
-    bounds = (0.0, 0.0, *(float(v) for v in hallway.cfg.world_size))
-    rng = np.random.default_rng(6)
-    settled = held = 0
-    for t in range(80):
-        copies = {k: int(rng.choice([0, 40, 300])) for k in (1, 2, 3)}
-        parts, w = _belief(rng, pf.grid, (0.3, 1.0, 2.0, 6.0)[t % 4], copies)
-        if t % 4 == 0:  # spread over the whole ring (a global start)
-            parts[:, :2] = pf.grid.sample_free(len(parts), rng)
-        elif t % 4 == 1:  # a tight cloud split evenly over the mode and its copies
-            quarter = len(parts) // 4
-            cloud = TRUE + rng.normal(0.0, [0.3, 0.3, 0.1], (quarter, 3))
-            parts[:4 * quarter] = np.concatenate(
-                [cloud, *(symmetric_copies(cloud, s) for s in syms)])
-            w = np.full(len(parts), 1.0 / len(parts))
-        pf.set_particles(parts, w)
-        parts, w = pf.particles, pf.weights
-        top, _ = top_mode(parts, w, 2.0, TOP_MODE_HEADING_TOL, bounds)
-        group = sum(float(w[near_pose(parts, p, 2.0, TOP_MODE_HEADING_TOL)].sum())
-                    for p in [top, *(symmetric_copies(top, s) for s in syms)])
-        if mode_weight_below(pf.particle_set, 2.0, share):
-            settled += 1
-            assert group < KEEP_CHECK_MASS
-        held += group >= KEEP_CHECK_MASS
-    assert settled >= 10 and held >= 15  # both kinds of belief were drawn
+    rng = np.random.default_rng(3)
+    placed_any = held_any = 0
+    for t in range(60):
+        mass = (0.005, 0.05)[t % 2]
+        spread = (0.05, 0.4, 0.8)[t % 3]
+        # copies with many particles (holding their share), few, or none
+        copies = {k: int(rng.choice([0, 3, 40, 300])) for k in (1, 2, 3)}
+        parts, w = _belief(rng, grid, spread, copies)
+        _, mode = main_mode(parts[:, :2], w, 2.0)
+        cloud = parts[mode]
+        seed = int(rng.integers(2**32))
+        rng_a, rng_b = np.random.default_rng(seed), np.random.default_rng(seed)
+        got = top_up_copies(parts, w, cloud, syms, mass, 2.0, rng_a, grid)
+        want = _widen_each(parts, w, cloud, syms, mass, 2.0, rng_b, grid)
+        assert np.array_equal(got[0], want[0])
+        assert np.array_equal(got[1], want[1])
+        assert got[2] == want[2]
+        assert rng_a.bit_generator.state == rng_b.bit_generator.state
+        placed_any += got[2]
+        held_any += not got[2]
+    assert placed_any and held_any  # both paths were taken
+
 
 def _scan_loglik_along_numpy(table: RangeTable, lut: BeamLUT, origin, angles, poses, scans,
                              occupied_loglik):
