@@ -26,6 +26,11 @@ within 1 m and 0.3 rad of the true pose. Figures:
 
     python scripts/bench/mode_reliability.py --episodes 10 --seed 1000
     python scripts/bench/mode_reliability.py --scenario symmetric_hallway --json out.json
+    python scripts/bench/mode_reliability.py --set "extras={mcl_calibrated_copies: true}"
+
+``--set extras=...`` is set over the scenario's own extras (its MCL tuning), not in
+place of them, so one backend option can be switched alone (above: the kept symmetric
+copies share the top mode's weight, ``extras["mcl_calibrated_copies"]``).
 """
 
 from __future__ import annotations
@@ -234,6 +239,17 @@ def format_table(summary: dict) -> str:
     return "\n".join(lines)
 
 
+def with_scenario_extras(scenario: str, overrides: dict) -> dict:
+    """``overrides`` with its ``extras`` (if any) set over ``scenario``'s own extras."""
+    if "extras" not in overrides:
+        return overrides
+    extras = overrides["extras"]
+    if not isinstance(extras, dict):
+        raise ValueError(f"--set extras must be a mapping, got {extras!r}")
+    base = coop_loc_env.make_config(scenario).extras
+    return {**overrides, "extras": {**base, **extras}}
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenario", default="active_hallway")
@@ -242,14 +258,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=1000,
                         help="first seed; episode k is seeded seed + k (default 1000)")
     parser.add_argument("--set", dest="overrides", action="append", default=[],
-                        metavar="KEY=VALUE", help="config override, repeatable")
+                        metavar="KEY=VALUE",
+                        help="config override, repeatable (extras=... is set over the "
+                             "scenario's own extras)")
     parser.add_argument("--json", default=None, help="also write the figures (and episodes) here")
     parser.add_argument("--quiet", action="store_true", help="no line per episode")
     args = parser.parse_args(argv)
     try:
         if args.episodes < 1:
             raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
-        overrides = parse_overrides(args.overrides)
+        overrides = with_scenario_extras(args.scenario, parse_overrides(args.overrides))
         make_policy(args.policy)
         coop_loc_env.parallel_env(args.scenario, **overrides).close()
     except (ValueError, KeyError) as err:

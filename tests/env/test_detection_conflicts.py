@@ -15,7 +15,6 @@ import numpy as np
 import pytest
 
 import coop_loc_env
-from coop_loc_env.backends.mcl import EVIDENCE_NATS
 from coop_loc_env.profiles import with_profile
 from coop_loc_env.sensors import Detections
 
@@ -41,10 +40,6 @@ def _setup(strays: int, **overrides):
     p0[:strays] = _quarter_turn(TRUE_0) + rng.normal(0, [0.15, 0.15, 0.05], size=(strays, 3))
     f0.set_particles(p0)
     f1.set_particles(_quarter_turn(TRUE_1) + rng.normal(0, [0.15, 0.15, 0.05], size=(1000, 3)))
-    # both robots have ruled out the symmetric copies of their poses (robot 1 wrongly), as
-    # after passing the bay: their copies are not kept (MCLBackend.keep_copies)
-    backend._certified[:2] = True
-    backend._prior[:2] = EVIDENCE_NATS
     cfg = env.config
     cov = np.diag([cfg.detection_range_std, cfg.detection_bearing_std,
                    cfg.detection_orientation_std]) ** 2

@@ -16,6 +16,7 @@ import pytest
 
 import coop_loc_env
 from coop_loc_env.belief_map import BeliefModesBlock, TeamBeliefs
+from estimators.mcl.detection_consistency import main_mode
 from estimators.mcl.map_symmetry import MapSymmetry, map_symmetries, symmetric_copies
 from estimators.mcl.occupancy import OccupancyGrid
 
@@ -34,6 +35,11 @@ def _collapsed_on_the_copy(**extras):
     rng = np.random.default_rng(0)
     backend.filters[0].set_particles(HALF_TURN + rng.normal(0, [0.15, 0.15, 0.03], (1000, 3)))
     return env, backend
+
+
+def _calibrated() -> dict:
+    """The scenario's extras with the kept copies sharing the top mode's weight."""
+    return {**coop_loc_env.make_config("active_hallway").extras, "mcl_calibrated_copies": True}
 
 
 def _stand_still(env, steps: int) -> dict:
@@ -79,6 +85,25 @@ def test_bad_overlap_is_refused(bad):
 def test_a_lone_robot_on_an_indistinguishable_copy_is_not_confident():
     env, backend = _collapsed_on_the_copy()
     pf = backend.filters[0]
+    _stand_still(env, 2)  # 1 s: the history the check needs
+    kept = 0
+    for _ in range(16):
+        info = _stand_still(env, 1)
+        cov = np.asarray(info["pose_cov"])
+        assert info["position_error"] > 3.0  # still mostly on a wrong copy ...
+        assert math.sqrt(cov[0, 0] + cov[1, 1]) > 1.0  # ... but never confident about it
+        parts, w = pf.particles, pf.weights
+        _, mode = main_mode(parts[:, :2], w, 2.0)
+        if w[mode].sum() >= 0.8:  # while one copy dominates, the true one is kept
+            near_truth = np.hypot(*(parts[:, :2] - TRUE[:2]).T) < 1.0
+            assert w[near_truth].sum() >= 0.004
+            kept += 1
+    assert kept >= 4
+
+
+def test_with_calibrated_copies_the_indistinguishable_copies_share_the_weight():
+    env, backend = _collapsed_on_the_copy(mcl_calibrated_copies=True)
+    pf = backend.filters[0]
     block = BeliefModesBlock(env.config)
     _stand_still(env, 2)  # 1 s: the history the check needs
     for _ in range(16):
@@ -97,6 +122,23 @@ def test_a_lone_robot_on_an_indistinguishable_copy_is_not_confident():
         assert top <= 0.5
 
 
+def test_the_calibrated_copies_option_switches_the_keeper():
+    # the same start, the same scans: the token keeper leaves the top mode (the wrong copy)
+    # near 1, the calibrated one splits it with the true copy
+    tops = {}
+    for flag in (False, True):
+        env, _ = _collapsed_on_the_copy(mcl_calibrated_copies=flag)
+        block = BeliefModesBlock(env.config)
+        _stand_still(env, 6)
+        tops[flag] = block.modes(TeamBeliefs.from_env(env))[0, 0, 0]
+    assert tops[False] > 0.9 and tops[True] <= 0.5
+
+
+def test_calibrated_copies_flag_is_validated():
+    with pytest.raises(ValueError, match="mcl_calibrated_copies"):
+        coop_loc_env.make_config("active_hallway", extras={"mcl_calibrated_copies": "yes"})
+
+
 def test_without_the_check_the_copy_stays_confident():
     # Fox et al.'s filter alone (the paper profile's setting) keeps the wrong copy sharply
     env, _ = _collapsed_on_the_copy(mcl_symmetry_check=False)
@@ -111,14 +153,15 @@ def test_symmetry_check_flag_is_validated():
 
 
 def test_a_certified_robot_checked_again_keeps_what_it_saw():
-    # certified next to the bay, then 40 s along the ring: its last 30 s of scans no longer
-    # tell the copies apart. A conflicting detection (most are false positives) has it
-    # checked again; it must not split its weight over the copies it had ruled out.
+    # with the calibrated copies: certified next to the bay, then 40 s along the ring, its
+    # last 30 s of scans no longer tell the copies apart. A conflicting detection (most are
+    # false positives) has it checked again; it must not split its weight over the copies
+    # it had ruled out.
     from policies.scripted.corridor import CorridorPolicy
 
     start = (1.25, 10.0, math.pi / 2)  # the left corridor, beside the bay
     env = coop_loc_env.parallel_env("active_hallway", n_robots=1, cooperative_updates=False,
-                                     start_poses=(start,))
+                                     start_poses=(start,), extras=_calibrated())
     obs, _ = env.reset(seed=0)
     backend = env.backends[0]
     rng = np.random.default_rng(0)
@@ -140,10 +183,12 @@ def test_a_certified_robot_checked_again_keeps_what_it_saw():
 
 
 def test_a_robot_told_its_start_keeps_it_in_a_symmetric_map():
-    # without global localization the start (known up to noise) is evidence the scans of a
-    # symmetric corridor cannot outweigh: the copies of the pose get no share
+    # with the calibrated copies: without global localization the start (known up to
+    # noise) is evidence the scans of a symmetric corridor cannot outweigh: the copies of
+    # the pose get no share
     env = coop_loc_env.parallel_env("active_hallway", n_robots=1, cooperative_updates=False,
-                                    global_localization=False, start_poses=(tuple(TRUE),))
+                                    global_localization=False, start_poses=(tuple(TRUE),),
+                                    extras=_calibrated())
     env.reset(seed=0)
     block = BeliefModesBlock(env.config)
     for _ in range(12):

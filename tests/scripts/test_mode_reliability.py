@@ -75,8 +75,19 @@ def test_a_met_robot_holding_a_wrong_mode_at_0_9_is_counted_apart(bench):
     assert ep["lost"] == 0 and ep["localized"] == 1
 
 
+def test_set_extras_goes_over_the_scenario_extras(bench):
+    import coop_loc_env
+
+    base = coop_loc_env.make_config("active_hallway").extras
+    got = bench.with_scenario_extras("active_hallway", {"n_robots": 2,
+                                                        "extras": {"mcl_calibrated_copies": True}})
+    assert got == {"n_robots": 2, "extras": {**base, "mcl_calibrated_copies": True}}
+    assert bench.with_scenario_extras("active_hallway", {"n_robots": 2}) == {"n_robots": 2}
+
+
 @pytest.mark.parametrize("argv", [["--episodes", "0"], ["--scenario", "nowhere"],
-                                  ["--policy", "nonesuch"]])
+                                  ["--policy", "nonesuch"], ["--set", "extras=3"],
+                                  ["--set", "extras={mcl_calibrated_copies: 1}"]])
 def test_bad_arguments_are_refused_in_one_line(bench, capsys, argv):
     assert bench.main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
