@@ -37,12 +37,15 @@ in a known map built from the scenario's layout. Per env step and robot:
    hypothesis where the other claims they are (:meth:`MCLBackend._widen`).
 6. symmetric copies (``extras["mcl_symmetry_check"]``, on by default; beam models
    only): the turns under which a map looks the same are found once per grid
-   (:mod:`estimators.mcl.map_symmetry`); a robot whose top mode and its turned copies
-   hold most of its weight shares that weight between the mode and every copy that
-   its remembered scans, weighed along its odometry, and the detections it received
-   from teammates that know which copy they are on, do not reject, as that evidence
-   weighs them (:meth:`MCLBackend.keep_copies`, the passes that loop compiled in
-   :mod:`estimators.mcl.copy_keeper`). A
+   (:mod:`estimators.mcl.map_symmetry`); a robot whose main mode holds most of its
+   weight keeps ``KEEP_MASS`` on every turned copy of it that its remembered scans,
+   weighed along its odometry, and the detections it received from teammates that
+   know which copy they are on, do not reject (:meth:`MCLBackend.keep_copies`, its
+   per-step passes compiled in :mod:`estimators.mcl.copy_keeper`). With
+   ``extras["mcl_calibrated_copies"]`` (off by default: the hallway step costs about
+   three times as much) the top mode and those copies share the weight as that
+   evidence weighs them instead, so the top mode's weight is the chance that it is the
+   right copy (:mod:`estimators.mcl.copy_weights`). A
    filter with a bounded particle budget otherwise keeps whichever copies happened
    to hold particles when the scans stopped being ambiguous along whole corridors,
    and reports one of them sharply before the robot has seen what breaks the
@@ -242,8 +245,9 @@ def symmetry_check(cfg: ScenarioConfig) -> bool:
 def calibrated_copies(cfg: ScenarioConfig) -> bool:
     """``extras["mcl_calibrated_copies"]``: the kept symmetric copies share the top mode's
     weight as the evidence weighs them, so its weight is the chance that it is the right
-    copy (True; :meth:`MCLBackend._keep_shared_copies`), or each keeps a token
-    ``KEEP_MASS`` (False, the default: about a third of the step time on symmetric maps;
+    copy (True; :meth:`MCLBackend._keep_shared_copies`: the hallway step costs about
+    three times as much), or each keeps a token ``KEEP_MASS`` and the top mode reports
+    0.9-0.99 whichever copy it is on (False, the default;
     :meth:`MCLBackend._keep_token_copies`)."""
     f = cfg.extras.get("mcl_calibrated_copies", False)
     check_extra("mcl_calibrated_copies", f)
@@ -731,17 +735,18 @@ class MCLBackend(EstimatorBackend):
 
         The evidence: the robot's scans of the last ``KEEP_WINDOW_S`` weighed along its
         odometry back from its main mode's pose (a few headings around it,
-        ``EVIDENCE_TURNS``) and from each copy of those poses (the same trajectories
-        turned, so the two differ only where the map does), plus the detection transfers
-        it received from certified observers and from observers whose maps have other
-        symmetries (:meth:`_detection_loglik`: an observer that knows which copy it is on
-        tells the target's too; one whose map has other turns rules out the target's
+        ``EVIDENCE_TURNS``; with ``mcl_calibrated_copies`` also ``EVIDENCE_SHIFTS``) and
+        from each copy of those poses (the same trajectories turned, so the two differ
+        only where the map does), plus the detection transfers it received from certified
+        observers (and, with ``mcl_calibrated_copies``, from observers whose maps have
+        other symmetries; :meth:`_detection_loglik`: an observer that knows which copy it
+        is on tells the target's too; one whose map has other turns rules out the target's
         copies that fit none of its own; one that shares them and does not know its copy
-        is blind to the team's being turned as a whole). A robot once certified on its top
-        mode keeps ``EVIDENCE_NATS`` in its favour (evidence older than the window, kept
-        until the top mode jumps to another place or loses its weight): a detection that
-        conflicts with it (most are false positives) has it checked again, not forget what
-        it saw.
+        is blind to the team's being turned as a whole). With ``mcl_calibrated_copies`` a
+        robot once certified on its top mode keeps ``EVIDENCE_NATS`` in its favour
+        (evidence older than the window, kept until the top mode jumps to another place or
+        loses its weight): a detection that conflicts with it (most are false positives)
+        has it checked again, not forget what it saw.
         """
         own = pose_estimate(cloud, weights, radius)
         cands = own + (_EVIDENCE_GRID if self.calibrated else _EVIDENCE_HEADINGS)
