@@ -170,8 +170,8 @@ _EVIDENCE_GRID = np.array([(dx, dy, dth) for dth in EVIDENCE_TURNS for dx in EVI
 _EVIDENCE_HEADINGS = np.column_stack([np.zeros((len(EVIDENCE_TURNS), 2)), EVIDENCE_TURNS])
 ADOPT_MASS = 0.9  # weight a robot whose scans cannot tell gives a claim its teammate's back
 SYMMETRY_OVERLAP = 0.75  # share of a map's walls a turn must map onto walls to be a symmetry
-KEEP_MASS = 0.005  # least weight each copy of a robot's pose its scans cannot reject keeps
-KEEP_CHECK_MASS = 0.8  # a robot whose top mode and its copies hold this much weight is checked ...
+KEEP_MASS = 0.005  # weight each symmetric copy of a robot's pose its scans cannot reject keeps
+KEEP_CHECK_MASS = 0.8  # a robot whose main mode holds this much weight is checked ...
 KEEP_CHECK_EVERY = 4  # ... every this many steps, once it has this much history:
 KEEP_MIN_HISTORY_S = 1.0
 KEEP_WINDOW_S = 30.0  # s of history the check weighs (a longer backtrack drifts into walls)
@@ -544,7 +544,8 @@ class MCLBackend(EstimatorBackend):
 
     def _hypotheses(self, i: int) -> np.ndarray | None:
         """Mask of robot ``i``'s particles near its top mode and the copies of it that it
-        keeps (:meth:`keep_copies`), or None while it keeps none."""
+        keeps (:meth:`keep_copies`), or None while it keeps none (always None with the token
+        keeper, which sets no ``_kept_top``: the detection check then weighs the main mode)."""
         plausible, top = self._plausible[i], self._kept_top[i]
         if not plausible or top is None:
             return None
