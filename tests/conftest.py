@@ -110,6 +110,7 @@ SLOW_TESTS = frozenset({
     "test_sb3_adapter.py::test_two_processes_match_one_process",
     "test_sb3_batched.py::test_dict_observations_flatten_per_entry",
     "test_sb3_batched.py::test_training_on_the_batched_env_learns_the_model_the_copies_learn",
+    "test_symmetric_copies.py::test_a_certified_robot_checked_again_keeps_what_it_saw",
     "test_torchrl.py::test_torchrl_env_specs_and_rollout_on_every_scenario",
     "test_training.py::test_tiny_training_saves_a_model_that_evaluate_loads",
     "test_torchrl.py::test_wrapper_with_default_arguments_on_every_scenario",

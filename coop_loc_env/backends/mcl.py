@@ -41,7 +41,11 @@ in a known map built from the scenario's layout. Per env step and robot:
    weight keeps ``KEEP_MASS`` on every turned copy of it that its remembered scans,
    weighed along its odometry, and the detections it received from teammates that
    know which copy they are on, do not reject (:meth:`MCLBackend.keep_copies`, its
-   per-step passes compiled in :mod:`estimators.mcl.copy_keeper`). A
+   per-step passes compiled in :mod:`estimators.mcl.copy_keeper`). With
+   ``extras["mcl_calibrated_copies"]`` (off by default: the hallway step costs about
+   three times as much) the top mode and those copies share the weight as that
+   evidence weighs them instead, so the top mode's weight is the chance that it is the
+   right copy (:mod:`estimators.mcl.copy_weights`). A
    filter with a bounded particle budget otherwise keeps whichever copies happened
    to hold particles when the scans stopped being ambiguous along whole corridors,
    and reports one of them sharply before the robot has seen what breaks the
@@ -106,6 +110,14 @@ from estimators.mcl.batch import (
 from estimators.mcl.beam_table import BeamLUT, RangeTable
 from estimators.mcl.copy_keeper import filter_mode, mode_weight_below, top_up_copies
 from estimators.mcl.copy_keeper import load_kernels as load_keeper_kernels
+from estimators.mcl.copy_weights import (
+    TOP_MODE_HEADING_TOL,
+    hypothesis_shares,
+    near_pose,
+    set_group_masses,
+    top_mode,
+)
+from estimators.mcl.copy_weights import load_kernels as load_top_mode_kernels
 from estimators.mcl.density_tree import load_kernels
 from estimators.mcl.detection_consistency import (
     ConsistencyConfig,
@@ -155,6 +167,7 @@ EVIDENCE_TURNS = np.linspace(-0.18, 0.18, 7)  # rad: headings searched around a 
 EVIDENCE_SHIFTS = (-0.3, 0.0, 0.3)  # m: and positions along x and y
 _EVIDENCE_GRID = np.array([(dx, dy, dth) for dth in EVIDENCE_TURNS for dx in EVIDENCE_SHIFTS
                            for dy in EVIDENCE_SHIFTS])
+_EVIDENCE_HEADINGS = np.column_stack([np.zeros((len(EVIDENCE_TURNS), 2)), EVIDENCE_TURNS])
 ADOPT_MASS = 0.9  # weight a robot whose scans cannot tell gives a claim its teammate's back
 SYMMETRY_OVERLAP = 0.75  # share of a map's walls a turn must map onto walls to be a symmetry
 KEEP_MASS = 0.005  # weight each symmetric copy of a robot's pose its scans cannot reject keeps
@@ -226,6 +239,18 @@ def symmetry_check(cfg: ScenarioConfig) -> bool:
     al.'s filter alone, as the ``paper`` profile runs it; see :meth:`MCLBackend.keep_copies`)."""
     f = cfg.extras.get("mcl_symmetry_check", True)
     check_extra("mcl_symmetry_check", f)
+    return f
+
+
+def calibrated_copies(cfg: ScenarioConfig) -> bool:
+    """``extras["mcl_calibrated_copies"]``: the kept symmetric copies share the top mode's
+    weight as the evidence weighs them, so its weight is the chance that it is the right
+    copy (True; :meth:`MCLBackend._keep_shared_copies`: the hallway step costs about
+    three times as much), or each keeps a token ``KEEP_MASS`` and the top mode reports
+    0.9-0.99 whichever copy it is on (False, the default;
+    :meth:`MCLBackend._keep_token_copies`)."""
+    f = cfg.extras.get("mcl_calibrated_copies", False)
+    check_extra("mcl_calibrated_copies", f)
     return f
 
 
@@ -357,6 +382,8 @@ class MCLBackend(EstimatorBackend):
         self.symmetries = {t: map_symmetries(g, SYMMETRY_OVERLAP) for t, g in self._grids.items()
                            if symmetry_check(cfg) and (t == "sonar" or self._laser_beam)}
         self._keeps_history = self.check is not None or any(self.symmetries.values())
+        self.calibrated = calibrated_copies(cfg)
+        self._keep = self._keep_shared_copies if self.calibrated else self._keep_token_copies
         self.reset_fraction = detection_reset_fraction(cfg)
         self.resample_every_step = cfg.extras.get("mcl_random_every_step", False)
         check_extra("mcl_random_every_step", self.resample_every_step)
@@ -407,6 +434,12 @@ class MCLBackend(EstimatorBackend):
         self.detection_conflicts[:] = 0
         self._certified[:] = False
         self._plausible: list[list | None] = [None] * k
+        self._shares: list[np.ndarray | None] = [None] * k  # of the mode and kept copies
+        self._kept_top: list[np.ndarray | None] = [None] * k  # top mode at the last check
+        # nats by which evidence older than the window favours the top mode over its copies:
+        # a start known up to noise is such evidence
+        self._prior = np.full(k, EVIDENCE_NATS if self.calibrated and not
+                              cfg.global_localization else 0.0)
         self._transfers_in: list[list[tuple]] = [[] for _ in range(k)]
         self._t = 0
         self._conflicts = {}
@@ -423,6 +456,8 @@ class MCLBackend(EstimatorBackend):
         for t, syms in self.symmetries.items():  # and the first step that keeps a copy
             if syms:
                 load_keeper_kernels(self._grids[t])
+                if self.calibrated:
+                    load_top_mode_kernels()
         # build the shared range tables now, not inside the first step
         for i in range(k):
             if self._sonar[i]:
@@ -476,12 +511,19 @@ class MCLBackend(EstimatorBackend):
                 if self.reset_fraction > 0:
                     self._detection_reset(ib, rec, observer, target)
                 res = self.transfer.apply(rec, observer, target, self.rng,
-                                          check=not self._picks_kept_copy(ia, ib, rec))
+                                          check=not self._picks_kept_copy(ia, ib, rec),
+                                          hypotheses=self._hypotheses(ib))
                 if res.applied:
                     stats["detections_applied"] += 1
                     self.transfers_applied[ib] += 1
-                    if self.symmetries and self._certified[ia]:
-                        # an observer that knows which copy it is on tells the target's too
+                    if self.symmetries and (self._certified[ia] or (
+                            self.calibrated and self._turns(ia) != self._turns(ib))):
+                        # evidence on the target's copies: an observer that knows which copy
+                        # it is on tells the target's; one whose map has other symmetries
+                        # tells which of the target's copies fit with some copy of its own
+                        # (the product of a two- and a three-copy belief has one common
+                        # mode), while one that shares them cannot tell a team turned as a
+                        # whole from the truth
                         self._transfers_in[ib].append((self._t, res.tree,
                                                        rec.orientation is not None))
                 else:
@@ -494,6 +536,24 @@ class MCLBackend(EstimatorBackend):
         if self.symmetries:
             self.keep_copies(live)
         return stats
+
+    def _turns(self, i: int) -> tuple:
+        """The turns under which robot ``i``'s map looks the same (none without a beam
+        model: its copies are not kept)."""
+        return self.symmetries.get(self._kinds[i], ())
+
+    def _hypotheses(self, i: int) -> np.ndarray | None:
+        """Mask of robot ``i``'s particles near its top mode and the copies of it that it
+        keeps (:meth:`keep_copies`), or None while it keeps none (always None with the token
+        keeper, which sets no ``_kept_top``: the detection check then weighs the main mode)."""
+        plausible, top = self._plausible[i], self._kept_top[i]
+        if not plausible or top is None:
+            return None
+        radius = (self.check or ConsistencyConfig()).mode_radius
+        centres = np.array([top[:2], *(symmetric_copies(top, s)[:2] for s in plausible)])
+        xy = self.filters[i].particles[:, :2]
+        d2 = ((xy[:, None] - centres[None]) ** 2).sum(axis=2)
+        return d2.min(axis=1) <= radius * radius
 
     def _picks_kept_copy(self, ia: int, ib: int, rec: RobotDetection) -> bool:
         """Whether a certified observer ``ia`` puts an uncertified target ``ib`` on one of the
@@ -519,7 +579,14 @@ class MCLBackend(EstimatorBackend):
 
     def keep_copies(self, live: list[int]) -> None:
         """Keep the map's symmetric copies of each live robot's main mode alive while the
-        robot's own scans cannot reject them (:mod:`estimators.mcl.map_symmetry`).
+        robot's own scans cannot reject them (:mod:`estimators.mcl.map_symmetry`): each
+        with a token weight (:meth:`_keep_token_copies`, the default) or sharing the top
+        mode's weight as the evidence weighs them (:meth:`_keep_shared_copies`,
+        ``extras["mcl_calibrated_copies"]``)."""
+        self._keep(live)
+
+    def _keep_token_copies(self, live: list[int]) -> None:
+        """:meth:`keep_copies` with a token weight on each copy (the default).
 
         A robot whose main mode holds ``KEEP_CHECK_MASS`` of its weight is checked every
         ``KEEP_CHECK_EVERY`` steps (:meth:`_plausible_copies`); every copy the check found
@@ -555,7 +622,7 @@ class MCLBackend(EstimatorBackend):
             parts, w = pf.particles, pf.weights
             cloud = parts[mode]
             if self._plausible[i] is None or self._t % KEEP_CHECK_EVERY == 0:
-                self._plausible[i] = self._plausible_copies(i, cloud, w[mode], syms, radius)
+                self._plausible[i], _ = self._plausible_copies(i, cloud, w[mode], syms, radius)
             if not self._plausible[i]:
                 continue
             # each copy's particles turned from the main mode's and its weight topped up to
@@ -564,6 +631,74 @@ class MCLBackend(EstimatorBackend):
                                              radius, self.rng, pf.grid)
             if placed:
                 pf.set_particles(parts, w)
+
+    def _keep_shared_copies(self, live: list[int]) -> None:
+        """:meth:`keep_copies` with the copies sharing the top mode's weight
+        (``extras["mcl_calibrated_copies"]``).
+
+        A robot whose top mode (as ``belief_modes`` extracts it:
+        :func:`~estimators.mcl.copy_weights.top_mode`) holds, with the particles near its
+        turned copies, ``KEEP_CHECK_MASS`` of its weight is checked every
+        ``KEEP_CHECK_EVERY`` steps, and whenever its top mode jumps
+        (:meth:`_plausible_copies`); until the next check the mode and every copy the check
+        found plausible share that mass as the evidence weighs them, at least ``KEEP_MASS``
+        each (:func:`~estimators.mcl.copy_weights.set_group_masses`: the mode's cloud
+        turned onto a copy that holds too few particles), so the top mode's weight is the
+        chance that it is the right copy, and the copy takes over when the robot reaches a
+        feature that breaks the symmetry or a certified teammate detects it on the copy.
+        A robot whose evidence rejects every copy by ``EVIDENCE_NATS`` is certified and not
+        checked again until its main mode loses that weight or a detection conflicts with it.
+        """
+        if self._hist_n * self.cfg.dt < KEEP_MIN_HISTORY_S:
+            return
+        radius = (self.check or ConsistencyConfig()).mode_radius
+        bounds = (0.0, 0.0, *(float(v) for v in self.cfg.world_size))
+        for i in live:
+            syms = self.symmetries.get(self._kinds[i])
+            if not syms:
+                continue
+            pf = self.filters[i]
+            # a spread-out belief: no disc of the radius holds the share of KEEP_CHECK_MASS
+            # that the mode and its copies would need each, a bound settles it (compiled)
+            below = mode_weight_below(pf.particle_set, radius,
+                                      KEEP_CHECK_MASS / (1 + len(syms)))
+            if not below:
+                parts, w = pf.particles, pf.weights
+                top, _ = top_mode(parts, w, radius, TOP_MODE_HEADING_TOL, bounds)
+                mode = near_pose(parts, top, radius, TOP_MODE_HEADING_TOL)
+                group = float(w[mode].sum()) + sum(
+                    float(w[near_pose(parts, symmetric_copies(top, s), radius,
+                                      TOP_MODE_HEADING_TOL)].sum()) for s in syms)
+                below = group < KEEP_CHECK_MASS or not mode.any()
+            # a belief below the bound keeps no copies: its top mode is not needed (the
+            # next check is forced by the cleared copies, not by a jump of the mode)
+            last, self._kept_top[i] = self._kept_top[i], None if below else top
+            if below:
+                self._certified[i] = False
+                self._plausible[i] = None
+                self._prior[i] = 0.0
+                continue
+            if self._certified[i]:
+                continue
+            cloud = parts[mode]
+            jumped = last is not None and math.hypot(*(top[:2] - last[:2])) > radius
+            if jumped:
+                self._prior[i] = 0.0  # what it knew was about another copy
+            if self._plausible[i] is None or jumped or self._t % KEEP_CHECK_EVERY == 0:
+                self._plausible[i], self._shares[i] = self._plausible_copies(
+                    i, cloud, w[mode], syms, radius)
+            if not self._plausible[i]:
+                continue
+            centres, clouds = [top[:2]], [cloud]
+            for sym in self._plausible[i]:
+                turned = symmetric_copies(cloud, sym)
+                centres.append(symmetric_copies(top, sym)[:2])
+                clouds.append(turned[pf.grid.is_free(turned[:, :2])])
+            masses = np.maximum(self._shares[i] * group, KEEP_MASS)
+            masses[0] = max(group - masses[1:].sum(), KEEP_MASS)
+            parts, w, _ = set_group_masses(parts, w, np.array(centres), clouds, masses,
+                                           radius, self.rng)
+            pf.set_particles(parts, w)
 
     def _mode(self, i: int, radius: float) -> tuple[np.ndarray, float]:
         """Filter ``i``'s main mode (the mask of
@@ -592,21 +727,30 @@ class MCLBackend(EstimatorBackend):
         return None
 
     def _plausible_copies(self, i: int, cloud: np.ndarray, weights: np.ndarray,
-                          syms: tuple, radius: float) -> list:
+                          syms: tuple, radius: float) -> tuple[list, np.ndarray]:
         """The symmetries whose copy of robot ``i``'s main mode (particles ``cloud``) its
-        evidence does not reject by ``WEAK_NATS``; certifies the robot when it rejects every
-        copy by ``EVIDENCE_NATS``.
+        evidence does not reject by ``WEAK_NATS``, and the shares of the mode and those
+        copies in the posterior the evidence gives them
+        (:func:`~estimators.mcl.copy_weights.hypothesis_shares`); certifies the robot when
+        it rejects every copy by ``EVIDENCE_NATS``.
 
         The evidence: the robot's scans of the last ``KEEP_WINDOW_S`` weighed along its
         odometry back from its main mode's pose (a few headings around it,
-        ``EVIDENCE_TURNS``) and from each copy of those poses (the same trajectories
-        turned, so the two differ only where the map does), plus the detection transfers
-        it received from certified observers (:meth:`_detection_loglik`: an observer that
-        knows which copy it is on tells the target's too; one that does not is blind to
-        the team's being turned as a whole).
+        ``EVIDENCE_TURNS``; with ``mcl_calibrated_copies`` also ``EVIDENCE_SHIFTS``) and
+        from each copy of those poses (the same trajectories turned, so the two differ
+        only where the map does), plus the detection transfers it received from certified
+        observers (and, with ``mcl_calibrated_copies``, from observers whose maps have
+        other symmetries; :meth:`_detection_loglik`: an observer that knows which copy it
+        is on tells the target's too; one whose map has other turns rules out the target's
+        copies that fit none of its own; one that shares them and does not know its copy
+        is blind to the team's being turned as a whole). With ``mcl_calibrated_copies`` a
+        robot once certified on its top mode keeps ``EVIDENCE_NATS`` in its favour
+        (evidence older than the window, kept until the top mode jumps to another place or
+        loses its weight): a detection that conflicts with it (most are false positives)
+        has it checked again, not forget what it saw.
         """
         own = pose_estimate(cloud, weights, radius)
-        cands = own + np.column_stack([np.zeros((len(EVIDENCE_TURNS), 2)), EVIDENCE_TURNS])
+        cands = own + (_EVIDENCE_GRID if self.calibrated else _EVIDENCE_HEADINGS)
         copies = [symmetric_copies(cands, s) for s in syms]
         pf = self.filters[i]
         table, lut, angles, _ = self.beam_model(i)
@@ -616,9 +760,14 @@ class MCLBackend(EstimatorBackend):
         ll = scan_loglik_along(table, lut, pf.state_origin, angles, paths, scans[-h:],
                                pf.config.occupied_loglik)
         ll = (ll + self._detection_loglik(i, paths)).reshape(1 + len(syms), -1)
-        gaps = ll[0].max() - ll[1:].max(axis=1)
+        best = ll.max(axis=1)
+        best[0] += self._prior[i]
+        gaps = best[0] - best[1:]
         self._certified[i] = bool((gaps >= EVIDENCE_NATS).all())
-        return [s for s, gap in zip(syms, gaps.tolist(), strict=True) if gap < WEAK_NATS]
+        if self._certified[i] and self.calibrated:
+            self._prior[i] = EVIDENCE_NATS
+        kept = [j for j, gap in enumerate(gaps.tolist()) if gap < WEAK_NATS]
+        return [syms[j] for j in kept], hypothesis_shares(best[[0, *(1 + j for j in kept)]])
 
     def _record(self, live: list[int], deltas: np.ndarray, readings: Readings) -> None:
         """Remember each live robot's odometry motion and beam-model scan of this step (the
@@ -792,7 +941,8 @@ class MCLBackend(EstimatorBackend):
         has, and a target whose set collapsed onto a wrong mode of a symmetric
         map has none near the truth (sensor resetting, Lenser and Veloso 2000).
         With the consistency check on (:attr:`check`) an observer seeds only a target
-        whose spread is larger than its own and that has no main mode holding
+        whose spread is larger than its own and that has no main mode (or, while it keeps
+        symmetric copies, no mode and copies together: :meth:`_hypotheses`) holding
         ``confident_mass`` of its weight (a confident target that disagrees is a
         conflict, handled by :meth:`_widen`, never re-seeded).
         """
@@ -802,7 +952,9 @@ class MCLBackend(EstimatorBackend):
         if self.check is not None:
             if self.claim_std(ib) <= obs_std:
                 return
-            _, mass = self._mode(ib, self.check.mode_radius)
+            mode = self._hypotheses(ib)
+            mass = (float(target.weights[mode].sum()) if mode is not None
+                    else self._mode(ib, self.check.mode_radius)[1])
             if mass >= self.check.confident_mass:
                 return
         elif target.position_std() <= RESET_STD and not self._confirmed_conflict(

@@ -53,6 +53,7 @@ MCL_OPTIONS = BackendOptions(
                                          "in (0, 1]"),
         "mcl_detection_check": flag(),
         "mcl_symmetry_check": flag(),
+        "mcl_calibrated_copies": flag(),
         "mcl_global_init_factor": option(lambda v: is_int(v) and v >= 1, "an int >= 1"),
         "mcl_random_every_step": flag(),
     },

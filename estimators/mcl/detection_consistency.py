@@ -237,11 +237,23 @@ class DetectionAssessment:
 
 def assess_detection(
     target_xy: np.ndarray, target_weights: np.ndarray, factors: np.ndarray,
-    bayes_factor: float, config: ConsistencyConfig,
+    bayes_factor: float, config: ConsistencyConfig, hypotheses: np.ndarray | None = None,
 ) -> DetectionAssessment:
-    """Decide whether a transfer with weight ``factors`` conflicts with the detected robot."""
+    """Decide whether a transfer with weight ``factors`` conflicts with the detected robot.
+
+    ``hypotheses``: a mask of the target's particles that stand for where it may be
+    (its top mode and the symmetric copies of it that it keeps), used in place of its
+    main mode: a robot sure to be on one of a few copies of the map is confident about
+    that set, and a detection that picks one of them moves no mass out of it, while one
+    that puts it nowhere near any of them (a false positive) does.
+    """
     w = np.asarray(target_weights, dtype=float)
-    _, mode = main_mode(target_xy, w, config.mode_radius)
+    if hypotheses is None:
+        _, mode = main_mode(target_xy, w, config.mode_radius)
+    else:
+        mode = np.asarray(hypotheses, dtype=bool)
+        if mode.shape != w.shape:
+            raise ValueError(f"hypotheses must be a mask of shape {w.shape}, got {mode.shape}")
     mass = float(w[mode].sum())
     post = w * np.asarray(factors, dtype=float)
     total = float(post.sum())

@@ -388,13 +388,16 @@ class DetectionTransfer:
         target_pf: ParticleFilter,
         rng: np.random.Generator,
         check: bool = True,
+        hypotheses: np.ndarray | None = None,
     ) -> TransferResult:
         """Use one detection: reweight the target's particles (and the observer's if symmetric).
 
         Returns why it was ignored when a guard applies. The filters are not
         resampled here; their next resampling step picks the new weights up.
         ``check=False`` skips the consistency check (the caller knows the detection
-        picks a hypothesis the target holds, not one it has ruled out).
+        picks a hypothesis the target holds, not one it has ruled out); ``hypotheses``, a
+        mask of the target's particles, is the set the check weighs in place of its main
+        mode (:func:`~estimators.mcl.detection_consistency.assess_detection`).
         """
         if not getattr(det, "detected", True) or det.target is None:
             return TransferResult(False, "negative")
@@ -417,7 +420,7 @@ class DetectionTransfer:
         self.lockout.record(det.observer, det.target, observer_pf.odometer)
         if cfg.consistency is not None and check:
             check = assess_detection(target_pf.particles[:, :2], target_pf.weights, factors,
-                                     bayes, cfg.consistency)
+                                     bayes, cfg.consistency, hypotheses)
             if check.conflict:
                 return TransferResult(False, "conflict", posterior_fp, bayes_factor=bayes)
         target_pf.apply_weight_factors(factors)

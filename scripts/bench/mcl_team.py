@@ -20,6 +20,10 @@ contending for the core slows one copy's step, rarely all three (the
   with ``without_copies=True`` (``--without-copies``) also ``hallway_step_ms_no_copies``
   and ``hallway_ratio_no_copies``: the same env without its kept symmetric copies
   (``extras["mcl_symmetry_check"] = False``), stepped in alternating blocks with it;
+  with ``calibrated_copies=True`` (``--calibrated-copies``) also
+  ``hallway_step_ms_calibrated`` and ``hallway_ratio_calibrated``: the same env with
+  the kept copies sharing the weight (``extras["mcl_calibrated_copies"] = True``),
+  stepped in alternating blocks with it;
 * ``outdoor_mcl_extra_us_per_robot``: in ``outdoor_terrain`` with 4 robots,
   1000 particles and 30 laser beams, the CPU time per robot and step that
   ``estimator="mcl"`` adds over ``estimator="ekf"`` (fixed particle count; the two
@@ -137,7 +141,8 @@ def timed_steps(scenario: str, cases: dict[str, dict], steps: int, warmup: int =
 
 
 def bench_mcl_team(steps: int = 60, training: bool = True, timesteps: int = 4096,
-                   memory: bool = True, without_copies: bool = False) -> dict[str, float]:
+                   memory: bool = True, without_copies: bool = False,
+                   calibrated_copies: bool = False) -> dict[str, float]:
     """The figures listed in the module docstring."""
     out: dict[str, float] = {}
     cfg = coop_loc_env.make_config("symmetric_hallway")
@@ -145,6 +150,8 @@ def bench_mcl_team(steps: int = 60, training: bool = True, timesteps: int = 4096
     cases: dict[str, dict] = {"mcl": {}}
     if without_copies:
         cases["no_copies"] = {"extras": {**cfg.extras, "mcl_symmetry_check": False}}
+    if calibrated_copies:
+        cases["calibrated"] = {"extras": {**cfg.extras, "mcl_calibrated_copies": True}}
     hall = timed_steps("symmetric_hallway", cases, steps, gather_n=n_values,
                        tables=(SMALL_TABLE_ENTRIES, TABLE_ENTRIES))
     gather = hall[f"gather_us_{SMALL_TABLE_ENTRIES}"]
@@ -158,6 +165,9 @@ def bench_mcl_team(steps: int = 60, training: bool = True, timesteps: int = 4096
     if without_copies:
         out["hallway_step_ms_no_copies"] = hall["no_copies"]
         out["hallway_ratio_no_copies"] = hall["no_copies"] * 1e3 / gather
+    if calibrated_copies:
+        out["hallway_step_ms_calibrated"] = hall["calibrated"]
+        out["hallway_ratio_calibrated"] = hall["calibrated"] * 1e3 / gather
     outdoor = {"n_robots": 4, "n_particles": 1000, "laser_beams": 30, "start_region": None,
                "extras": {**coop_loc_env.make_config("outdoor_terrain").extras,
                           "mcl": {"adaptive": False}}}
@@ -266,13 +276,17 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--without-copies", action="store_true",
                         help="also time the hallway without its kept symmetric copies "
                              "(mcl_symmetry_check=False), in alternating blocks of steps")
+    parser.add_argument("--calibrated-copies", action="store_true",
+                        help="also time the hallway with the kept copies sharing the weight "
+                             "(mcl_calibrated_copies=True), in alternating blocks of steps")
     args = parser.parse_args(argv)
     if args.steps < 1 or args.timesteps < 1:
         print(f"error: --steps and --timesteps must be >= 1, got {args.steps}, "
               f"{args.timesteps}", file=sys.stderr)
         sys.exit(2)
     figures = bench_mcl_team(args.steps, not args.no_training, args.timesteps,
-                             not args.no_memory, args.without_copies)
+                             not args.no_memory, args.without_copies,
+                             args.calibrated_copies)
     for key, value in figures.items():
         print(f"{key:<50} {value:12.2f}")
 

@@ -47,6 +47,7 @@ class Case(NamedTuple):
     seed: int
     steps: int
     driver: str = "random"
+    extras: dict | None = None  # set over the scenario's own extras
 
 
 _WALL_START = ((1.0, 20.0, np.pi), (10.0, 8.0, 0.0), (20.0, 30.0, 0.5))
@@ -100,6 +101,9 @@ CASES: dict[str, Case] = {
     "plan_infogain_mcl": Case("active_hallway", {"n_particles": 300}, 27, 40, "policy:infogain"),
     "plan_infogain_ekf": Case("outdoor_terrain", {"n_robots": 4}, 28, 100, "policy:infogain"),
     "plan_fsm": Case("outdoor_terrain", {"n_robots": 6}, 39, 500, "policy:fsm"),
+    # the symmetric copies sharing the top mode's weight (an option, off by default)
+    "mcl_calibrated_copies": Case("active_hallway", {"n_particles": 300}, 42, 60,
+                                  extras={"mcl_calibrated_copies": True}),
 }
 
 
@@ -275,8 +279,8 @@ class Probe:
         return wrapped
 
     def _wrap_assess(self, assess: Callable) -> Callable:
-        def wrapped(target_xy, target_weights, factors, bayes_factor, config):
-            out = assess(target_xy, target_weights, factors, bayes_factor, config)
+        def wrapped(target_xy, target_weights, factors, bayes_factor, config, hypotheses=None):
+            out = assess(target_xy, target_weights, factors, bayes_factor, config, hypotheses)
             self._add("assessments", 1)
             if out.confident:
                 below = out.bayes_factor < config.min_bayes_factor
@@ -371,7 +375,11 @@ def rollout(case: Case) -> dict[str, np.ndarray]:
     """Run one case; arrays of shape ``(steps + 1, ...)`` (reset first)."""
     import coop_loc_env
 
-    env = coop_loc_env.parallel_env(case.scenario, **case.overrides)
+    overrides = case.overrides
+    if case.extras is not None:
+        extras = {**coop_loc_env.make_config(case.scenario).extras, **case.extras}
+        overrides = {**overrides, "extras": extras}
+    env = coop_loc_env.parallel_env(case.scenario, **overrides)
     obs, infos = env.reset(seed=case.seed)
     agents = list(env.possible_agents)
     probe = Probe(env)

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 import coop_loc_env
+from coop_loc_env.backends.mcl import EVIDENCE_NATS
 from coop_loc_env.profiles import with_profile
 from coop_loc_env.sensors import Detections
 
@@ -27,7 +28,10 @@ def _quarter_turn(pose: np.ndarray) -> np.ndarray:
     return np.array([20.0 - pose[1], pose[0], pose[2] + np.pi / 2])
 
 
-def _setup(strays: int, **overrides):
+def _setup(strays: int, calibrated: bool = False, **overrides):
+    if calibrated:  # the kept copies share the top mode's weight
+        overrides["extras"] = {**coop_loc_env.make_config("active_hallway").extras,
+                               "mcl_calibrated_copies": True}
     env = coop_loc_env.parallel_env("active_hallway", **overrides)
     env.reset(seed=0)
     env.step({a: np.zeros(2, dtype=np.float32) for a in env.agents})
@@ -40,6 +44,12 @@ def _setup(strays: int, **overrides):
     p0[:strays] = _quarter_turn(TRUE_0) + rng.normal(0, [0.15, 0.15, 0.05], size=(strays, 3))
     f0.set_particles(p0)
     f1.set_particles(_quarter_turn(TRUE_1) + rng.normal(0, [0.15, 0.15, 0.05], size=(1000, 3)))
+    if calibrated:
+        # both robots have ruled out the symmetric copies of their poses (robot 1 wrongly),
+        # as after passing the bay: the calibrated keeper keeps none of their copies, and
+        # the check weighs their main modes (with copies kept it weighs the set of them)
+        backend._certified[:2] = True
+        backend._prior[:2] = EVIDENCE_NATS
     cfg = env.config
     cov = np.diag([cfg.detection_range_std, cfg.detection_bearing_std,
                    cfg.detection_orientation_std]) ** 2
@@ -57,12 +67,13 @@ def _spread(backend) -> float:
     return float(backend.filters[0].particle_spread(TRUE_0))
 
 
+@pytest.mark.parametrize("calibrated", [False, True])
 @pytest.mark.parametrize("strays", [5, 0])
-def test_rotated_confident_observer_leaves_a_localized_robot_localized(strays):
+def test_rotated_confident_observer_leaves_a_localized_robot_localized(strays, calibrated):
     # With 5 stray particles one detection is enough for the plain transfer to follow
     # them; without strays, repeated detections (robot 1 driving on) confirm the conflict,
     # which used to re-seed robot 0 from robot 1's belief.
-    env, backend, quiet, seen = _setup(strays)
+    env, backend, quiet, seen = _setup(strays, calibrated)
     active = np.ones(env.config.n_robots, dtype=bool)
     assert _spread(backend) < 0.5 if strays == 0 else _spread(backend) < 1.5
     for _ in range(4):

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import coop_loc_env
-from coop_loc_env.backends.mcl import known_map
+from coop_loc_env.backends.mcl import EVIDENCE_NATS, known_map
 from coop_loc_env.sensors import Detections
 from estimators.geometry import relative_pose, wrap_angle
 from policies.experiments.fox import (
@@ -165,14 +165,22 @@ def _detection_step(env, observer: int, target: int, repeat: int = 1):
         backend.step(quiet, np.ones(env.config.n_robots, dtype=bool))
 
 
-def test_detection_from_a_localized_robot_localizes_a_lost_one():
-    env = coop_loc_env.parallel_env("symmetric_hallway", n_particles=500)
+@pytest.mark.parametrize("calibrated", [False, True])
+def test_detection_from_a_localized_robot_localizes_a_lost_one(calibrated):
+    extras = {**coop_loc_env.make_config("symmetric_hallway").extras,
+              "mcl_calibrated_copies": calibrated}
+    env = coop_loc_env.parallel_env("symmetric_hallway", n_particles=500, extras=extras)
     env.reset(seed=0)
     env.step({a: np.zeros(2, dtype=np.float32) for a in env.agents})
     backend = env.backends[0]
     backend.transfer.reset()
     poses = env.world.poses
     backend.filters[0].init_gaussian(poses[0], np.diag([0.05, 0.05, 0.01]))
+    if calibrated:
+        # robot 0 has ruled out the symmetric copies of its pose, as after passing the bay
+        # (the calibrated keeper would otherwise share its weight with them)
+        backend._certified[0] = True
+        backend._prior[0] = EVIDENCE_NATS
     target = backend.filters[1]
     before = target.particle_spread(poses[1])
     assert before > 3.0

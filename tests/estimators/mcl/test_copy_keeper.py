@@ -17,6 +17,7 @@ from estimators.mcl._keeper_kernels import (
 )
 from estimators.mcl.beam_table import BeamLUT, RangeTable
 from estimators.mcl.copy_keeper import filter_mode, mode_weight_below, top_up_copies
+from estimators.mcl.copy_weights import TOP_MODE_HEADING_TOL, near_pose, top_mode
 from estimators.mcl.detection_consistency import main_mode, scan_loglik_along, widen
 from estimators.mcl.map_symmetry import symmetric_copies
 
@@ -175,6 +176,42 @@ def test_top_up_copies_is_widen_copy_by_copy(hallway):
         placed_any += got[2]
         held_any += not got[2]
     assert placed_any and held_any  # both paths were taken
+
+
+def test_the_bound_settles_only_beliefs_whose_mode_and_copies_hold_too_little(hallway):
+    """The calibrated keeper (``mcl_calibrated_copies``) skips a belief when no disc holds
+    ``KEEP_CHECK_MASS / (1 + copies)``: then its top mode and turned copies together hold
+    less than ``KEEP_CHECK_MASS`` (a belief split evenly over the copies holds it all, no
+    disc more than a quarter)."""
+    from coop_loc_env.backends.mcl import KEEP_CHECK_MASS
+
+    pf = hallway.filters[0]
+    syms = hallway.symmetries["sonar"]
+    share = KEEP_CHECK_MASS / (1 + len(syms))
+    bounds = (0.0, 0.0, *(float(v) for v in hallway.cfg.world_size))
+    rng = np.random.default_rng(6)
+    settled = held = 0
+    for t in range(80):
+        copies = {k: int(rng.choice([0, 40, 300])) for k in (1, 2, 3)}
+        parts, w = _belief(rng, pf.grid, (0.3, 1.0, 2.0, 6.0)[t % 4], copies)
+        if t % 4 == 0:  # spread over the whole ring (a global start)
+            parts[:, :2] = pf.grid.sample_free(len(parts), rng)
+        elif t % 4 == 1:  # a tight cloud split evenly over the mode and its copies
+            quarter = len(parts) // 4
+            cloud = TRUE + rng.normal(0.0, [0.3, 0.3, 0.1], (quarter, 3))
+            parts[:4 * quarter] = np.concatenate(
+                [cloud, *(symmetric_copies(cloud, s) for s in syms)])
+            w = np.full(len(parts), 1.0 / len(parts))
+        pf.set_particles(parts, w)
+        parts, w = pf.particles, pf.weights
+        top, _ = top_mode(parts, w, 2.0, TOP_MODE_HEADING_TOL, bounds)
+        group = sum(float(w[near_pose(parts, p, 2.0, TOP_MODE_HEADING_TOL)].sum())
+                    for p in [top, *(symmetric_copies(top, s) for s in syms)])
+        if mode_weight_below(pf.particle_set, 2.0, share):
+            settled += 1
+            assert group < KEEP_CHECK_MASS
+        held += group >= KEEP_CHECK_MASS
+    assert settled >= 10 and held >= 15  # both kinds of belief were drawn
 
 
 def _scan_loglik_along_numpy(table: RangeTable, lut: BeamLUT, origin, angles, poses, scans,

@@ -249,6 +249,29 @@ def test_unchecked_transfer_moves_a_confident_robot_to_the_hypothesis_it_keeps()
     assert res.applied and kept_mass > 0.5
 
 
+def test_a_robot_split_between_symmetric_copies_is_confident_about_the_set():
+    # half its weight on each of two copies of its pose (a symmetric map it cannot tell)
+    rng = np.random.default_rng(3)
+    cfg = ConsistencyConfig()
+    xy = np.concatenate([_confident(rng, [5.0, 5.0], 500), _confident(rng, [15.0, 15.0], 500)])
+    w = np.full(1000, 1e-3)
+    both = np.ones(1000, dtype=bool)
+    first = np.arange(1000) < 500
+    # a detection that picks one copy keeps the mass inside the set: no conflict
+    picks = np.where(first, 50.0, 1e-3)
+    assert not assess_detection(xy, w, picks, 25.0, cfg, hypotheses=both).conflict
+    # one that puts it on neither (a false positive) is a conflict for the set ...
+    stray = xy.copy()
+    stray[:5] = [5.0, 15.0]
+    elsewhere = np.where(np.arange(1000) < 5, 1e3, 1e-5)
+    res = assess_detection(stray, w, elsewhere, 1e-3, cfg, hypotheses=both)
+    assert res.confident and res.conflict
+    # ... which the main mode alone (half the weight: not confident) would have let through
+    assert not assess_detection(stray, w, elsewhere, 1e-3, cfg).conflict
+    with pytest.raises(ValueError, match="hypotheses"):
+        assess_detection(xy, w, picks, 25.0, cfg, hypotheses=both[:10])
+
+
 def _mode_with_mass(mass: float, n: int = 1000) -> tuple[np.ndarray, np.ndarray]:
     """Particles of which ``mass`` of the weight sits in one tight cluster, the rest 10 m
     away: the main mode holds exactly ``mass``."""
