@@ -136,7 +136,7 @@ MUTATIONS: tuple[Mutation, ...] = (
       (MCL_TESTS + "test_detection_consistency.py::test_default_move_fraction",)),
     M("mcl_lf_sigma", "estimators/mcl/config.py",
       "lf_sigma: float = 0.2", "lf_sigma: float = 0.22",
-      (MCL_TESTS + "test_particle_filter.py",)),
+      (MCL_TESTS + "test_particle_filter.py", MCL_TESTS + "test_likelihood_field.py")),
     M("mcl_random_fraction", "estimators/mcl/config.py",
       "random_fraction: float = 0.03", "random_fraction: float = 0.033",
       (MCL_TESTS + "test_particle_filter.py::test_resampling_injects_three_percent_uniform_"
