@@ -160,6 +160,7 @@ class CoopLocTask(Task):
     """The shipped coop_loc_env scenarios as BenchMARL tasks (YAML in this package)."""
 
     ACTIVE_HALLWAY = None
+    ACTIVE_LATTICE = None
     CIRCUIT = None
     DGPS_OUTAGE = None
     DISPERSAL = None
