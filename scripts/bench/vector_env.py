@@ -97,10 +97,16 @@ def _torchrl(num_envs: int) -> Callable[[], int]:
     env = coop_loc_env.torchrl_env(num_envs=num_envs, seed=0, **SETTINGS)
     td = env.reset()
     td.set(("robot", "action"), torch.rand(num_envs, env.n_agents, 2) * 2 - 1)
+    return _stepping(env, td, num_envs)
+
+
+def _stepping(env, td, num_envs: int) -> Callable[[], int]:
+    """A step of a TorchRL env from ``td`` (done worlds reset), the action held fixed;
+    returns the env steps taken."""
     state = [td]
 
     def step() -> int:
-        out, state[0] = env.step_and_maybe_reset(state[0])
+        _, state[0] = env.step_and_maybe_reset(state[0])
         state[0].set(("robot", "action"), td.get(("robot", "action")))
         return num_envs
 
@@ -136,14 +142,7 @@ def _serial_torchrl(num_envs: int) -> Callable[[], int]:
     env = SerialEnv(num_envs, lambda: coop_loc_env.torchrl_env(seed=0, **SETTINGS))
     td = env.reset()
     td.set(("robot", "action"), torch.rand(*td["robot", "observation"].shape[:2], 2) * 2 - 1)
-    state = [td]
-
-    def step() -> int:
-        out, state[0] = env.step_and_maybe_reset(state[0])
-        state[0].set(("robot", "action"), td.get(("robot", "action")))
-        return num_envs
-
-    return step
+    return _stepping(env, td, num_envs)
 
 
 def trainer_figures(seconds: float, rounds: int, n_envs: int = 8) -> dict:
