@@ -100,21 +100,33 @@ def _surface(grid: OccupancyGrid) -> np.ndarray:
     return ~grid.occupied & near
 
 
-def _find(grid: OccupancyGrid, min_overlap: float) -> tuple[MapSymmetry, ...]:
+def _surface_points_and_target(grid: OccupancyGrid) -> tuple[np.ndarray, np.ndarray,
+                                                               np.ndarray]:
+    """The wall surface's cell centres (world frame), the target they are scored
+    against (the surface one cell thicker: a turned cell centre rarely lands on one)
+    and the surface itself."""
     surface = _surface(grid)
     iy, ix = np.nonzero(surface)
     points = grid.cell_to_world(np.column_stack([ix, iy]))
-    if len(points) == 0:
-        return ()
-    # the surface one cell thicker as the target: a turned cell centre rarely lands on one
     pad = np.pad(surface, 1)
     target = (pad[1:-1, 1:-1] | pad[:-2, 1:-1] | pad[2:, 1:-1] | pad[1:-1, :-2]
               | pad[1:-1, 2:]) & ~grid.occupied
+    return points, target, surface
+
+
+def _turn_fractions() -> list[float]:
+    """The turns of :data:`FOLDS` as fractions of a full turn, identity excluded."""
+    return sorted({k / n for n in FOLDS for k in range(1, n)})
+
+
+def _find(grid: OccupancyGrid, min_overlap: float) -> tuple[MapSymmetry, ...]:
+    points, target, surface = _surface_points_and_target(grid)
+    if len(points) == 0:
+        return ()
     iy, ix = np.nonzero(~grid.occupied)
     centroid = grid.cell_to_world(np.column_stack([ix, iy])).mean(axis=0)
-    steps = sorted({k / n for n in FOLDS for k in range(1, n)})
     found = []
-    for frac in steps:
+    for frac in _turn_fractions():
         angle = 2 * math.pi * frac
         centre, ov = _best_centre(points, (target, surface), grid, angle, centroid)
         if ov >= min_overlap:
@@ -158,17 +170,12 @@ def seed_symmetries(grid: OccupancyGrid, centre: tuple[float, float],
         raise ValueError(f"min_overlap must be in (0, 1], got {min_overlap}")
 
     def find() -> tuple[MapSymmetry, ...]:
-        surface = _surface(grid)
-        iy, ix = np.nonzero(surface)
-        points = grid.cell_to_world(np.column_stack([ix, iy]))
+        points, target, _ = _surface_points_and_target(grid)
         if len(points) == 0:
             return ()
-        pad = np.pad(surface, 1)
-        target = (pad[1:-1, 1:-1] | pad[:-2, 1:-1] | pad[2:, 1:-1] | pad[1:-1, :-2]
-                  | pad[1:-1, 2:]) & ~grid.occupied
         c = np.asarray(centre, dtype=float)
         found = []
-        for frac in sorted({k / n for n in FOLDS for k in range(1, n)}):
+        for frac in _turn_fractions():
             angle = 2 * math.pi * frac
             ov = _overlap(points, target, grid, angle, c)
             if ov >= min_overlap:
